@@ -1,0 +1,20 @@
+"""pytest-driveeval: driving-software evaluations as pytest scenarios."""
+from __future__ import annotations
+
+import pytest
+
+# Must precede the import below, or the helpers' asserts would not be rewritten.
+pytest.register_assert_rewrite("pytest_driveeval.assertions")
+
+from .assertions import assert_figure_within, assert_passed, assert_values_within  # noqa: E402
+from .errors import DataError, DriveEvalError, ModelError, ScenarioError  # noqa: E402
+from .outcome import FAILED, PASSED, Finding, Outcome  # noqa: E402
+from .scenario import Scenario, load_scenario  # noqa: E402
+from .usecase import Case, ConditionsModel, RunContext, UseCase, register_usecase  # noqa: E402
+
+__version__ = "0.1.0"
+__all__ = [
+    "Case", "ConditionsModel", "DataError", "DriveEvalError", "FAILED", "Finding", "ModelError", "Outcome",
+    "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_figure_within", "assert_passed",
+    "assert_values_within", "load_scenario", "register_usecase",
+]

@@ -1,0 +1,119 @@
+"""The fixtures scenario items request.  Override any of them in conftest.py.
+
+``driveeval_dataset``, ``driveeval_model`` and ``driveeval_pointclouds`` default
+to what the scenario's use case builds from the scenario; a conftest.py that
+defines a fixture of the same name replaces it for the items below it, which
+is how a team evaluates its own model or point-cloud filter.
+
+A plain Python test gets the same fixtures by naming a scenario:
+``@pytest.mark.driveeval_scenario("demo.scenario.yaml", dataset="name")``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+import pytest
+
+from .errors import DriveEvalError
+from .outcome import OUTCOME_ATTR, Outcome
+from .scenario import Scenario, load_scenario
+from .settings import get_settings, item_seed
+from .usecase import Case, RunContext
+
+
+def _binding(request: pytest.FixtureRequest) -> tuple[Scenario, Case]:
+    node = request.node
+    if getattr(node, "driveeval_case", None) is not None:
+        return node.driveeval_scenario, node.driveeval_case
+    mark = node.get_closest_marker("driveeval_scenario")
+    if mark is None or not mark.args:
+        pytest.fail(
+            f"{node.nodeid} uses a driveeval fixture but is not a scenario item; "
+            "mark it with @pytest.mark.driveeval_scenario('file.scenario.yaml', dataset=...)",
+            pytrace=False,
+        )
+    path = Path(str(node.path)).parent / mark.args[0]
+    scenario = load_scenario(path, data_root=get_settings(request.config).data_root)
+    cases = scenario.cases()
+    wanted = mark.kwargs.get("dataset")
+    chosen = [c for c in cases if wanted is None or (c.dataset is not None and c.dataset.name == wanted)]
+    if not chosen:
+        names = [c.dataset.name for c in cases if c.dataset is not None]
+        pytest.fail(f"{path}: no dataset named {wanted!r}; it has {names}", pytrace=False)
+    node.driveeval_scenario, node.driveeval_case = scenario, chosen[0]
+    return scenario, chosen[0]
+
+
+@pytest.fixture
+def driveeval_scenario(request: pytest.FixtureRequest) -> Scenario:
+    """The validated scenario this item evaluates."""
+    return _binding(request)[0]
+
+
+@pytest.fixture
+def driveeval_output_dir(request: pytest.FixtureRequest) -> Path:
+    """This item's own artefact folder under the output directory."""
+    path = get_settings(request.config).item_dir(request.node.nodeid)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@pytest.fixture
+def driveeval_seed(request: pytest.FixtureRequest) -> int:
+    """This item's seed: the same with or without xdist, whatever the order."""
+    return item_seed(get_settings(request.config).seed, request.node.nodeid)
+
+
+@pytest.fixture
+def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenario,
+                      driveeval_output_dir: Path, driveeval_seed: int) -> RunContext:
+    _, case = _binding(request)
+    return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
+                      output_dir=driveeval_output_dir, seed=driveeval_seed)
+
+
+@pytest.fixture
+def driveeval_dataset(driveeval_context: RunContext) -> Any:
+    """The dataset the scenario names, as its use case opens it."""
+    return driveeval_context.scenario.usecase.load_dataset(driveeval_context)
+
+
+@pytest.fixture
+def driveeval_model(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Any:
+    """The model (policy) under test: --driveeval-model if given, else the scenario's."""
+    spec = get_settings(request.config).model
+    return driveeval_context.scenario.usecase.load_model(driveeval_context, spec)
+
+
+@pytest.fixture
+def driveeval_pointclouds(driveeval_context: RunContext) -> Any:
+    """The point clouds under test, as the use case reads them from the dataset."""
+    return driveeval_context.scenario.usecase.load_pointclouds(driveeval_context)
+
+
+@pytest.fixture
+def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Callable[..., Outcome]:
+    """Run the scenario's evaluation with the current fixtures; return its Outcome.
+
+    The outcome is kept on the item so that it reaches the reports, also when
+    the evaluation stops on bad input after computing part of it.
+    """
+
+    def run(**overrides: Any) -> Outcome:
+        ctx = driveeval_context
+        usecase = ctx.scenario.usecase
+        for name in usecase.fixtures:
+            ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
+        try:
+            outcome = usecase.run(ctx.scenario.config, ctx)
+        except DriveEvalError as exc:
+            if isinstance(exc.outcome, Outcome):
+                setattr(request.node, OUTCOME_ATTR, exc.outcome)
+            raise
+        if outcome.scenario is None:
+            outcome.scenario = f"{ctx.scenario.name} [{ctx.case.name}]"
+        setattr(request.node, OUTCOME_ATTR, outcome)
+        return outcome
+
+    return run

@@ -1,0 +1,80 @@
+"""pytest hooks of pytest-driveeval.  Hooks only: the work is in the modules they call."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from .collect import InvalidScenarioItem, ScenarioFile, failure_message, is_scenario_file
+from .outcome import OUTCOME_ATTR
+from .results import REPORT_ATTR, SUMMARY_NAME, ResultsReporter
+from .settings import add_options, get_settings
+
+pytest_plugins = ["pytest_driveeval.fixtures"]
+
+def _is_worker(config: pytest.Config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    add_options(parser)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "driveeval_scenario(path, dataset=None): bind a Python test to a scenario file, "
+        "so it gets that scenario's driveeval_* fixtures",
+    )
+    get_settings(config)  # fail early on a bad option value
+    if not _is_worker(config):
+        config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionstart(session: pytest.Session) -> None:
+    # Only the controller clears what an earlier run left, before any worker starts.
+    if _is_worker(session.config):
+        return
+    out = get_settings(session.config).output_dir
+    shutil.rmtree(out / "items", ignore_errors=True)
+    (out / SUMMARY_NAME).unlink(missing_ok=True)
+
+
+def pytest_collect_file(file_path: Path, parent: pytest.Collector):
+    if is_scenario_file(file_path, get_settings(parent.config).patterns):
+        return ScenarioFile.from_parent(parent, path=file_path)
+    return None
+
+
+def _item_record(item: pytest.Item) -> dict | None:
+    scenario = getattr(item, "driveeval_scenario", None)
+    outcome = getattr(item, OUTCOME_ATTR, None)
+    if scenario is None and outcome is None and not isinstance(item, InvalidScenarioItem):
+        return None
+    root = item.config.rootpath
+    record: dict = {"file": Path(item.path).relative_to(root).as_posix() if Path(item.path).is_relative_to(root)
+                    else str(item.path)}
+    if scenario is not None:
+        case = getattr(item, "driveeval_case", None)
+        record.update(scenario=scenario.name, use_case=scenario.use_case,
+                      dataset=case.dataset.name if case is not None and case.dataset is not None else None)
+    if isinstance(item, InvalidScenarioItem):
+        record.update(scenario=None, use_case=None, message=str(item.error))
+    if outcome is not None:
+        record.update(outcome.to_json(relative_to=get_settings(item.config).output_dir))
+    return record
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call):
+    report = yield
+    record = _item_record(item)
+    if record is not None:
+        if call.excinfo is not None and report.failed:
+            # Built here from the exception, not from report.longrepr, which
+            # xdist prefixes with the worker's name.
+            record["message"] = failure_message(item, call.excinfo.value)
+        setattr(report, REPORT_ATTR, record)
+    return report

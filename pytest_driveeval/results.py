@@ -1,0 +1,133 @@
+"""Per-item records, gathered from test reports on the controller, and the
+session summary written from them.
+
+Workers never write the summary: each report carries its item's record as the
+``driveeval`` attribute (xdist serialises report attributes), and only the
+process that is not an xdist worker writes ``summary.json``, atomically.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from .outcome import format_figure
+
+SUMMARY_NAME = "summary.json"
+REPORT_ATTR = "driveeval"
+SCHEMA_VERSION = 1
+
+
+def pytest_status(report: pytest.TestReport) -> str | None:
+    """The item's final word as pytest counts it, from one phase's report."""
+    if report.when == "call":
+        if hasattr(report, "wasxfail"):
+            return "xfailed" if report.skipped else "xpassed"
+        return report.outcome
+    if report.failed:
+        return "error"
+    if report.skipped:
+        return "xfailed" if hasattr(report, "wasxfail") else "skipped"
+    return None
+
+
+class ResultCollector:
+    def __init__(self) -> None:
+        self.records: dict[str, dict[str, Any]] = {}
+        self.started = time.time()
+
+    def add(self, report: pytest.TestReport) -> None:
+        payload = getattr(report, REPORT_ATTR, None)
+        if not payload:
+            return
+        record = self.records.setdefault(report.nodeid, {"nodeid": report.nodeid, "duration": 0.0})
+        record.update(payload)
+        record["duration"] = round(record["duration"] + report.duration, 6)
+        status = pytest_status(report)
+        # An error in teardown does not hide a failure in call.
+        if status is not None and record.get("status") in (None, "passed"):
+            record["status"] = status
+        if status == "skipped" and isinstance(report.longrepr, tuple):
+            record["message"] = str(report.longrepr[2]).removeprefix("Skipped: ")
+        if hasattr(report, "wasxfail") and report.wasxfail:
+            record.setdefault("message", report.wasxfail)
+
+    def sorted_records(self) -> list[dict[str, Any]]:
+        return [self.records[k] for k in sorted(self.records)]
+
+    def counts(self) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        for record in self.records.values():
+            counts[record.get("status", "unknown")] = counts.get(record.get("status", "unknown"), 0) + 1
+        return dict(sorted(counts.items()))
+
+    def summary(self, exitstatus: int, seed: int) -> dict[str, Any]:
+        return {
+            "schema": SCHEMA_VERSION,
+            "seed": seed,
+            "exit_status": int(exitstatus),
+            "counts": self.counts(),
+            "duration": round(time.time() - self.started, 3),
+            "results": self.sorted_records(),
+        }
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            json.dump(data, handle, indent=2, sort_keys=False, allow_nan=False)
+            handle.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
+    figures = record.get("figures") or {}
+    return ", ".join(f"{k}={format_figure(v)}" for k, v in list(figures.items())[:limit])
+
+
+def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
+    rows = [(r.get("status", "?"), r["nodeid"], _key_figures(r) or (r.get("summary") or "")) for r in records]
+    id_width = max(len("scenario"), *(len(r[1]) for r in rows))
+    lines = [f"{'verdict':<8}  {'scenario':<{id_width}}  key figures"]
+    for status, nodeid, figures in rows:
+        line = f"{status:<8}  {nodeid:<{id_width}}  {figures}".rstrip()
+        lines.append(line if len(line) <= width else line[: width - 3] + "...")
+    return lines
+
+
+class ResultsReporter:
+    """Controller-side plugin: gathers records, writes the summary, prints the table."""
+
+    def __init__(self, config: pytest.Config) -> None:
+        from .settings import get_settings
+
+        self.settings = get_settings(config)
+        self.collector = ResultCollector()
+
+    def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
+        self.collector.add(report)
+
+    def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
+        if self.collector.records:
+            summary = self.collector.summary(exitstatus, self.settings.seed)
+            write_json_atomic(self.settings.output_dir / SUMMARY_NAME, summary)
+
+    def pytest_terminal_summary(self, terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+        records = self.collector.sorted_records()
+        if not records:
+            return
+        tr = terminalreporter
+        tr.write_sep("-", f"driveeval: {len(records)} scenario item(s)")
+        for line in terminal_table(records, tr._tw.fullwidth):
+            tr.write_line(line)
+        tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME}")

@@ -1,0 +1,206 @@
+"""Scenario files: driving_log_replayer's envelope, validated, with source lines.
+
+The envelope is driving_log_replayer's (``ScenarioFormatVersion``,
+``ScenarioName``, ``Evaluation: {UseCaseName, UseCaseFormatVersion, Datasets,
+...}``) so their files load unchanged.  Harness keys in the same style
+(``Marks``, ``Skip``, ``XFail``) carry pytest marks.  The use case named by
+``UseCaseName`` validates the rest of ``Evaluation`` with its own model.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .errors import Problem, ScenarioError
+from .usecase import Case, UseCase, get_usecase, known_usecases
+from .validation import did_you_mean, problems_from_validation
+from .yamlsource import SourceMap, load_yaml_with_lines
+
+SUPPORTED_SCENARIO_FORMATS = ("2", "3")  # major versions of ScenarioFormatVersion
+COMMON_EVALUATION_KEYS = ("UseCaseName", "UseCaseFormatVersion", "Datasets")
+
+
+class _Forbid(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class XFailSpec(_Forbid):
+    Reason: str
+    Strict: bool = False
+
+
+class DatasetOptions(BaseModel):
+    # driving_log_replayer puts launch options here (VehicleId, LaunchSensing, ...);
+    # we keep whatever is given and read only what we know.
+    model_config = ConfigDict(extra="allow")
+    path: str | None = Field(None, alias="Path")
+    VehicleId: str | None = None
+    LocalMapPath: str | None = None
+
+
+class EvaluationHead(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    UseCaseName: str
+    UseCaseFormatVersion: str
+    Datasets: list[dict[str, DatasetOptions | None]] = []
+
+
+class Envelope(_Forbid):
+    ScenarioFormatVersion: str
+    ScenarioName: str
+    ScenarioDescription: str = ""
+    SensorModel: str | None = None
+    VehicleModel: str | None = None
+    VehicleId: str | None = None
+    LocalMapPath: str | None = None
+    Marks: list[str] = []
+    Skip: str | None = None
+    XFail: str | XFailSpec | None = None
+    Evaluation: EvaluationHead
+
+
+@dataclass(frozen=True)
+class DatasetRef:
+    name: str
+    path: Path
+    options: dict[str, Any]
+    line: int | None
+
+
+@dataclass
+class Scenario:
+    path: Path
+    name: str
+    description: str
+    use_case: str
+    format_version: str
+    datasets: list[DatasetRef]
+    config: Any
+    raw: dict
+    source: SourceMap
+    marks: list[str] = field(default_factory=list)
+    skip: str | None = None
+    xfail: XFailSpec | None = None
+
+    @property
+    def folder(self) -> Path:
+        return self.path.parent
+
+    def line_of(self, *keypath: Any) -> int | None:
+        return self.source.line_of(keypath)
+
+    def resolve(self, relative: str | os.PathLike) -> Path:
+        """A path written in the scenario, relative to the scenario's folder."""
+        return (self.folder / os.path.expandvars(os.path.expanduser(str(relative)))).resolve()
+
+    @property
+    def usecase(self) -> UseCase:
+        found = get_usecase(self.use_case)
+        assert found is not None  # checked at load time
+        return found
+
+    def cases(self) -> list[Case]:
+        return self.usecase.cases(self)
+
+
+def _dataset_refs(head: EvaluationHead, path: Path, source: SourceMap, data_root: Path | None) -> list[DatasetRef]:
+    refs: list[DatasetRef] = []
+    problems: list[Problem] = []
+    for index, entry in enumerate(head.Datasets):
+        keypath = ("Evaluation", "Datasets", index)
+        if len(entry) != 1:
+            problems.append(Problem(
+                f"each dataset entry is a mapping with one key, the dataset's name; found {len(entry)} keys",
+                source.line_of(keypath), keypath))
+            continue
+        (name, options), = entry.items()
+        options = options or DatasetOptions()
+        if any(ref.name == name for ref in refs):
+            problems.append(Problem(f"dataset '{name}' is listed twice", source.line_of(keypath), keypath))
+            continue
+        if options.path:
+            resolved = path.parent / os.path.expandvars(os.path.expanduser(options.path))
+        elif data_root is not None:
+            resolved = data_root / name
+        else:
+            resolved = path.parent / name
+        refs.append(DatasetRef(str(name), resolved.resolve(), options.model_dump(by_alias=True),
+                               source.line_of(keypath)))
+    if problems:
+        raise ScenarioError(path, problems)
+    return refs
+
+
+def _check_versions(env: Envelope, usecase: UseCase | None, path: Path, source: SourceMap) -> None:
+    problems = []
+    major = env.ScenarioFormatVersion.split(".")[0]
+    if major not in SUPPORTED_SCENARIO_FORMATS:
+        keypath = ("ScenarioFormatVersion",)
+        supported = ", ".join(f"{m}.x" for m in SUPPORTED_SCENARIO_FORMATS)
+        problems.append(Problem(
+            f"unsupported version '{env.ScenarioFormatVersion}'; supported: {supported}",
+            source.line_of(keypath), keypath))
+    name = env.Evaluation.UseCaseName
+    if usecase is None:
+        keypath = ("Evaluation", "UseCaseName")
+        problems.append(Problem(
+            f"unknown use case '{name}'; {did_you_mean(name, known_usecases())}",
+            source.line_of(keypath), keypath))
+    elif env.Evaluation.UseCaseFormatVersion not in usecase.format_versions:
+        keypath = ("Evaluation", "UseCaseFormatVersion")
+        problems.append(Problem(
+            f"unsupported version '{env.Evaluation.UseCaseFormatVersion}' of use case '{name}'; "
+            f"supported: {', '.join(usecase.format_versions)}",
+            source.line_of(keypath), keypath))
+    if problems:
+        raise ScenarioError(path, problems)
+
+
+def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None = None) -> Scenario:
+    """Load and validate a scenario file; raise ScenarioError with every located problem."""
+    path = Path(path).resolve()
+    data, source = load_yaml_with_lines(path)
+    if not isinstance(data, dict):
+        found = "an empty file" if data is None else f"a {type(data).__name__}"
+        raise ScenarioError(path, [Problem(f"expected a mapping at the top level; found {found}", 1)])
+    try:
+        env = Envelope.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(path, problems_from_validation(exc, Envelope, data, source)) from None
+
+    usecase = get_usecase(env.Evaluation.UseCaseName)
+    _check_versions(env, usecase, path, source)
+    assert usecase is not None
+    evaluation = data["Evaluation"]
+    own_part = {k: v for k, v in evaluation.items() if k not in COMMON_EVALUATION_KEYS}
+    try:
+        config = usecase.config_model.model_validate(
+            own_part,
+            context={"version": env.Evaluation.UseCaseFormatVersion, "scenario_dir": path.parent},
+        )
+    except ValidationError as exc:
+        problems = problems_from_validation(exc, usecase.config_model, own_part, source, prefix=("Evaluation",))
+        raise ScenarioError(path, problems) from None
+
+    root = Path(data_root).resolve() if data_root else None
+    xfail = env.XFail
+    if isinstance(xfail, str):
+        xfail = XFailSpec(Reason=xfail)
+    return Scenario(
+        path=path,
+        name=env.ScenarioName,
+        description=env.ScenarioDescription,
+        use_case=env.Evaluation.UseCaseName,
+        format_version=env.Evaluation.UseCaseFormatVersion,
+        datasets=_dataset_refs(env.Evaluation, path, source, root),
+        config=config,
+        raw=data,
+        source=source,
+        marks=list(env.Marks),
+        skip=env.Skip,
+        xfail=xfail,
+    )

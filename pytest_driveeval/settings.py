@@ -1,0 +1,95 @@
+"""Command-line options and their ini / environment equivalents."""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario.yaml", "scenario.yml"]
+DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
+
+
+@dataclass(frozen=True)
+class Settings:
+    output_dir: Path
+    data_root: Path | None
+    model: str | None
+    seed: int
+    patterns: tuple[str, ...]
+
+    def item_dir(self, nodeid: str) -> Path:
+        return self.output_dir / "items" / safe_name(nodeid)
+
+
+def safe_name(nodeid: str) -> str:
+    """A readable folder name for a node id (``a/b.yaml::c[d]`` -> ``a_b.yaml__c_d``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", nodeid).strip("_") or "item"
+
+
+def item_seed(base_seed: int, nodeid: str) -> int:
+    """A seed per item that is the same in every process: derived from the node id,
+    never from collection order or Python's salted ``hash``."""
+    digest = hashlib.sha256(f"{base_seed}:{nodeid}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+def add_options(parser: pytest.Parser) -> None:
+    group = parser.getgroup("driveeval", "driving-software evaluation (pytest-driveeval)")
+    group.addoption("--driveeval-output", metavar="DIR", default=None,
+                    help="where results and artefacts go (ini: driveeval_output; default: driveeval-results)")
+    group.addoption("--driveeval-data-root", metavar="DIR", default=None,
+                    help=f"folder holding the datasets scenarios name (ini: driveeval_data_root; env: {DATA_ROOT_ENV})")
+    group.addoption("--driveeval-model", metavar="SPEC", default=None,
+                    help="evaluate this model in every scenario instead of the scenario's own: a TorchScript file, "
+                         "'weights.pt=module:factory', or 'module:factory' (ini: driveeval_model)")
+    group.addoption("--driveeval-seed", metavar="N", type=int, default=None,
+                    help="base seed; every item derives its own from it and its id (ini: driveeval_seed; default 0)")
+    parser.addini("driveeval_output", "where results and artefacts go", default="driveeval-results")
+    parser.addini("driveeval_data_root", "folder holding the datasets scenarios name", default="")
+    parser.addini("driveeval_model", "model evaluated instead of each scenario's own", default="")
+    parser.addini("driveeval_seed", "base seed", default="0")
+    parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
+                  default=DEFAULT_PATTERNS)
+
+
+def settings_from_config(config: pytest.Config) -> Settings:
+    invocation = Path(config.invocation_params.dir)
+    ini_base = Path(config.inipath).parent if config.inipath else config.rootpath
+
+    def pick(option: str, ini: str, env: str | None = None) -> tuple[str | None, Path]:
+        value = config.getoption(option)
+        if value not in (None, ""):
+            return str(value), invocation
+        if env and os.environ.get(env):
+            return os.environ[env], invocation
+        value = config.getini(ini)
+        return (str(value) if value not in (None, "") else None), ini_base
+
+    output, base = pick("driveeval_output", "driveeval_output")
+    data_root, data_base = pick("driveeval_data_root", "driveeval_data_root", DATA_ROOT_ENV)
+    model, _ = pick("driveeval_model", "driveeval_model")
+    seed, _ = pick("driveeval_seed", "driveeval_seed")
+    try:
+        seed_value = int(seed or 0)
+    except ValueError:
+        raise pytest.UsageError(f"driveeval seed must be an integer, got {seed!r}") from None
+    return Settings(
+        output_dir=(base / (output or "driveeval-results")).resolve(),
+        data_root=(data_base / data_root).resolve() if data_root else None,
+        model=model,
+        seed=seed_value,
+        patterns=tuple(config.getini("driveeval_patterns") or DEFAULT_PATTERNS),
+    )
+
+
+SETTINGS_KEY = pytest.StashKey[Settings]()
+
+
+def get_settings(config: pytest.Config) -> Settings:
+    if SETTINGS_KEY not in config.stash:
+        config.stash[SETTINGS_KEY] = settings_from_config(config)
+    return config.stash[SETTINGS_KEY]

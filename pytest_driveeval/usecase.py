@@ -1,0 +1,142 @@
+"""Use cases and their registry.
+
+A use case names itself (``UseCaseName`` in a scenario), declares the
+``UseCaseFormatVersion`` values it reads, a pydantic model for its part of the
+``Evaluation`` mapping, the fixtures its ``run`` needs, and how to build the
+default dataset / model / point clouds when a ``conftest.py`` does not override
+them.  Other packages add use cases through the ``pytest_driveeval.usecases``
+entry-point group.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from pydantic import BaseModel, ConfigDict
+
+from .errors import DataError, ModelError
+
+if TYPE_CHECKING:
+    from .outcome import Outcome
+    from .scenario import DatasetRef, Scenario
+
+ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
+
+# Built-in use cases live in modules that import heavy libraries; they are
+# imported only when a scenario names them.
+_BUILTIN: dict[str, str] = {}
+
+
+class ConditionsModel(BaseModel):
+    """Base for use-case models: unknown keys are errors, so typos are caught."""
+
+    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+
+
+@dataclass
+class Case:
+    """One collected item of a scenario: usually one dataset."""
+
+    name: str
+    dataset: "DatasetRef | None" = None
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+class UseCase:
+    name: ClassVar[str] = ""
+    format_versions: ClassVar[tuple[str, ...]] = ("0.1.0",)
+    config_model: ClassVar[type[BaseModel]] = ConditionsModel
+    #: fixtures ``run`` receives in ``ctx.fixtures`` (overridable in conftest.py)
+    fixtures: ClassVar[tuple[str, ...]] = ()
+
+    def cases(self, scenario: "Scenario") -> list[Case]:
+        if not scenario.datasets:
+            return [Case(self.name)]
+        return [Case(f"{self.name}[{ref.name}]", ref) for ref in scenario.datasets]
+
+    # Defaults behind the driveeval_* fixtures.  A use case that needs one of
+    # them implements it; a user can always override the fixture instead.
+    def load_dataset(self, ctx: "RunContext") -> Any:
+        ref = ctx.dataset
+        if ref is None:
+            raise DataError(f"scenario {ctx.scenario.path} names no dataset (Evaluation.Datasets)")
+        if not ref.path.exists():
+            raise DataError(
+                f"dataset '{ref.name}' not found at {ref.path} "
+                f"(scenario {ctx.scenario.path}:{ref.line}; set --driveeval-data-root or "
+                "DRIVEEVAL_DATA_ROOT, or give the dataset a Path)"
+            )
+        return ref.path
+
+    def load_model(self, ctx: "RunContext", spec: str | None) -> Any:
+        raise ModelError(
+            f"use case '{self.name}' has no default model; "
+            "override the driveeval_model fixture in conftest.py or pass --driveeval-model"
+        )
+
+    def load_pointclouds(self, ctx: "RunContext") -> Any:
+        raise DataError(
+            f"use case '{self.name}' reads no point clouds; override driveeval_pointclouds in conftest.py"
+        )
+
+    def run(self, config: Any, ctx: "RunContext") -> "Outcome":
+        raise NotImplementedError
+
+
+@dataclass
+class RunContext:
+    """What a use case's ``run`` gets besides its config."""
+
+    scenario: "Scenario"
+    dataset: "DatasetRef | None"
+    case: Case
+    output_dir: Path
+    seed: int
+    fixtures: dict[str, Any] = field(default_factory=dict)
+
+    def artefact(self, filename: str) -> Path:
+        self.output_dir.mkdir(parents=True, exist_ok=True)
+        return self.output_dir / filename
+
+
+_registry: dict[str, UseCase] = {}
+_entry_points_loaded = False
+
+
+def register_usecase(usecase: type[UseCase] | UseCase, name: str | None = None) -> type[UseCase] | UseCase:
+    """Register a use case (class or instance).  Usable as a class decorator."""
+    instance = usecase() if isinstance(usecase, type) else usecase
+    key = name or instance.name
+    if not key:
+        raise ValueError(f"{usecase!r} has no name")
+    _registry[key] = instance
+    return usecase
+
+
+def register_builtin(name: str, module: str) -> None:
+    _BUILTIN[name] = module
+
+
+def _load_entry_points() -> None:
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name not in _registry:
+            register_usecase(ep.load(), ep.name)
+
+
+def get_usecase(name: str) -> UseCase | None:
+    if name not in _registry and name in _BUILTIN:
+        __import__(_BUILTIN[name])
+    if name not in _registry:
+        _load_entry_points()
+    return _registry.get(name)
+
+
+def known_usecases() -> list[str]:
+    _load_entry_points()
+    return sorted(set(_registry) | set(_BUILTIN))
