@@ -107,11 +107,6 @@ class ScenarioItem(pytest.Function):
         line = self.driveeval_scenario.line_of("Evaluation") or 1
         return self.path, line - 1, f"{self.driveeval_scenario.name} [{self.name}]"
 
-    def repr_failure(self, excinfo, style=None):
-        if isinstance(excinfo.value, DriveEvalError):
-            return render_failure(self.driveeval_scenario, self.name, excinfo.value)
-        return super().repr_failure(excinfo, style=style)
-
 
 class InvalidScenarioItem(pytest.Item):
     """Stands for a file that does not load: it fails with the located problems,
@@ -123,11 +118,6 @@ class InvalidScenarioItem(pytest.Item):
 
     def runtest(self) -> None:
         raise self.error
-
-    def repr_failure(self, excinfo, style=None):
-        if isinstance(excinfo.value, ScenarioError):
-            return str(excinfo.value)
-        return super().repr_failure(excinfo, style=style)
 
     def reportinfo(self):
         return self.path, (self.error.line or 1) - 1, "invalid scenario"

@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from .collect import InvalidScenarioItem, ScenarioFile, failure_message, is_scenario_file
+from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR
 from .results import REPORT_ATTR, SUMMARY_NAME, ResultsReporter
 from .settings import add_options, get_settings
@@ -70,11 +71,16 @@ def _item_record(item: pytest.Item) -> dict | None:
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(item: pytest.Item, call):
     report = yield
+    error = call.excinfo.value if call.excinfo is not None and report.failed else None
+    if isinstance(error, DriveEvalError):
+        # Bad input, in any phase (a fixture that cannot open a dataset fails
+        # in setup, where repr_failure is not asked): the message, no traceback.
+        report.longrepr = failure_message(item, error)
     record = _item_record(item)
     if record is not None:
-        if call.excinfo is not None and report.failed:
-            # Built here from the exception, not from report.longrepr, which
-            # xdist prefixes with the worker's name.
-            record["message"] = failure_message(item, call.excinfo.value)
+        if error is not None:
+            # Built from the exception, not from report.longrepr, which xdist
+            # prefixes with the worker's name.
+            record["message"] = failure_message(item, error)
         setattr(report, REPORT_ATTR, record)
     return report

@@ -135,29 +135,29 @@ def _dataset_refs(head: EvaluationHead, path: Path, source: SourceMap, data_root
     return refs
 
 
-def _check_versions(env: Envelope, usecase: UseCase | None, path: Path, source: SourceMap) -> None:
+def _version_problems(data: dict, usecase: UseCase | None, source: SourceMap) -> list[Problem]:
     problems = []
-    major = env.ScenarioFormatVersion.split(".")[0]
-    if major not in SUPPORTED_SCENARIO_FORMATS:
+    version = data.get("ScenarioFormatVersion")
+    if isinstance(version, str) and version.split(".")[0] not in SUPPORTED_SCENARIO_FORMATS:
         keypath = ("ScenarioFormatVersion",)
         supported = ", ".join(f"{m}.x" for m in SUPPORTED_SCENARIO_FORMATS)
-        problems.append(Problem(
-            f"unsupported version '{env.ScenarioFormatVersion}'; supported: {supported}",
-            source.line_of(keypath), keypath))
-    name = env.Evaluation.UseCaseName
-    if usecase is None:
+        problems.append(Problem(f"unsupported version '{version}'; supported: {supported}",
+                                source.line_of(keypath), keypath))
+    evaluation = data.get("Evaluation")
+    if not isinstance(evaluation, dict):
+        return problems
+    name = evaluation.get("UseCaseName")
+    use_version = evaluation.get("UseCaseFormatVersion")
+    if isinstance(name, str) and usecase is None:
         keypath = ("Evaluation", "UseCaseName")
-        problems.append(Problem(
-            f"unknown use case '{name}'; {did_you_mean(name, known_usecases())}",
-            source.line_of(keypath), keypath))
-    elif env.Evaluation.UseCaseFormatVersion not in usecase.format_versions:
+        problems.append(Problem(f"unknown use case '{name}'; {did_you_mean(name, known_usecases())}",
+                                source.line_of(keypath), keypath))
+    elif usecase is not None and isinstance(use_version, str) and use_version not in usecase.format_versions:
         keypath = ("Evaluation", "UseCaseFormatVersion")
         problems.append(Problem(
-            f"unsupported version '{env.Evaluation.UseCaseFormatVersion}' of use case '{name}'; "
-            f"supported: {', '.join(usecase.format_versions)}",
-            source.line_of(keypath), keypath))
-    if problems:
-        raise ScenarioError(path, problems)
+            f"unsupported version '{use_version}' of use case '{name}'; "
+            f"supported: {', '.join(usecase.format_versions)}", source.line_of(keypath), keypath))
+    return problems
 
 
 def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None = None) -> Scenario:
@@ -167,24 +167,28 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"
         raise ScenarioError(path, [Problem(f"expected a mapping at the top level; found {found}", 1)])
+    # Envelope and use-case part are checked together, so one run lists every problem.
+    problems: list[Problem] = []
+    env = None
     try:
         env = Envelope.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError(path, problems_from_validation(exc, Envelope, data, source)) from None
-
-    usecase = get_usecase(env.Evaluation.UseCaseName)
-    _check_versions(env, usecase, path, source)
-    assert usecase is not None
-    evaluation = data["Evaluation"]
-    own_part = {k: v for k, v in evaluation.items() if k not in COMMON_EVALUATION_KEYS}
-    try:
-        config = usecase.config_model.model_validate(
-            own_part,
-            context={"version": env.Evaluation.UseCaseFormatVersion, "scenario_dir": path.parent},
-        )
-    except ValidationError as exc:
-        problems = problems_from_validation(exc, usecase.config_model, own_part, source, prefix=("Evaluation",))
-        raise ScenarioError(path, problems) from None
+        problems += problems_from_validation(exc, Envelope, data, source)
+    evaluation = data.get("Evaluation") if isinstance(data.get("Evaluation"), dict) else {}
+    name = evaluation.get("UseCaseName")
+    usecase = get_usecase(name) if isinstance(name, str) else None
+    problems += _version_problems(data, usecase, source)
+    config = None
+    if usecase is not None:
+        own_part = {k: v for k, v in evaluation.items() if k not in COMMON_EVALUATION_KEYS}
+        try:
+            config = usecase.config_model.model_validate(
+                own_part, context={"version": evaluation.get("UseCaseFormatVersion"), "scenario_dir": path.parent})
+        except ValidationError as exc:
+            problems += problems_from_validation(exc, usecase.config_model, own_part, source, prefix=("Evaluation",))
+    if problems:
+        raise ScenarioError(path, sorted(problems, key=lambda p: p.line or 0))
+    assert env is not None and usecase is not None
 
     root = Path(data_root).resolve() if data_root else None
     xfail = env.XFail

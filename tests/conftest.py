@@ -22,3 +22,41 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real sample data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+EXAMPLE_USECASE = REPO_ROOT / "examples" / "custom_usecase" / "speed_limit.py"
+
+SPEED_SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+ScenarioDescription: speeds under the limit
+{extra}Evaluation:
+  UseCaseName: speed_limit
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+{datasets}
+  Conditions:
+    MaxSpeed: {max_speed}
+"""
+
+
+def speed_scenario(name="urban", datasets=("slow.csv",), max_speed=14.0, extra="") -> str:
+    lines = "\n".join(f"    - {d}: {{}}" for d in datasets) if datasets else "    []"
+    return SPEED_SCENARIO.format(name=name, datasets=lines, max_speed=max_speed, extra=extra)
+
+
+def write_trajectory(path: Path, speed: float, frames: int = 30) -> None:
+    t = [0.1 * i for i in range(frames)]
+    path.write_text("t,x,y\n" + "".join(f"{ti},{speed * ti},0\n" for ti in t))
+
+
+@pytest.fixture
+def project(pytester):
+    """A pytester folder where the example speed_limit use case is registered
+    and two trajectories exist: slow.csv (10 m/s) and fast.csv (20 m/s)."""
+    pytester.path.joinpath("speed_limit.py").write_text(EXAMPLE_USECASE.read_text())
+    pytester.makeconftest("import speed_limit\n")
+    pytester.makeini("[pytest]\nmarkers =\n    smoke: quick scenarios\n")
+    write_trajectory(pytester.path / "slow.csv", 10.0)
+    write_trajectory(pytester.path / "fast.csv", 20.0)
+    return pytester

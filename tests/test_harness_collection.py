@@ -1,0 +1,85 @@
+"""Scenario files become items: patterns, ids, order, marks."""
+from __future__ import annotations
+
+from conftest import speed_scenario
+
+
+def collected_ids(result) -> list[str]:
+    return [line for line in result.outlines if "::" in line]
+
+
+def test_every_default_file_pattern_is_collected(project):
+    project.makefile(".scenario.yaml", a=speed_scenario("a"))
+    project.makefile(".scenario.yml", b=speed_scenario("b"))
+    (project.path / "sub").mkdir()
+    (project.path / "sub" / "scenario.yaml").write_text(speed_scenario("c", datasets=("../slow.csv",)))
+    (project.path / "other").mkdir()
+    (project.path / "other" / "scenario.yml").write_text(speed_scenario("d", datasets=("../slow.csv",)))
+    project.makefile(".yaml", not_a_scenario=speed_scenario("e"))
+    result = project.runpytest("--collect-only", "-q")
+    assert collected_ids(result) == [
+        "a.scenario.yaml::speed_limit[slow.csv]",
+        "b.scenario.yml::speed_limit[slow.csv]",
+        "other/scenario.yml::speed_limit[../slow.csv]",
+        "sub/scenario.yaml::speed_limit[../slow.csv]",
+    ]
+
+
+def test_ini_option_changes_the_patterns(project):
+    project.makeini("[pytest]\ndriveeval_patterns = *.case.yaml\n")
+    project.makefile(".case.yaml", mine=speed_scenario("mine"))
+    project.makefile(".scenario.yaml", ignored=speed_scenario("ignored"))
+    result = project.runpytest("--collect-only", "-q")
+    assert collected_ids(result) == ["mine.case.yaml::speed_limit[slow.csv]"]
+
+
+def test_one_item_per_dataset_in_file_order_and_deterministic(project):
+    project.makefile(".scenario.yaml", multi=speed_scenario("m", datasets=("slow.csv", "fast.csv")))
+    first = collected_ids(project.runpytest("--collect-only", "-q"))
+    second = collected_ids(project.runpytest("--collect-only", "-q"))
+    assert first == second == [
+        "multi.scenario.yaml::speed_limit[slow.csv]",
+        "multi.scenario.yaml::speed_limit[fast.csv]",
+    ]
+
+
+def test_scenario_without_datasets_gives_one_item_named_by_use_case(project):
+    project.makefile(".scenario.yaml", nodata=speed_scenario("n", datasets=()))
+    assert collected_ids(project.runpytest("--collect-only", "-q")) == ["nodata.scenario.yaml::speed_limit"]
+
+
+def test_marks_from_yaml_select_with_m(project):
+    project.makefile(".scenario.yaml", quick=speed_scenario("quick", extra="Marks: [smoke]\n"))
+    project.makefile(".scenario.yaml", longer=speed_scenario("longer"))
+    result = project.runpytest("-m", "smoke", "-q")
+    result.assert_outcomes(passed=1, deselected=1)
+    result = project.runpytest("-m", "not smoke", "-q")
+    result.assert_outcomes(passed=1, deselected=1)
+
+
+def test_k_matches_scenario_name_dataset_and_use_case(project):
+    project.makefile(".scenario.yaml", one=speed_scenario("highway-merge", datasets=("slow.csv", "fast.csv"),
+                                                          max_speed=30))
+    project.makefile(".scenario.yaml", two=speed_scenario("parking"))
+    project.runpytest("-k", "highway", "-q").assert_outcomes(passed=2, deselected=1)
+    project.runpytest("-k", "fast", "-q").assert_outcomes(passed=1, deselected=2)
+    project.runpytest("-k", "speed_limit and not highway", "-q").assert_outcomes(passed=1, deselected=2)
+
+
+def test_skip_and_xfail_from_yaml(project):
+    project.makefile(".scenario.yaml", skipped=speed_scenario("s", extra="Skip: map not released yet\n"))
+    project.makefile(".scenario.yaml", known=speed_scenario(
+        "k", datasets=("fast.csv",), extra="XFail: planner overshoots, ticket 12\n"))
+    project.makefile(".scenario.yaml", strict=speed_scenario(
+        "st", extra="XFail:\n  Reason: should fail\n  Strict: true\n"))
+    result = project.runpytest("-rsxX", "-q")
+    result.assert_outcomes(skipped=1, xfailed=1, failed=1)
+    result.stdout.fnmatch_lines(["*XPASS?strict?*should fail*"])
+    result.stdout.fnmatch_lines(["*map not released yet*", "*planner overshoots, ticket 12*"])
+
+
+def test_reportinfo_points_at_the_yaml_file(project):
+    project.makefile(".scenario.yaml", located=speed_scenario("loc", datasets=("fast.csv",)))
+    result = project.runpytest("-q")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*loc [[]speed_limit[[]fast.csv[]][]]*"])

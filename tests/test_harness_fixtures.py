@@ -1,0 +1,180 @@
+"""Fixtures feed scenario items; conftest.py and options override them."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import speed_scenario
+
+GAIN_USECASE = '''
+import importlib
+from pytest_driveeval import ConditionsModel, Outcome, UseCase, register_usecase
+from pydantic import BaseModel
+
+
+class GainConditions(BaseModel, extra="forbid"):
+    Input: float
+    MaxOutput: float
+
+
+class GainConfig(ConditionsModel):
+    Conditions: GainConditions
+
+
+@register_usecase
+class Gain(UseCase):
+    """The model is a function of one number; the scenario bounds its output."""
+    name = "gain"
+    config_model = GainConfig
+    fixtures = ("driveeval_model",)
+
+    def load_model(self, ctx, spec):
+        if spec:
+            module, attr = spec.split(":")
+            return getattr(importlib.import_module(module), attr)
+        return lambda x: 2 * x
+
+    def run(self, config, ctx):
+        out = ctx.fixtures["driveeval_model"](config.Conditions.Input)
+        path = ctx.artefact("output.json")
+        path.write_text(str(out))
+        verdict = "passed" if out <= config.Conditions.MaxOutput else "failed"
+        return Outcome(self.name, verdict, f"output {out}", figures={"output": out, "seed": ctx.seed},
+                       artefacts={"output": path})
+'''
+
+GAIN_SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: gain
+  UseCaseFormatVersion: 0.1.0
+  Conditions:
+    Input: 3.0
+    MaxOutput: 10.0
+"""
+
+
+@pytest.fixture
+def gain(pytester):
+    pytester.makepyfile(gain_usecase=GAIN_USECASE, mymodels="def triple(x):\n    return 3 * x\n")
+    pytester.makeconftest("import gain_usecase\n")
+    return pytester
+
+
+def summary(pytester, folder="driveeval-results") -> dict:
+    return json.loads((pytester.path / folder / "summary.json").read_text())
+
+
+def figures(pytester) -> dict[str, float]:
+    return {r["nodeid"]: r["figures"]["output"] for r in summary(pytester)["results"]}
+
+
+def test_default_model_comes_from_the_use_case(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    gain.runpytest("-q").assert_outcomes(passed=1)
+    assert figures(gain) == {"a.scenario.yaml::gain": 6.0}
+
+
+def test_conftest_override_of_the_model_changes_what_a_yaml_scenario_evaluates(gain):
+    for folder in ("mine", "theirs"):
+        (gain.path / folder).mkdir()
+        (gain.path / folder / "scenario.yaml").write_text(GAIN_SCENARIO.format(name=folder))
+    (gain.path / "mine" / "conftest.py").write_text(
+        "import pytest\n\n@pytest.fixture\ndef driveeval_model():\n    return lambda x: 10 * x\n")
+    result = gain.runpytest("-q")
+    result.assert_outcomes(passed=1, failed=1)
+    assert figures(gain) == {"mine/scenario.yaml::gain": 30.0, "theirs/scenario.yaml::gain": 6.0}
+    result.stdout.fnmatch_lines(["*scenario 'mine' (gain)*", "*FAILED: output 30.0*"])
+
+
+def test_model_option_and_ini_replace_the_scenario_model(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    gain.runpytest("-q", "--driveeval-model", "mymodels:triple").assert_outcomes(passed=1)
+    assert figures(gain) == {"a.scenario.yaml::gain": 9.0}
+    gain.makeini("[pytest]\ndriveeval_model = mymodels:triple\n")
+    gain.runpytest("-q").assert_outcomes(passed=1)
+    assert figures(gain) == {"a.scenario.yaml::gain": 9.0}
+
+
+def test_python_test_bound_to_a_scenario_gets_the_same_fixtures(gain):
+    gain.makefile(".yaml", bound=GAIN_SCENARIO.format(name="bound"))
+    gain.makepyfile(test_bound='''
+        import pytest
+        from pytest_driveeval import assert_figure_within
+
+        @pytest.mark.driveeval_scenario("bound.yaml")
+        def test_output_is_small(driveeval_run, driveeval_model):
+            assert driveeval_model(1) == 2
+            outcome = driveeval_run()
+            assert_figure_within(outcome, "output", max=5)
+        ''')
+    result = gain.runpytest("-q")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*scenario 'bound [[]gain[]]': output = 6, outside [[]None, 5[]]*"])
+    # The test's outcome reaches the summary like a YAML item's.
+    (record,) = summary(gain)["results"]
+    assert record["nodeid"] == "test_bound.py::test_output_is_small"
+    assert record["figures"]["output"] == 6.0 and record["status"] == "failed"
+
+
+def test_unbound_python_test_gets_a_clear_failure(gain):
+    gain.makepyfile(test_unbound="def test_x(driveeval_model):\n    pass\n")
+    result = gain.runpytest("-q")
+    result.assert_outcomes(errors=1)
+    result.stdout.fnmatch_lines(["*is not a scenario item; mark it with @pytest.mark.driveeval_scenario*"])
+
+
+def test_relative_paths_resolve_against_the_yaml_folder(project):
+    (project.path / "scenarios" / "deep").mkdir(parents=True)
+    (project.path / "data").mkdir()
+    (project.path / "slow.csv").rename(project.path / "data" / "slow.csv")
+    text = speed_scenario("rel", datasets=()).replace("    []", "    - logged:\n        Path: ../../data/slow.csv")
+    (project.path / "scenarios" / "deep" / "x.scenario.yaml").write_text(text)
+    project.runpytest("-q").assert_outcomes(passed=1)
+
+
+@pytest.mark.parametrize("how", ["option", "ini", "env"])
+def test_dataset_names_resolve_under_the_data_root(project, monkeypatch, how):
+    root = project.path / "datasets"
+    root.mkdir()
+    (project.path / "fast.csv").rename(root / "fast.csv")
+    project.makefile(".scenario.yaml", a=speed_scenario("a", datasets=("fast.csv",), max_speed=25))
+    args = ["-q"]
+    if how == "option":
+        args += ["--driveeval-data-root", str(root)]
+    elif how == "ini":
+        project.makeini("[pytest]\ndriveeval_data_root = datasets\n")
+    else:
+        monkeypatch.setenv("DRIVEEVAL_DATA_ROOT", str(root))
+    project.runpytest(*args).assert_outcomes(passed=1)
+
+
+def test_output_dir_option_item_folders_and_artefacts(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    gain.runpytest("-q", "--driveeval-output", "out").assert_outcomes(passed=1)
+    (record,) = summary(gain, "out")["results"]
+    assert record["artefacts"] == {"output": "items/a.scenario.yaml_gain/output.json"}
+    assert (gain.path / "out" / record["artefacts"]["output"]).read_text() == "6.0"
+
+
+def test_stale_item_folders_are_cleared_by_the_next_run(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    stale = gain.path / "driveeval-results" / "items" / "gone_item"
+    stale.mkdir(parents=True)
+    gain.runpytest("-q").assert_outcomes(passed=1)
+    assert not stale.exists()
+
+
+def test_item_seeds_are_stable_distinct_and_follow_the_seed_option(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
+
+    def seeds(*args):
+        gain.runpytest("-q", *args)
+        return {r["nodeid"]: r["figures"]["seed"] for r in summary(gain)["results"]}
+
+    first, again, other = seeds(), seeds(), seeds("--driveeval-seed", "7")
+    assert first == again
+    assert len(set(first.values())) == 2
+    assert all(first[k] != other[k] for k in first)
