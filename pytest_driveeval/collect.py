@@ -12,7 +12,7 @@ from typing import Iterable
 
 import pytest
 
-from .errors import DriveEvalError, ScenarioError
+from .errors import DriveEvalError, ScenarioError, display_path
 from .outcome import ScenarioFailed, format_figure
 from .scenario import Scenario, load_scenario
 from .settings import get_settings
@@ -61,7 +61,7 @@ def _source_line(path: Path, line: int | None) -> str:
 def render_failure(scenario: Scenario | None, case_name: str, exc: BaseException) -> str:
     if isinstance(exc, ScenarioError) or scenario is None:
         return str(exc)
-    head = f"scenario '{scenario.name}' ({case_name}) in {scenario.path}"
+    head = f"scenario '{scenario.name}' ({case_name}) in {display_path(scenario.path)}"
     lines = [head]
     outcome = getattr(exc, "outcome", None)
     if isinstance(exc, ScenarioFailed):

@@ -20,6 +20,15 @@ def format_keypath(keypath: Sequence[Any]) -> str:
     return out
 
 
+def display_path(path: Path | str) -> str:
+    """A path as people read it in a log: relative to the working directory when inside it."""
+    path = Path(path)
+    try:
+        return path.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except (ValueError, OSError):
+        return str(path)
+
+
 class DriveEvalError(Exception):
     """Base of the errors that are reported without a traceback.
 
@@ -39,6 +48,7 @@ class Problem:
     keypath: tuple = ()
 
     def render(self, path: Path | str) -> str:
+        path = display_path(path)
         where = f"{path}:{self.line}" if self.line else f"{path}"
         key = format_keypath(self.keypath)
         return f"{where}: {key}: {self.message}" if key else f"{where}: {self.message}"
@@ -57,7 +67,7 @@ class ScenarioError(DriveEvalError):
         return self.problems[0].line if self.problems else None
 
     def render(self) -> str:
-        head = f"invalid scenario file {self.path}"
+        head = f"invalid scenario file {display_path(self.path)}"
         if len(self.problems) > 1:
             head += f" ({len(self.problems)} problems)"
         return "\n".join([head + ":"] + ["  " + p.render(self.path) for p in self.problems])

@@ -98,9 +98,14 @@ def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
 def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
     rows = [(r.get("status", "?"), r["nodeid"], _key_figures(r) or (r.get("summary") or "")) for r in records]
     id_width = max(len("scenario"), *(len(r[1]) for r in rows))
-    lines = [f"{'verdict':<8}  {'scenario':<{id_width}}  key figures"]
+    header = f"{'verdict':<8}  {'scenario':<{id_width}}  key figures"
+    lines = [header if len(header) <= width else f"{'verdict':<8}  scenario / key figures"]
     for status, nodeid, figures in rows:
         line = f"{status:<8}  {nodeid:<{id_width}}  {figures}".rstrip()
+        if len(line) > width and figures:
+            # Narrow terminal: figures go on their own line rather than being cut.
+            lines.append(f"{status:<8}  {nodeid}")
+            line = f"{'':<8}  {figures}"
         lines.append(line if len(line) <= width else line[: width - 3] + "...")
     return lines
 
