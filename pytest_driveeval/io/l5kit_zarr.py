@@ -1,0 +1,624 @@
+"""Read and write Lyft Level 5 (l5kit) datasets stored as zarr format 2.
+
+l5kit is no longer installable and zarr 3 cannot read its structured dtypes, so
+this module parses the zarr v2 layout itself (``.zarray`` JSON + one file per
+chunk, decoded with ``numcodecs``).  Only what l5kit stores is supported:
+1-D arrays with a structured dtype, C order.
+
+Layout of a store (a zarr v2 group directory)::
+
+    .zgroup  .zattrs
+    scenes/               SCENE_DTYPE, frame_index_interval -> frames
+    frames/               FRAME_DTYPE, agent_index_interval -> agents,
+                          traffic_light_faces_index_interval -> traffic_light_faces
+    agents/               AGENT_DTYPE
+    traffic_light_faces/  TL_FACE_DTYPE
+
+All index intervals are half-open ``[start, end)`` into the next array.
+
+Public API::
+
+    ds = L5Dataset.open(path)            # validates metadata, reads nothing else
+    ds.num_scenes; ds.attrs
+    scene = ds.scene(i)                  # L5Scene, decodes only the chunks it needs
+    scene.frames / .agents / .traffic_light_faces   # structured arrays, re-based
+    scene.ego_positions(); scene.ego_yaws(); scene.agents_of_frame(t)
+    scene.agent_tensor()                 # AgentTensor, dense (T, A, ...) view
+    ds.read_all()                        # L5Arrays of the four whole arrays
+    write_l5_zarr(path, scenes, frames, agents, traffic_light_faces)
+"""
+from __future__ import annotations
+
+import base64
+import json
+import os
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numcodecs
+import numpy as np
+
+from ..errors import DataError
+
+__all__ = [
+    "AGENT_DTYPE",
+    "ARRAY_NAMES",
+    "AgentTensor",
+    "EXPECTED_DTYPES",
+    "FRAME_DTYPE",
+    "L5Arrays",
+    "L5Dataset",
+    "L5FormatError",
+    "L5Scene",
+    "PERCEPTION_LABELS",
+    "SCENE_DTYPE",
+    "TL_FACE_DTYPE",
+    "label_index",
+    "write_l5_zarr",
+]
+
+SCENE_DTYPE = np.dtype(
+    [
+        ("frame_index_interval", np.int64, (2,)),
+        ("host", "<U16"),
+        ("start_time", np.int64),
+        ("end_time", np.int64),
+    ]
+)
+FRAME_DTYPE = np.dtype(
+    [
+        ("timestamp", np.int64),
+        ("agent_index_interval", np.int64, (2,)),
+        ("traffic_light_faces_index_interval", np.int64, (2,)),
+        ("ego_translation", np.float64, (3,)),
+        ("ego_rotation", np.float64, (3, 3)),
+    ]
+)
+AGENT_DTYPE = np.dtype(
+    [
+        ("centroid", np.float64, (2,)),
+        ("extent", np.float32, (3,)),
+        ("yaw", np.float32),
+        ("velocity", np.float32, (2,)),
+        ("track_id", np.uint64),
+        ("label_probabilities", np.float32, (17,)),
+    ]
+)
+TL_FACE_DTYPE = np.dtype(
+    [
+        ("face_id", "<U16"),
+        ("traffic_light_id", "<U16"),
+        ("traffic_light_face_status", np.float32, (3,)),
+    ]
+)
+
+ARRAY_NAMES = ("scenes", "frames", "agents", "traffic_light_faces")
+EXPECTED_DTYPES = dict(zip(ARRAY_NAMES, (SCENE_DTYPE, FRAME_DTYPE, AGENT_DTYPE, TL_FACE_DTYPE)))
+
+# Order matters: label_probabilities[:, i] is the probability of PERCEPTION_LABELS[i].
+PERCEPTION_LABELS = (
+    "PERCEPTION_LABEL_NOT_SET",
+    "PERCEPTION_LABEL_UNKNOWN",
+    "PERCEPTION_LABEL_DONTCARE",
+    "PERCEPTION_LABEL_CAR",
+    "PERCEPTION_LABEL_VAN",
+    "PERCEPTION_LABEL_TRAM",
+    "PERCEPTION_LABEL_BUS",
+    "PERCEPTION_LABEL_TRUCK",
+    "PERCEPTION_LABEL_EMERGENCY_VEHICLE",
+    "PERCEPTION_LABEL_OTHER_VEHICLE",
+    "PERCEPTION_LABEL_BICYCLE",
+    "PERCEPTION_LABEL_MOTORCYCLE",
+    "PERCEPTION_LABEL_CYCLIST",
+    "PERCEPTION_LABEL_MOTORCYCLIST",
+    "PERCEPTION_LABEL_PEDESTRIAN",
+    "PERCEPTION_LABEL_ANIMAL",
+    "AVRESEARCH_LABEL_DONTCARE",
+)
+
+# l5kit's defaults, also what the real sample uses.
+DEFAULT_CHUNK_SIZES = {"scenes": 10_000, "frames": 10_000, "agents": 20_000, "traffic_light_faces": 10_000}
+_CHUNK_CACHE_SIZE = 8  # decoded chunks kept per array: neighbouring scenes share chunks
+
+
+def label_index(name: str) -> int:
+    """Column of ``label_probabilities`` for a label, e.g. ``"CAR"`` -> 3."""
+    full = name if name.startswith(("PERCEPTION_LABEL_", "AVRESEARCH_")) else f"PERCEPTION_LABEL_{name.upper()}"
+    try:
+        return PERCEPTION_LABELS.index(full)
+    except ValueError:
+        raise ValueError(f"unknown perception label {name!r}; known: {', '.join(PERCEPTION_LABELS)}") from None
+
+
+class L5FormatError(DataError, ValueError):
+    """The store does not hold what the l5kit format promises."""
+
+
+class L5Arrays(NamedTuple):
+    scenes: np.ndarray
+    frames: np.ndarray
+    agents: np.ndarray
+    traffic_light_faces: np.ndarray
+
+
+# --------------------------------------------------------------------------- dtype handling
+
+
+def _dtype_from_zarr(descr: Any) -> np.dtype:
+    """zarr 2 writes ``dtype.descr`` as JSON, so tuples became lists."""
+    if isinstance(descr, str):
+        return np.dtype(descr)
+    fields = []
+    for field in descr:
+        name, typ = field[0], field[1]
+        if isinstance(typ, list):  # nested structured field
+            typ = _dtype_from_zarr(typ)
+        fields.append((name, typ, tuple(field[2])) if len(field) > 2 else (name, typ))
+    return np.dtype(fields)
+
+
+def _dtype_to_zarr(dtype: np.dtype) -> list:
+    # descr entries are (name, type) or (name, type, shape); JSON wants lists.
+    return [[field[0], field[1], list(field[2])] if len(field) > 2 else [field[0], field[1]] for field in dtype.descr]
+
+
+def _describe_dtype(dtype: np.dtype) -> str:
+    if dtype.names is None:
+        return dtype.str
+    parts = []
+    for name in dtype.names:
+        sub = dtype.fields[name][0]
+        base, shape = (sub.base, sub.shape) if sub.subdtype else (sub, ())
+        parts.append(f"{name}:{base.str}{list(shape) if shape else ''}")
+    return "{" + ", ".join(parts) + "}"
+
+
+def _dtype_mismatch(expected: np.dtype, found: np.dtype) -> str | None:
+    """Human-readable difference between two structured dtypes, or None if equal."""
+    if expected == found:
+        return None
+    exp_names, found_names = expected.names or (), found.names or ()
+    if exp_names != found_names:
+        missing = [n for n in exp_names if n not in found_names]
+        extra = [n for n in found_names if n not in exp_names]
+        detail = []
+        if missing:
+            detail.append(f"missing fields {missing}")
+        if extra:
+            detail.append(f"unexpected fields {extra}")
+        if not detail:
+            detail.append(f"field order {list(found_names)} instead of {list(exp_names)}")
+        return "; ".join(detail)
+    diffs = []
+    for name in exp_names:
+        e, f = expected.fields[name][0], found.fields[name][0]
+        if e != f:
+            diffs.append(f"field {name!r} is {_describe_dtype(np.dtype([(name, f)]))[1:-1]} "
+                         f"instead of {_describe_dtype(np.dtype([(name, e)]))[1:-1]}")
+    return "; ".join(diffs) or "layout (offsets/itemsize) differs"
+
+
+# --------------------------------------------------------------------------- minimal zarr v2 array
+
+
+class _ZarrArray1D:
+    """Lazy reader of one 1-D zarr v2 array directory."""
+
+    def __init__(self, store: Path, name: str, expected_dtype: np.dtype | None = None):
+        self.store, self.name, self.dir = store, name, store / name
+        meta_path = self.dir / ".zarray"
+        if not meta_path.is_file():
+            raise L5FormatError(f"{store}: array {name!r} is missing (expected {meta_path})")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise L5FormatError(f"{meta_path}: unreadable array metadata: {exc}") from exc
+        self.meta_path = meta_path
+        self._check(meta.get("zarr_format") == 2, f"zarr_format 2 expected, found {meta.get('zarr_format')!r}")
+        self._check(meta.get("order", "C") == "C", f"order 'C' expected, found {meta.get('order')!r}")
+        shape, chunks = meta.get("shape"), meta.get("chunks")
+        self._check(isinstance(shape, list) and len(shape) == 1 and isinstance(chunks, list) and len(chunks) == 1,
+                    f"a 1-D array expected, found shape {shape} chunks {chunks}")
+        self.length, self.chunk_len = int(shape[0]), int(chunks[0])
+        self._check(self.chunk_len > 0, f"chunk length must be positive, found {self.chunk_len}")
+        try:
+            self.dtype = _dtype_from_zarr(meta["dtype"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise L5FormatError(f"{meta_path}: array {name!r} has an unreadable dtype {meta.get('dtype')!r}: {exc}") from exc
+        if expected_dtype is not None:
+            diff = _dtype_mismatch(expected_dtype, self.dtype)
+            if diff:
+                raise L5FormatError(
+                    f"{meta_path}: array {name!r} has the wrong dtype ({diff}); "
+                    f"expected {_describe_dtype(expected_dtype)}, found {_describe_dtype(self.dtype)}")
+        try:
+            self.compressor = numcodecs.get_codec(meta["compressor"]) if meta.get("compressor") else None
+            self.filters = [numcodecs.get_codec(f) for f in meta.get("filters") or []]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise L5FormatError(f"{meta_path}: array {name!r} uses an unsupported codec: {exc}") from exc
+        self.fill = self._fill_value(meta.get("fill_value"))
+        self.num_chunks = -(-self.length // self.chunk_len)
+        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
+
+    def _check(self, ok: bool, what: str) -> None:
+        if not ok:
+            raise L5FormatError(f"{self.dir / '.zarray'}: array {self.name!r}: {what}")
+
+    def _fill_value(self, raw: Any) -> np.ndarray:
+        fill = np.zeros((), dtype=self.dtype)
+        if raw is None or raw == 0:
+            return fill
+        if self.dtype.names is not None:  # zarr 2 stores structured fill values as base64 bytes
+            try:
+                data = base64.standard_b64decode(raw)
+            except (TypeError, ValueError) as exc:
+                raise L5FormatError(f"{self.meta_path}: array {self.name!r}: bad fill_value: {exc}") from exc
+            self._check(len(data) == self.dtype.itemsize,
+                        f"fill_value holds {len(data)} bytes, dtype itemsize is {self.dtype.itemsize}")
+            return np.frombuffer(data, dtype=self.dtype).reshape(())
+        fill[()] = raw
+        return fill
+
+    def _chunk(self, index: int) -> np.ndarray:
+        cached = self._cache.get(index)
+        if cached is not None:
+            self._cache.move_to_end(index)
+            return cached
+        path = self.dir / str(index)
+        if not path.exists():  # zarr leaves chunks equal to the fill value unwritten
+            chunk = np.full(self.chunk_len, self.fill, dtype=self.dtype)
+        else:
+            raw = path.read_bytes()
+            try:
+                buf = self.compressor.decode(raw) if self.compressor is not None else raw
+                for codec in reversed(self.filters):
+                    buf = codec.decode(buf)
+                data = np.frombuffer(memoryview(buf).cast("B"), dtype=np.uint8)
+            except Exception as exc:  # numcodecs raises assorted types for garbage input
+                raise L5FormatError(
+                    f"{path}: corrupt chunk {index} of array {self.name!r} in {self.store}: "
+                    f"cannot decode with {self.compressor}: {exc}") from exc
+            full = self.chunk_len * self.dtype.itemsize
+            # Edge chunks are written padded by zarr, but be lenient with trimmed ones.
+            valid = min(self.chunk_len, self.length - index * self.chunk_len) * self.dtype.itemsize
+            if data.size not in (full, valid):
+                raise L5FormatError(
+                    f"{path}: corrupt chunk {index} of array {self.name!r} in {self.store}: "
+                    f"decoded {data.size} bytes, expected {full} ({self.chunk_len} x {self.dtype.itemsize}-byte rows)")
+            chunk = data.view(self.dtype)
+        self._cache[index] = chunk
+        if len(self._cache) > _CHUNK_CACHE_SIZE:
+            self._cache.popitem(last=False)
+        return chunk
+
+    def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Rows ``[start, stop)`` as a fresh (writable, owned) structured array."""
+        stop = self.length if stop is None else stop
+        if not 0 <= start <= stop <= self.length:
+            raise L5FormatError(f"{self.store}: array {self.name!r}: rows [{start}, {stop}) outside [0, {self.length})")
+        out = np.empty(stop - start, dtype=self.dtype)
+        if stop == start:
+            return out
+        first, last = start // self.chunk_len, (stop - 1) // self.chunk_len
+        for c in range(first, last + 1):
+            c0 = c * self.chunk_len
+            lo, hi = max(start, c0), min(stop, c0 + self.chunk_len)
+            out[lo - start:hi - start] = self._chunk(c)[lo - c0:hi - c0]
+        return out
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+class AgentTensor(NamedTuple):
+    """Agents of a scene aligned by track id: axis 0 is the frame, axis 1 the track.
+
+    Entries where ``available`` is False hold zeros.
+    """
+
+    track_id: np.ndarray  # (A,) uint64, sorted
+    centroid: np.ndarray  # (T, A, 2) float64
+    yaw: np.ndarray  # (T, A) float32
+    extent: np.ndarray  # (T, A, 3) float32
+    velocity: np.ndarray  # (T, A, 2) float32
+    label: np.ndarray  # (A,) int64, index into PERCEPTION_LABELS, most probable over the track's rows
+    available: np.ndarray  # (T, A) bool
+
+
+def _concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices of all ``[start, end)`` ranges and the range each row came from."""
+    counts = ends - starts
+    owner = np.repeat(np.arange(counts.size), counts)
+    offsets = np.cumsum(counts) - counts
+    rows = np.arange(counts.sum()) - offsets[owner] + starts[owner]
+    return rows, owner
+
+
+def _track_labels(probabilities: np.ndarray, column: np.ndarray, num_tracks: int) -> np.ndarray:
+    # A dense (T, A, 17) copy would dominate agent_tensor's cost and a track's class
+    # rarely changes, so keep one label per track: the most frequent per-row argmax.
+    num_labels = probabilities.shape[1]
+    votes = np.bincount(column * num_labels + probabilities.argmax(axis=1), minlength=num_tracks * num_labels)
+    return votes.reshape(num_tracks, num_labels).argmax(axis=1)
+
+
+def _is_partition(intervals: np.ndarray, length: int) -> bool:
+    """True if the intervals tile ``[0, length)`` in order, back to back."""
+    if len(intervals) == 0:
+        return length == 0
+    return bool(intervals[0, 0] == 0 and intervals[-1, 1] == length
+                and np.array_equal(intervals[1:, 0], intervals[:-1, 1]) and np.all(intervals[:, 1] >= intervals[:, 0]))
+
+
+@dataclass(frozen=True)
+class L5Scene:
+    """One scene with its frames, agents and traffic-light faces.
+
+    Intervals in ``frames`` are re-based: they index ``self.agents`` and
+    ``self.traffic_light_faces``.  The ``*_offset`` fields give the row of
+    element 0 in the whole store.
+    """
+
+    index: int
+    host: str
+    start_time: int
+    end_time: int
+    frames: np.ndarray
+    agents: np.ndarray
+    traffic_light_faces: np.ndarray
+    frame_offset: int = 0
+    agent_offset: int = 0
+    tl_face_offset: int = 0
+    source: str = ""
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
+    def ego_positions(self) -> np.ndarray:
+        return self.frames["ego_translation"][:, :2]
+
+    def ego_yaws(self) -> np.ndarray:
+        # Rotation about z: yaw = atan2(R[1,0], R[0,0]); matches l5kit's rotation33_as_yaw.
+        rot = self.frames["ego_rotation"]
+        return np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+
+    def agents_of_frame(self, t: int) -> np.ndarray:
+        if not -self.num_frames <= t < self.num_frames:
+            raise IndexError(f"scene {self.index} of {self.source}: frame {t} outside [0, {self.num_frames})")
+        start, end = self.frames["agent_index_interval"][t]
+        return self.agents[start:end]
+
+    def tl_faces_of_frame(self, t: int) -> np.ndarray:
+        if not -self.num_frames <= t < self.num_frames:
+            raise IndexError(f"scene {self.index} of {self.source}: frame {t} outside [0, {self.num_frames})")
+        start, end = self.frames["traffic_light_faces_index_interval"][t]
+        return self.traffic_light_faces[start:end]
+
+    def agent_tensor(self) -> AgentTensor:
+        """Dense ``(T, A, ...)`` arrays, one column per distinct track id."""
+        intervals = self.frames["agent_index_interval"]
+        counts = intervals[:, 1] - intervals[:, 0]
+        if _is_partition(intervals, len(self.agents)):  # the usual layout: no gather copy needed
+            agents, frame_of_row = self.agents, np.repeat(np.arange(self.num_frames), counts)
+        else:
+            rows, frame_of_row = _concat_ranges(intervals[:, 0], intervals[:, 1])
+            agents = self.agents[rows]
+        track_ids, column = np.unique(agents["track_id"], return_inverse=True)
+        num_frames, num_tracks = self.num_frames, track_ids.size
+        flat = frame_of_row * num_tracks + column
+        available = np.zeros((num_frames, num_tracks), dtype=bool)
+        available.reshape(-1)[flat] = True
+        if np.count_nonzero(available) != flat.size:
+            raise L5FormatError(f"{self.source}: scene {self.index}: a track id occurs twice in one frame "
+                                f"(first at frame {self._first_duplicate_frame(flat, frame_of_row)})")
+
+        def dense(field: str, dtype: np.dtype) -> np.ndarray:
+            values = agents[field]
+            out = np.zeros((num_frames, num_tracks) + values.shape[1:], dtype=dtype)
+            out.reshape((num_frames * num_tracks,) + values.shape[1:])[flat] = values
+            return out
+
+        return AgentTensor(
+            track_id=track_ids,
+            centroid=dense("centroid", np.float64),
+            yaw=dense("yaw", np.float32),
+            extent=dense("extent", np.float32),
+            velocity=dense("velocity", np.float32),
+            label=_track_labels(agents["label_probabilities"], column, num_tracks),
+            available=available,
+        )
+
+    @staticmethod
+    def _first_duplicate_frame(flat: np.ndarray, frame_of_row: np.ndarray) -> int:
+        order = np.argsort(flat, kind="stable")
+        dup = np.flatnonzero(np.diff(flat[order]) == 0)
+        return int(frame_of_row[order[dup[0]]])
+
+
+class L5Dataset:
+    """A read-only l5kit zarr store; use :meth:`open`."""
+
+    def __init__(self, path: Path, arrays: dict[str, _ZarrArray1D], attrs: dict):
+        self.path = path
+        self._arrays = arrays
+        self.attrs = attrs
+        self._scenes = arrays["scenes"].read()  # one row per scene: small even for the full dataset
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> "L5Dataset":
+        path = Path(path)
+        if not path.is_dir():
+            raise L5FormatError(f"{path}: not a zarr directory store")
+        if not (path / ".zgroup").is_file():
+            raise L5FormatError(f"{path}: missing .zgroup, not a zarr v2 group")
+        attrs: dict = {}
+        if (path / ".zattrs").is_file():
+            try:
+                attrs = json.loads((path / ".zattrs").read_text())
+            except ValueError as exc:
+                raise L5FormatError(f"{path / '.zattrs'}: invalid JSON: {exc}") from exc
+        arrays = {name: _ZarrArray1D(path, name, EXPECTED_DTYPES[name]) for name in ARRAY_NAMES}
+        return cls(path, arrays, attrs)
+
+    def __repr__(self) -> str:
+        sizes = ", ".join(f"{n}={a.length}" for n, a in self._arrays.items())
+        return f"L5Dataset({str(self.path)!r}, {sizes})"
+
+    @property
+    def num_scenes(self) -> int:
+        return len(self._scenes)
+
+    @property
+    def scenes(self) -> np.ndarray:
+        return self._scenes
+
+    def __len__(self) -> int:
+        return self.num_scenes
+
+    def array_length(self, name: str) -> int:
+        return self._arrays[name].length
+
+    def read_array(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
+        if name not in self._arrays:
+            raise KeyError(f"{self.path}: no array {name!r}; arrays are {', '.join(ARRAY_NAMES)}")
+        return self._arrays[name].read(start, stop)
+
+    def read_all(self) -> L5Arrays:
+        return L5Arrays(*(self._arrays[n].read() for n in ARRAY_NAMES))
+
+    def scene(self, index: int) -> L5Scene:
+        n = self.num_scenes
+        if not -n <= index < n or isinstance(index, bool):
+            valid = f"[0, {n - 1}]" if n else "none (the store has no scenes)"
+            raise L5FormatError(f"{self.path}: scene index {index} out of range; valid scene indices: {valid}")
+        index = index % n
+        row = self._scenes[index]
+        f0, f1 = (int(v) for v in row["frame_index_interval"])
+        self._check_interval(f"scenes[{index}].frame_index_interval", f0, f1, "frames")
+        frames = self._arrays["frames"].read(f0, f1)
+        a0, a1 = self._span(frames["agent_index_interval"], f"scene {index} frames", "agents")
+        t0, t1 = self._span(frames["traffic_light_faces_index_interval"], f"scene {index} frames", "traffic_light_faces")
+        agents = self._arrays["agents"].read(a0, a1)
+        faces = self._arrays["traffic_light_faces"].read(t0, t1)
+        frames["agent_index_interval"] -= a0
+        frames["traffic_light_faces_index_interval"] -= t0
+        return L5Scene(index=index, host=str(row["host"]), start_time=int(row["start_time"]),
+                       end_time=int(row["end_time"]), frames=frames, agents=agents, traffic_light_faces=faces,
+                       frame_offset=f0, agent_offset=a0, tl_face_offset=t0, source=str(self.path))
+
+    def __iter__(self):
+        return (self.scene(i) for i in range(self.num_scenes))
+
+    def _check_interval(self, what: str, start: int, end: int, target: str) -> None:
+        length = self._arrays[target].length
+        if not 0 <= start <= end <= length:
+            raise L5FormatError(f"{self.path}: {what} = [{start}, {end}) is not inside array {target!r} of length {length}")
+
+    def _span(self, intervals: np.ndarray, what: str, target: str) -> tuple[int, int]:
+        if len(intervals) == 0:
+            return 0, 0
+        bad = np.flatnonzero(intervals[:, 0] > intervals[:, 1])
+        if bad.size:
+            raise L5FormatError(f"{self.path}: {what}: {target} interval {intervals[bad[0]].tolist()} "
+                                f"has start > end")
+        start, end = int(intervals[:, 0].min()), int(intervals[:, 1].max())
+        self._check_interval(f"{what} {target} intervals", start, end, target)
+        return start, end
+
+
+# --------------------------------------------------------------------------- writer
+
+
+def _check_for_write(name: str, array: np.ndarray) -> np.ndarray:
+    array = np.asarray(array)
+    expected = EXPECTED_DTYPES[name]
+    diff = _dtype_mismatch(expected, array.dtype)
+    if diff:
+        raise L5FormatError(f"cannot write array {name!r}: wrong dtype ({diff}); expected {_describe_dtype(expected)}")
+    if array.ndim != 1:
+        raise L5FormatError(f"cannot write array {name!r}: 1-D expected, found shape {array.shape}")
+    return np.ascontiguousarray(array)
+
+
+def _check_intervals(owner: str, field: str, intervals: np.ndarray, target: str, target_len: int) -> None:
+    if intervals.size == 0:
+        return
+    bad = np.flatnonzero((intervals[:, 0] < 0) | (intervals[:, 0] > intervals[:, 1]) | (intervals[:, 1] > target_len))
+    if bad.size:
+        raise L5FormatError(f"cannot write: {owner}[{bad[0]}].{field} = {intervals[bad[0]].tolist()} "
+                            f"is not a valid interval of {target!r} (length {target_len})")
+
+
+def _json(obj: Any) -> str:
+    # Same formatting as zarr 2, so stores diff cleanly against zarr-written ones.
+    return json.dumps(obj, indent=4, sort_keys=True, ensure_ascii=True, separators=(",", ": "))
+
+
+def write_l5_zarr(
+    path: str | os.PathLike,
+    scenes: np.ndarray,
+    frames: np.ndarray,
+    agents: np.ndarray,
+    traffic_light_faces: np.ndarray,
+    chunk_sizes: dict[str, int] | None = None,
+    attrs: dict | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the four arrays as an l5kit zarr v2 store (blosc/lz4, as l5kit does).
+
+    ``attrs`` is merged into the group ``.zattrs`` (which always gets the
+    ``format_version`` and ``labels`` keys l5kit writes).  Intervals are checked
+    against the array lengths before anything is written.
+    """
+    path = Path(path)
+    data = {name: _check_for_write(name, arr)
+            for name, arr in zip(ARRAY_NAMES, (scenes, frames, agents, traffic_light_faces))}
+    _check_intervals("scenes", "frame_index_interval", data["scenes"]["frame_index_interval"], "frames", len(data["frames"]))
+    _check_intervals("frames", "agent_index_interval", data["frames"]["agent_index_interval"], "agents", len(data["agents"]))
+    _check_intervals("frames", "traffic_light_faces_index_interval",
+                     data["frames"]["traffic_light_faces_index_interval"], "traffic_light_faces",
+                     len(data["traffic_light_faces"]))
+    sizes = {**DEFAULT_CHUNK_SIZES, **(chunk_sizes or {})}
+    for name, size in sizes.items():
+        if name not in EXPECTED_DTYPES or int(size) < 1:
+            raise ValueError(f"chunk_sizes: {name!r}={size!r}; need a positive size for one of {', '.join(ARRAY_NAMES)}")
+    occupied = path.is_file() or (path.is_dir() and any(path.iterdir()))
+    if occupied and not overwrite:
+        raise FileExistsError(f"{path} exists and is not empty; pass overwrite=True to replace the arrays")
+
+    path.mkdir(parents=True, exist_ok=True)
+    (path / ".zgroup").write_text(_json({"zarr_format": 2}))
+    root_attrs = {"format_version": 2, "labels": list(PERCEPTION_LABELS), **(attrs or {})}
+    (path / ".zattrs").write_text(_json(root_attrs))
+    codec = numcodecs.Blosc(cname="lz4", clevel=5, shuffle=numcodecs.Blosc.SHUFFLE, blocksize=0)
+    for name, array in data.items():
+        _write_array(path / name, array, int(sizes[name]), codec)
+    return path
+
+
+def _write_array(directory: Path, array: np.ndarray, chunk_len: int, codec: numcodecs.abc.Codec) -> None:
+    directory.mkdir(exist_ok=True)
+    for stale in directory.iterdir():  # an overwrite with fewer rows must not leave old chunks behind
+        if stale.name.isdigit():
+            stale.unlink()
+    meta = {
+        "chunks": [chunk_len],
+        "compressor": codec.get_config(),
+        "dtype": _dtype_to_zarr(array.dtype),
+        "fill_value": base64.standard_b64encode(bytes(array.dtype.itemsize)).decode("ascii"),
+        "filters": None,
+        "order": "C",
+        "shape": [len(array)],
+        "zarr_format": 2,
+    }
+    (directory / ".zarray").write_text(_json(meta))
+    for index, c0 in enumerate(range(0, len(array), chunk_len)):
+        chunk = array[c0:c0 + chunk_len]
+        if len(chunk) < chunk_len:  # zarr v2 stores edge chunks at full size
+            padded = np.zeros(chunk_len, dtype=array.dtype)
+            padded[:len(chunk)] = chunk
+            chunk = padded
+        (directory / str(index)).write_bytes(codec.encode(chunk.view(np.uint8)))
