@@ -1,0 +1,133 @@
+"""Throughput and peak memory of streaming PointCloud2 out of a ROS 2 bag.
+
+Writes a bag of Autoware PointXYZIRC clouds (16 bytes/point) to a temp dir,
+then reads it back in separate child processes (so each peak RSS is its own):
+
+* ``stream``: ``pytest_driveeval.io.rosbag.iter_pointclouds`` (zero-copy views,
+  one message alive at a time);
+* ``naive``: the usual recipe, rosbags deserialize + ``np.frombuffer(...).copy()``
+  of every message into a list.
+
+Both reduce each cloud (sum of x) so the payload is really touched.  The bag
+is read right after being written, so it is usually in the page cache: the
+figures measure decoding, not the disk.
+
+    python benchmarks/bench_pointcloud2.py --size-mb 1000 --storage sqlite3
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def write_bag(path: Path, size_mb: float, points: int, storage: str) -> tuple[int, int]:
+    from pytest_driveeval.io.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, make_cloud
+    from pytest_driveeval.io.rosbag import BagWriter
+
+    cloud = make_cloud(points, XYZIRC_FIELDS)
+    per_msg = cloud.nbytes
+    count = max(1, int(size_mb * 1e6 // per_msg))
+    with BagWriter(path, storage) as w:
+        for i in range(count):
+            cloud["x"][0] = i  # make messages differ
+            stamp = 1_700_000_000_000_000_000 + i * 100_000_000
+            w.write("/points", encode_pointcloud2(cloud, "lidar", stamp))
+    return count, per_msg
+
+
+def run_stream(path: str) -> dict:
+    from pytest_driveeval.io.rosbag import default_typestore, iter_pointclouds
+
+    default_typestore()  # one-off setup, built outside the timing as for the naive reader
+    t = time.perf_counter()
+    nbytes = frames = 0
+    acc = 0.0
+    for _, _, pts in iter_pointclouds(path, "/points"):
+        acc += float(pts["x"].sum())
+        nbytes += pts.nbytes
+        frames += 1
+    return {"seconds": time.perf_counter() - t, "payload_bytes": nbytes, "frames": frames, "check": acc}
+
+
+def run_naive(path: str) -> dict:
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    t = time.perf_counter()
+    clouds = []
+    with Reader(path) as reader:
+        conns = [c for c in reader.connections if c.topic == "/points"]
+        for conn, _, raw in reader.messages(conns):
+            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            dtype = np.dtype({"names": [f.name for f in msg.fields],
+                              "formats": ["<f4", "<f4", "<f4", "u1", "u1", "<u2"],
+                              "offsets": [f.offset for f in msg.fields],
+                              "itemsize": msg.point_step})
+            clouds.append(np.frombuffer(msg.data, dtype=dtype).copy())
+    acc = sum(float(c["x"].sum()) for c in clouds)
+    nbytes = sum(c.nbytes for c in clouds)
+    return {"seconds": time.perf_counter() - t, "payload_bytes": nbytes, "frames": len(clouds), "check": acc}
+
+
+def child(mode: str, path: str) -> None:
+    out = (run_stream if mode == "stream" else run_naive)(path)
+    out["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+    print(json.dumps(out))
+
+
+def measure(mode: str, path: Path) -> dict:
+    res = subprocess.run([sys.executable, __file__, "--child", mode, str(path)],
+                         capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size-mb", type=float, nargs="+", default=[100, 400],
+                    help="payload size(s) of the generated bag(s), MB")
+    ap.add_argument("--points", type=int, default=200_000, help="points per message")
+    ap.add_argument("--storage", choices=["sqlite3", "mcap"], default="sqlite3")
+    ap.add_argument("--no-naive", action="store_true", help="skip the reference (it holds the whole bag in RAM)")
+    ap.add_argument("--child", nargs=2, metavar=("MODE", "PATH"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(*args.child)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        for size in args.size_mb:
+            path = Path(tmp) / f"bag_{int(size)}"
+            t = time.perf_counter()
+            count, per_msg = write_bag(path, size, args.points, args.storage)
+            wrote = time.perf_counter() - t
+            disk = sum(f.stat().st_size for f in path.iterdir()) / 1e6
+            print(f"\n{args.storage} bag: {count} msgs x {per_msg / 1e6:.1f} MB = {count * per_msg / 1e9:.2f} GB "
+                  f"payload, {disk:.0f} MB on disk, written in {wrote:.1f} s")
+            results = {"stream": measure("stream", path)}
+            if not args.no_naive:
+                results["naive"] = measure("naive", path)
+            for mode, r in results.items():
+                gbps = r["payload_bytes"] / r["seconds"] / 1e9
+                print(f"  {mode:6s}: {r['frames']:5d} frames, {gbps:6.2f} GB/s, "
+                      f"peak RSS {r['peak_rss_mb']:7.1f} MB")
+            if "naive" in results:
+                s, n = results["stream"], results["naive"]
+                assert s["check"] == n["check"], "readers disagree"
+                print(f"  stream vs naive: {n['seconds'] / s['seconds']:.2f}x faster, "
+                      f"{n['peak_rss_mb'] / s['peak_rss_mb']:.1f}x less peak memory")
+            shutil.rmtree(path, ignore_errors=True)  # free disk before the next size
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,401 @@
+"""ROS 2 bags (sqlite3 / mcap) without ROS, on top of ``rosbags``.
+
+Messages are streamed one at a time straight from the storage cursor, so
+memory stays flat however long the bag is: a decoded point cloud is a view
+over its own serialized message and is released with it.
+
+Every failure surfaces as :class:`BagError` naming the bag path and, where it
+applies, the topic and message index.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Iterator, NamedTuple
+
+import numpy as np
+
+from ..errors import DataError
+
+from .pointcloud2 import PointCloud2Error, decode_pointcloud2
+from .tf import TFBuffer, TransformError
+
+__all__ = [
+    "BagError",
+    "Bag",
+    "PointCloudFrame",
+    "DiagnosticRecord",
+    "DiagnosticsLog",
+    "BagWriter",
+    "iter_pointclouds",
+    "read_tf",
+    "read_diagnostics",
+    "default_typestore",
+    "tf_message",
+    "diagnostic_array",
+]
+
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+TFMESSAGE = "tf2_msgs/msg/TFMessage"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+_DIAG_TOPICS = ("/diagnostics", "/diagnostics_agg")
+
+
+class BagError(DataError, ValueError):
+    """Bag missing, corrupt, or lacking the requested topic/type."""
+
+
+_TYPESTORE = None
+
+
+def default_typestore():
+    """The ROS 2 Humble typestore (Autoware's distro), built once."""
+    global _TYPESTORE
+    if _TYPESTORE is None:
+        from rosbags.typesys import Stores, get_typestore
+        _TYPESTORE = get_typestore(Stores.ROS2_HUMBLE)
+    return _TYPESTORE
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+class PointCloudFrame(NamedTuple):
+    stamp_ns: int       # header.stamp, not the bag's receive time
+    frame_id: str
+    points: np.ndarray  # structured, a view over the message's data
+
+
+class Bag:
+    """An open ROS 2 bag directory (metadata.yaml + .db3/.mcap) or single storage file."""
+
+    def __init__(self, path: str | os.PathLike, typestore=None):
+        from rosbags.rosbag2 import Reader
+
+        self.path = Path(path)
+        self.typestore = typestore or default_typestore()
+        self._registered: set[str] = set()
+        try:
+            self._reader = Reader(self.path)
+            self._reader.open()
+        except FileNotFoundError as exc:
+            raise BagError(f"{self.path}: no such bag ({exc})") from exc
+        except Exception as exc:  # rosbags/apsw/yaml all raise their own types
+            raise BagError(f"{self.path}: cannot open bag ({self._files()}): "
+                           f"{type(exc).__name__}: {exc}") from exc
+
+    def _files(self) -> str:
+        if self.path.is_dir():
+            files = sorted(p.name for p in self.path.iterdir() if p.suffix in (".db3", ".mcap"))
+            return "storage files " + (", ".join(files) or "none")
+        return f"storage file {self.path.name}"
+
+    # -- context management ------------------------------------------------
+    def close(self) -> None:
+        if self._reader.is_open:
+            self._reader.close()
+
+    def __enter__(self) -> "Bag":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- metadata ----------------------------------------------------------
+    @property
+    def topics(self) -> dict[str, str]:
+        """Topic name -> message type."""
+        return {c.topic: c.msgtype for c in self._reader.connections}
+
+    def message_count(self, topic: str) -> int:
+        return sum(c.msgcount for c in self._connections(topic))
+
+    @property
+    def start_time_ns(self) -> int:
+        return self._reader.start_time
+
+    @property
+    def end_time_ns(self) -> int:
+        return self._reader.end_time
+
+    def _connections(self, topic: str, msgtype: str | None = None) -> list:
+        conns = [c for c in self._reader.connections if c.topic == topic]
+        if not conns:
+            listing = ", ".join(f"{t} [{m}]" for t, m in sorted(self.topics.items()))
+            raise BagError(f"{self.path}: topic {topic!r} not in bag; available: {listing or 'none'}")
+        if msgtype is not None:
+            wrong = {c.msgtype for c in conns} - {msgtype}
+            if wrong:
+                raise BagError(f"{self.path}: topic {topic!r} has type {sorted(wrong)}, "
+                               f"expected {msgtype}")
+        for c in conns:
+            self._ensure_type(c)
+        return conns
+
+    def _ensure_type(self, conn) -> None:
+        """Register a message type the typestore lacks from the bag's own definition."""
+        if conn.msgtype in self.typestore.types or conn.msgtype in self._registered:
+            return
+        from rosbags.interfaces import MessageDefinitionFormat
+        from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+        msgdef = getattr(conn, "msgdef", None)
+        try:
+            if msgdef is None or msgdef.format == MessageDefinitionFormat.NONE or not msgdef.data:
+                raise ValueError("bag carries no message definition")
+            if msgdef.format == MessageDefinitionFormat.IDL:
+                types = get_types_from_idl(msgdef.data)
+            else:
+                types = get_types_from_msg(msgdef.data, conn.msgtype)
+            self.typestore.register(types)
+        except Exception as exc:
+            raise BagError(f"{self.path}: topic {conn.topic!r}: unknown message type "
+                           f"{conn.msgtype!r} ({exc})") from exc
+        self._registered.add(conn.msgtype)
+
+    # -- reading -----------------------------------------------------------
+    def raw_messages(self, topic: str, msgtype: str | None = None,
+                     start_ns: int | None = None, stop_ns: int | None = None
+                     ) -> Iterator[tuple[int, Any, int, bytes]]:
+        """(index, connection, log_time_ns, cdr bytes), streamed in log-time order."""
+        conns = self._connections(topic, msgtype)
+        index = -1
+        it = self._reader.messages(conns, start=start_ns, stop=stop_ns)
+        while True:
+            try:
+                conn, log_ns, raw = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:
+                raise BagError(f"{self.path}: topic {topic!r}: corrupt or truncated bag after "
+                               f"message #{index} ({self._files()}): "
+                               f"{type(exc).__name__}: {exc}") from exc
+            index += 1
+            yield index, conn, log_ns, raw
+
+    def messages(self, topic: str, msgtype: str | None = None, **window) -> Iterator[tuple[int, Any]]:
+        """(log_time_ns, deserialized message) for each message of ``topic``."""
+        for index, conn, log_ns, raw in self.raw_messages(topic, msgtype, **window):
+            yield log_ns, self._deserialize(raw, conn, index)
+
+    def _deserialize(self, raw, conn, index: int):
+        try:
+            return self.typestore.deserialize_cdr(raw, conn.msgtype)
+        except Exception as exc:
+            raise BagError(f"{self.path}: topic {conn.topic!r} message #{index}: cannot decode "
+                           f"{conn.msgtype}: {type(exc).__name__}: {exc}") from exc
+
+    def pointclouds(self, topic: str, **window) -> Iterator[PointCloudFrame]:
+        """Stream PointCloud2 frames; each ``points`` array views its own message buffer."""
+        for index, conn, _, raw in self.raw_messages(topic, POINTCLOUD2, **window):
+            msg = self._deserialize(raw, conn, index)
+            try:
+                points = decode_pointcloud2(msg, where=f"{self.path}: {topic} message #{index}")
+            except PointCloud2Error as exc:
+                raise BagError(str(exc)) from exc
+            yield PointCloudFrame(_stamp_ns(msg.header.stamp), msg.header.frame_id, points)
+
+    def read_tf(self, topics: Iterable[str] = ("/tf", "/tf_static"),
+                buffer: TFBuffer | None = None) -> TFBuffer:
+        """Fill a TFBuffer from TFMessage topics; absent topics are skipped, none present is an error."""
+        buffer = buffer if buffer is not None else TFBuffer()
+        present = [t for t in topics if t in self.topics]
+        if not present:
+            self._connections(next(iter(topics), "/tf"))  # raises with the topic listing
+        for topic in present:
+            static = topic.endswith("_static")
+            for log_ns, msg in self.messages(topic, TFMESSAGE):
+                try:
+                    buffer.add_tf_message(msg, static=static)
+                except TransformError as exc:
+                    raise BagError(f"{self.path}: topic {topic!r} at log time {log_ns}: {exc}") from exc
+        return buffer
+
+    def read_diagnostics(self, topic: str | None = None) -> "DiagnosticsLog":
+        """All DiagnosticStatus entries of /diagnostics (or /diagnostics_agg, or ``topic``)."""
+        if topic is None:
+            topic = next((t for t in _DIAG_TOPICS if t in self.topics), _DIAG_TOPICS[0])
+        stamps, names, levels, texts, hw, values = [], [], [], [], [], []
+        for log_ns, msg in self.messages(topic, DIAGNOSTIC_ARRAY):
+            stamp = _stamp_ns(msg.header.stamp) or log_ns  # unstamped arrays are common
+            for st in msg.status:
+                stamps.append(stamp)
+                names.append(st.name)
+                levels.append(int.from_bytes(st.level, "little") if isinstance(st.level, bytes)
+                              else int(st.level))
+                texts.append(st.message)
+                hw.append(st.hardware_id)
+                values.append({kv.key: kv.value for kv in st.values})
+        return DiagnosticsLog.from_lists(stamps, names, levels, texts, hw, values)
+
+
+class DiagnosticRecord(NamedTuple):
+    stamp_ns: int
+    name: str
+    level: int  # 0 OK, 1 WARN, 2 ERROR, 3 STALE
+    message: str
+    hardware_id: str = ""
+    values: dict | None = None
+
+
+@dataclass
+class DiagnosticsLog:
+    """Diagnostic statuses as time-sorted columns."""
+
+    stamps_ns: np.ndarray
+    names: np.ndarray
+    levels: np.ndarray
+    messages: np.ndarray
+    hardware_ids: np.ndarray
+    values: list
+
+    OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+    @classmethod
+    def from_lists(cls, stamps, names, levels, messages, hardware_ids=None, values=None):
+        n = len(stamps)
+        order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
+        obj = lambda xs: np.asarray(xs, dtype=object).reshape(n)[order]  # noqa: E731
+        return cls(np.asarray(stamps, dtype=np.int64)[order], obj(names),
+                   np.asarray(levels, dtype=np.int16).reshape(n)[order], obj(messages),
+                   obj(hardware_ids if hardware_ids is not None else [""] * n),
+                   [(values or [None] * n)[i] for i in order])
+
+    def __len__(self) -> int:
+        return self.stamps_ns.size
+
+    def record(self, i: int) -> DiagnosticRecord:
+        return DiagnosticRecord(int(self.stamps_ns[i]), self.names[i], int(self.levels[i]),
+                                self.messages[i], self.hardware_ids[i], self.values[i])
+
+    def status_names(self) -> list[str]:
+        return sorted(set(self.names.tolist()))
+
+    def select(self, name: str) -> "DiagnosticsLog":
+        m = self.names == name
+        return DiagnosticsLog(self.stamps_ns[m], self.names[m], self.levels[m], self.messages[m],
+                              self.hardware_ids[m], [v for v, k in zip(self.values, m) if k])
+
+    def levels_at(self, name: str, stamps_ns, max_age_ns: int | None = None) -> np.ndarray:
+        """Level of status ``name`` in force at each stamp (latest at or before); -1 if none."""
+        sub = self.select(name)
+        q = np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64))
+        idx = np.searchsorted(sub.stamps_ns, q, side="right") - 1
+        out = np.where(idx >= 0, sub.levels[np.clip(idx, 0, None)] if len(sub) else -1, -1)
+        if max_age_ns is not None and len(sub):
+            stale = q - sub.stamps_ns[np.clip(idx, 0, None)] > max_age_ns
+            out = np.where(stale, -1, out)
+        return out.astype(np.int16)
+
+    def status_at(self, name: str, stamp_ns: int, max_age_ns: int | None = None
+                  ) -> DiagnosticRecord | None:
+        """The status ``name`` in force at ``stamp_ns`` (latest at or before), or None."""
+        sub = self.select(name)
+        i = int(np.searchsorted(sub.stamps_ns, stamp_ns, side="right")) - 1
+        if i < 0 or (max_age_ns is not None and stamp_ns - sub.stamps_ns[i] > max_age_ns):
+            return None
+        return sub.record(i)
+
+
+# -- module-level conveniences ---------------------------------------------
+def iter_pointclouds(path, topic: str, typestore=None, **window) -> Iterator[PointCloudFrame]:
+    """Open a bag and stream one PointCloud2 topic (bag closed when exhausted/closed)."""
+    with Bag(path, typestore) as bag:
+        yield from bag.pointclouds(topic, **window)
+
+
+def read_tf(path, topics=("/tf", "/tf_static"), typestore=None) -> TFBuffer:
+    with Bag(path, typestore) as bag:
+        return bag.read_tf(topics)
+
+
+def read_diagnostics(path, topic: str | None = None, typestore=None) -> DiagnosticsLog:
+    with Bag(path, typestore) as bag:
+        return bag.read_diagnostics(topic)
+
+
+# -- writing ---------------------------------------------------------------
+class BagWriter:
+    """Create a bag (sqlite3 or mcap) for tests and demos.
+
+    ``write(topic, msg)`` registers the topic on first use with the message's
+    own type; the log time defaults to the header stamp.
+    """
+
+    def __init__(self, path, storage: str = "sqlite3", typestore=None, version: int = 8):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
+        if storage not in plugins:
+            raise ValueError(f"storage must be one of {sorted(plugins)}, got {storage!r}")
+        self.path = Path(path)
+        self.typestore = typestore or default_typestore()
+        self._writer = Writer(self.path, version=version, storage_plugin=plugins[storage])
+        self._conns: dict[str, Any] = {}
+        self._writer.open()
+
+    def write(self, topic: str, msg, log_time_ns: int | None = None) -> None:
+        msgtype = msg.__msgtype__
+        conn = self._conns.get(topic)
+        if conn is None:
+            conn = self._conns[topic] = self._writer.add_connection(topic, msgtype,
+                                                                    typestore=self.typestore)
+        elif conn.msgtype != msgtype:
+            raise BagError(f"{self.path}: topic {topic!r} is {conn.msgtype}, got {msgtype}")
+        if log_time_ns is None:
+            header = getattr(msg, "header", None)
+            if header is None and getattr(msg, "transforms", None):
+                header = msg.transforms[0].header  # TFMessage: stamp of its first transform
+            if header is None:
+                raise ValueError(f"{topic}: {msgtype} has no header; pass log_time_ns")
+            log_time_ns = _stamp_ns(header.stamp)
+        self._writer.write(conn, int(log_time_ns), self.typestore.serialize_cdr(msg, msgtype))
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> "BagWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _time(typestore, stamp_ns: int):
+    sec, nsec = divmod(int(stamp_ns), 1_000_000_000)
+    return typestore.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+
+
+def tf_message(transforms: Iterable[tuple], typestore=None):
+    """TFMessage from (parent, child, stamp_ns, (x, y, z), (qx, qy, qz, qw)) tuples."""
+    ts = typestore or default_typestore()
+    T = ts.types
+    out = []
+    for parent, child, stamp_ns, t, q in transforms:
+        out.append(T["geometry_msgs/msg/TransformStamped"](
+            header=T["std_msgs/msg/Header"](stamp=_time(ts, stamp_ns), frame_id=parent),
+            child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=float(t[0]), y=float(t[1]), z=float(t[2])),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
+                                                           z=float(q[2]), w=float(q[3])))))
+    return T[TFMESSAGE](transforms=out)
+
+
+def diagnostic_array(stamp_ns: int, statuses: Iterable[tuple], typestore=None):
+    """DiagnosticArray from (name, level, message[, values dict[, hardware_id]]) tuples."""
+    ts = typestore or default_typestore()
+    T = ts.types
+    out = []
+    for st in statuses:
+        name, level, message = st[:3]
+        values = st[3] if len(st) > 3 else {}
+        hw = st[4] if len(st) > 4 else ""
+        out.append(T["diagnostic_msgs/msg/DiagnosticStatus"](
+            level=int(level), name=name, message=message, hardware_id=hw,
+            values=[T["diagnostic_msgs/msg/KeyValue"](key=k, value=str(v))
+                    for k, v in values.items()]))
+    return T[DIAGNOSTIC_ARRAY](
+        header=T["std_msgs/msg/Header"](stamp=_time(ts, stamp_ns), frame_id=""), status=out)

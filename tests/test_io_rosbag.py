@@ -1,0 +1,175 @@
+"""ROS 2 bag reading/writing: PointCloud2 streaming, TF, diagnostics, error paths."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pytest_driveeval.io.pointcloud2 import (XYZI_FIELDS, XYZIRC_FIELDS, Field, PointCloud2Error,
+                                            decode_pointcloud2, encode_pointcloud2, make_cloud)
+from pytest_driveeval.io.rosbag import (Bag, BagError, BagWriter, DiagnosticsLog,
+                                       default_typestore, diagnostic_array, iter_pointclouds,
+                                       read_diagnostics, read_tf, tf_message)
+
+T0 = 1_700_000_000_000_000_000
+STORAGES = ["sqlite3", "mcap"]
+
+
+def write_demo_bag(path, storage, frames=5, n=100):
+    clouds = [make_cloud(n, XYZIRC_FIELDS, rng=np.random.default_rng(i)) for i in range(frames)]
+    with BagWriter(path, storage) as w:
+        for i, c in enumerate(clouds):
+            stamp = T0 + i * 100_000_000
+            w.write("/points", encode_pointcloud2(c, "base_link", stamp), log_time_ns=stamp + 5_000_000)
+            w.write("/tf", tf_message([("map", "base_link", stamp, (i, 0, 0), (0, 0, 0, 1))]))
+            w.write("/diagnostics", diagnostic_array(stamp, [
+                ("topic_state_monitor: /points", 0 if i < 3 else 1, "OK" if i < 3 else "rate low",
+                 {"rate": 10.0})]))
+        w.write("/tf_static", tf_message([("base_link", "lidar", T0, (1, 0, 2), (0, 0, 0, 1))]),
+                log_time_ns=T0)
+    return clouds
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_pointcloud_stream_roundtrip(tmp_path, storage):
+    clouds = write_demo_bag(tmp_path / "bag", storage)
+    frames = list(iter_pointclouds(tmp_path / "bag", "/points"))
+    assert len(frames) == len(clouds)
+    for i, (stamp, frame_id, pts) in enumerate(frames):
+        assert stamp == T0 + i * 100_000_000  # header stamp, not the log time
+        assert frame_id == "base_link"
+        assert pts.dtype == clouds[i].dtype and np.array_equal(pts, clouds[i])
+        assert pts.dtype["channel"] == np.uint16 and pts.dtype.itemsize == 16
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_tf_and_diagnostics_from_generated_bag(tmp_path, storage):
+    write_demo_bag(tmp_path / "bag", storage)
+    tf = read_tf(tmp_path / "bag")
+    m = tf.lookup("map", "lidar", T0 + 150_000_000)
+    assert np.allclose(m[:3, 3], [2.5, 0, 2])  # halfway between x=1 and x=2, plus static offset
+    diag = read_diagnostics(tmp_path / "bag")
+    assert len(diag) == 5 and diag.status_names() == ["topic_state_monitor: /points"]
+    rec = diag.status_at("topic_state_monitor: /points", T0 + 350_000_000)
+    assert rec.level == DiagnosticsLog.WARN and rec.message == "rate low"
+    assert rec.values == {"rate": "10.0"}
+    assert diag.status_at("topic_state_monitor: /points", T0 - 1) is None
+    levels = diag.levels_at("topic_state_monitor: /points", T0 + np.arange(6) * 100_000_000 - 1)
+    assert levels.tolist() == [-1, 0, 0, 0, 1, 1]
+    assert diag.levels_at("other", [T0]).tolist() == [-1]
+
+
+def test_missing_topic_lists_available(tmp_path):
+    write_demo_bag(tmp_path / "bag", "sqlite3", frames=1)
+    with pytest.raises(BagError, match=r"'/lidar' not in bag; available: /diagnostics .*/points"):
+        list(iter_pointclouds(tmp_path / "bag", "/lidar"))
+    with Bag(tmp_path / "bag") as bag:
+        with pytest.raises(BagError, match="expected sensor_msgs/msg/PointCloud2"):
+            next(bag.pointclouds("/tf"))
+        assert bag.message_count("/points") == 1
+
+
+def test_missing_bag(tmp_path):
+    with pytest.raises(BagError, match="nowhere"):
+        Bag(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("storage, suffix", [("sqlite3", ".db3"), ("mcap", ".mcap")])
+def test_truncated_bag_names_file(tmp_path, storage, suffix):
+    write_demo_bag(tmp_path / "bag", storage, frames=20, n=2000)
+    (f,) = (tmp_path / "bag").glob("*" + suffix)
+    raw = f.read_bytes()
+    f.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(BagError, match=rf"bag.*{suffix}"):
+        list(iter_pointclouds(tmp_path / "bag", "/points"))
+
+
+def test_unknown_message_type(tmp_path):
+    from rosbags.rosbag2 import Writer
+    with Writer(tmp_path / "bag", version=8) as w:
+        conn = w.add_connection("/custom", "my_msgs/msg/Unknown", msgdef="", rihs01="RIHS01_" + "0" * 64)
+        w.write(conn, T0, b"\x00\x01\x00\x00")
+    with Bag(tmp_path / "bag") as bag:
+        with pytest.raises(BagError, match=r"'/custom': unknown message type 'my_msgs/msg/Unknown'"):
+            list(bag.messages("/custom"))
+
+
+def test_custom_type_registered_from_bag_definition(tmp_path):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import get_typestore, Stores, get_types_from_msg
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg("int32 a\nstring b", "my_msgs/msg/Thing"))
+    msg = ts.types["my_msgs/msg/Thing"](a=7, b="x")
+    with Writer(tmp_path / "bag", version=8) as w:
+        conn = w.add_connection("/thing", "my_msgs/msg/Thing", typestore=ts)
+        w.write(conn, T0, ts.serialize_cdr(msg, "my_msgs/msg/Thing"))
+    with Bag(tmp_path / "bag") as bag:  # default typestore lacks the type
+        ((_, m),) = list(bag.messages("/thing"))
+        assert (m.a, m.b) == (7, "x")
+
+
+def test_real_tf_bag_topics(shared_data):
+    with Bag(shared_data / "rosbag/tf_example") as bag:
+        assert bag.topics == {"/tf": "tf2_msgs/msg/TFMessage", "/tf_static": "tf2_msgs/msg/TFMessage"}
+        assert bag.message_count("/tf") == 517
+        with pytest.raises(BagError, match="no diagnostics|'/diagnostics' not in bag"):
+            bag.read_diagnostics()
+
+
+# --- PointCloud2 decoding details -----------------------------------------
+class Msg:
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+
+def test_decode_is_zero_copy_view():
+    cloud = make_cloud(1000, XYZIRC_FIELDS)
+    msg = encode_pointcloud2(cloud, "lidar", T0)
+    pts = decode_pointcloud2(msg)
+    assert np.shares_memory(pts, msg.data) and np.array_equal(pts, cloud)
+
+
+def test_decode_float_intensity_padded_points():
+    cloud = make_cloud(10, XYZI_FIELDS, point_step=32)  # like pcl::PointXYZI
+    pts = decode_pointcloud2(encode_pointcloud2(cloud, "l", 0))
+    assert pts.dtype.itemsize == 32 and pts.dtype["intensity"] == np.float32
+    assert np.array_equal(pts["intensity"], cloud["intensity"])
+
+
+def test_decode_row_padding_and_bigendian():
+    h, w, step, row = 3, 4, 8, 40  # 8 bytes of padding at the end of each row
+    vals = np.arange(h * w, dtype=">f4")
+    data = np.zeros(h * row, np.uint8)
+    for r in range(h):
+        block = np.zeros(w, dtype=[("x", ">f4"), ("c", ">u2"), ("p", "V2")])
+        block["x"] = vals[r * w:(r + 1) * w]
+        block["c"] = np.arange(w) + 100 * r
+        data[r * row:r * row + w * step] = block.view(np.uint8)
+    msg = Msg(height=h, width=w, point_step=step, row_step=row, is_bigendian=True, data=data,
+              fields=[Field("x", 0, 7), Field("c", 4, 4)])
+    pts = decode_pointcloud2(msg)
+    assert pts.shape == (12,) and pts["x"].tolist() == vals.tolist()
+    assert pts["c"].reshape(h, w)[2].tolist() == [200, 201, 202, 203]
+
+
+def test_decode_count_subarray_and_errors():
+    data = np.arange(4 * 3, dtype="<f4").view(np.uint8)
+    msg = Msg(height=1, width=4, point_step=12, row_step=48, is_bigendian=False, data=data,
+              fields=[Field("xyz", 0, 7, 3)])
+    assert decode_pointcloud2(msg)["xyz"].shape == (4, 3)
+    msg.data = data[:-1]
+    with pytest.raises(PointCloud2Error, match="47 bytes"):
+        decode_pointcloud2(msg, where="b.db3 /p message #3")
+    msg.data, msg.fields = data, [Field("x", 10, 7)]
+    with pytest.raises(PointCloud2Error, match="exceeds point_step"):
+        decode_pointcloud2(msg)
+    msg.fields = [Field("x", 0, 9)]
+    with pytest.raises(PointCloud2Error, match="unknown datatype 9"):
+        decode_pointcloud2(msg)
+
+
+def test_encode_uses_typestore_message():
+    msg = encode_pointcloud2(make_cloud(5), "lidar", T0 + 123)
+    raw = default_typestore().serialize_cdr(msg, "sensor_msgs/msg/PointCloud2")
+    back = default_typestore().deserialize_cdr(raw, "sensor_msgs/msg/PointCloud2")
+    assert back.header.stamp.nanosec == 123 and [f.name for f in back.fields] == \
+        ["x", "y", "z", "intensity", "return_type", "channel"]
