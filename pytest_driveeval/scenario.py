@@ -13,7 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
 from .errors import Problem, ScenarioError
 from .usecase import Case, UseCase, get_usecase, known_usecases
@@ -22,6 +24,9 @@ from .yamlsource import SourceMap, load_yaml_with_lines
 
 SUPPORTED_SCENARIO_FORMATS = ("2", "3")  # major versions of ScenarioFormatVersion
 COMMON_EVALUATION_KEYS = ("UseCaseName", "UseCaseFormatVersion", "Datasets")
+
+
+MarkName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
 
 
 class _Forbid(BaseModel):
@@ -57,7 +62,7 @@ class Envelope(_Forbid):
     VehicleModel: str | None = None
     VehicleId: str | None = None
     LocalMapPath: str | None = None
-    Marks: list[str] = []
+    Marks: list[MarkName] = []
     Skip: str | None = None
     XFail: str | XFailSpec | None = None
     Evaluation: EvaluationHead

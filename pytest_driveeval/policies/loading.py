@@ -1,0 +1,105 @@
+"""Loading a model (policy) from a spec string, safely by default.
+
+Spec forms:
+  ``model.pt``                   TorchScript archive (``torch.jit.save``)
+  ``model.pt2``                  exported program (``torch.export.save``), TorchScript's successor
+  ``weights.pt=pkg.mod:factory`` state_dict loaded with ``weights_only=True`` into ``factory()``
+  ``pkg.mod:factory``            whatever ``factory()`` returns (a module or any callable)
+  ``pickle:model.pt``            a whole pickled model: runs code from the file, so only
+                                 when the user asks for it by this name
+"""
+from __future__ import annotations
+
+import importlib
+import zipfile
+from pathlib import Path
+from typing import Any, Callable
+
+from ..errors import ModelError
+
+PICKLE_PREFIX = "pickle:"
+
+
+def import_object(target: str) -> Any:
+    module_name, _, attr = target.partition(":")
+    if not module_name or not attr:
+        raise ModelError(f"'{target}' is not of the form 'package.module:name'")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ModelError(f"cannot import '{module_name}' for model '{target}': {exc}") from None
+    obj = module
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise ModelError(f"'{module_name}' has no attribute '{attr}' (model '{target}')")
+        obj = getattr(obj, part)
+    return obj
+
+
+def _is_torchscript(path: Path) -> bool:
+    # TorchScript archives carry their code; a plain state_dict archive does not.
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any("/code/" in name for name in archive.namelist())
+    except zipfile.BadZipFile:
+        return False
+
+
+def _resolve(path: str, base: Path | None) -> Path:
+    candidate = Path(path).expanduser()
+    if not candidate.is_absolute() and base is not None:
+        candidate = base / candidate
+    if not candidate.exists():
+        raise ModelError(f"model file not found: {candidate}")
+    return candidate
+
+
+def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
+    """Load the model a spec names; relative paths resolve against ``base``."""
+    import torch
+
+    spec = spec.strip()
+    if spec.startswith(PICKLE_PREFIX):
+        path = _resolve(spec[len(PICKLE_PREFIX):], base)
+        try:
+            model = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # noqa: BLE001 - any unpickling failure is the file's fault
+            raise ModelError(f"cannot unpickle model {path}: {exc}") from None
+        return _eval(model)
+    weights, sep, factory = spec.partition("=")
+    if sep:
+        path = _resolve(weights, base)
+        module = import_object(factory)()
+        try:
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001
+            raise ModelError(f"cannot read weights {path} (loaded with weights_only=True): {exc}") from None
+        if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
+            state = state["state_dict"]
+        try:
+            module.load_state_dict(state)
+        except (RuntimeError, TypeError, AttributeError) as exc:
+            raise ModelError(f"weights {path} do not fit {factory}(): {exc}") from None
+        return _eval(module)
+    if ":" in spec and not Path(spec).suffix:
+        return _eval(import_object(spec)())
+    path = _resolve(spec, base)
+    if path.suffix == ".pt2":
+        try:
+            return torch.export.load(str(path)).module()
+        except Exception as exc:  # noqa: BLE001
+            raise ModelError(f"cannot load exported program {path}: {exc}") from None
+    if not _is_torchscript(path):
+        raise ModelError(
+            f"{path} is not a TorchScript archive. For a state_dict give 'weights.pt=package.module:factory'; "
+            f"a whole pickled model loads only as '{PICKLE_PREFIX}{path}' (it runs code from the file)")
+    try:
+        return _eval(torch.jit.load(str(path), map_location="cpu"))
+    except Exception as exc:  # noqa: BLE001
+        raise ModelError(f"cannot load TorchScript model {path}: {exc}") from None
+
+
+def _eval(model: Any) -> Any:
+    if hasattr(model, "eval"):
+        model.eval()
+    return model
