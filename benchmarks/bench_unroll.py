@@ -1,0 +1,225 @@
+"""Closed-loop unroll throughput: batched engine vs the seed notebook's way.
+
+Part 1, on the real sample scene (all of its agents): scene-steps per second
+of harness time (model time excluded) for
+
+* a reference written like the l5kit seed notebook: one scene at a time, one
+  forward per frame, inputs built per frame in Python the way l5kit's
+  ``generate_agent_sample_vectorized`` does (per-agent, per-frame track-id
+  lookups), and l5kit's ``detect_collision`` (a shapely polygon test per
+  agent in range, edge lengths with LineStrings);
+* :func:`pytest_driveeval.sim.engine.unroll` on the same scene, alone and as
+  64 copies stepping together.
+
+Part 2, 64 generated scenes batched: share of harness time in the total with
+a given TorchScript model (``--model``; default: the constant-velocity
+baseline).  Targets: >= 50x (part 1), harness <= 20 % (part 2).  Nothing is
+asserted: the figures are printed.
+
+    python benchmarks/bench_unroll.py [--model policy.pt] [--scenes 64] [--frames 250]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from shapely.geometry import LineString, Polygon
+
+from pytest_driveeval.geometry import box_corners
+from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+from pytest_driveeval.policies.batch import EGO_EXTENT, LogArrays, scenes_from_arrays, stack_scenes
+from pytest_driveeval.sim.engine import UnrollConfig, unroll
+from pytest_driveeval.sim.scenegen import generate_scenes
+
+SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "l5kit" / "single_scene.zarr"
+H, F, N, RADIUS, DT = 10, 12, 30, 35.0, 0.1
+KEEP = np.arange(3, 16)  # l5kit's PERCEPTION_LABELS_TO_KEEP
+CONFIG = UnrollConfig(history_frames=H, future_frames=F, max_agents=N, agents_radius=RADIUS,
+                      drift_threshold=10.0, freeze_on_collision=True)
+
+
+# --------------------------------------------------------------------------- reference (seed notebook style)
+
+def _pose(xy, yaw):
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, xy[0]], [s, c, xy[1]], [0.0, 0.0, 1.0]])
+
+
+def _relative(points, agent_from_world):
+    return points @ agent_from_world[:2, :2].T + agent_from_world[:2, 2]
+
+
+def _agents_of(scene, t):
+    a0, a1 = scene.frames["agent_index_interval"][t]
+    return scene.agents[a0:a1]
+
+
+def _by_labels(agents):
+    probs = agents["label_probabilities"]
+    return agents[(probs[:, KEEP] > 0.5).any(axis=1)]
+
+
+def _relative_poses(frames_idx, track_id, per_frame, agent_from_world, yaw0):
+    pos, yaws, ext, avail = (np.zeros((len(frames_idx), 2)), np.zeros((len(frames_idx), 1)),
+                             np.zeros((len(frames_idx), 2)), np.zeros(len(frames_idx)))
+    for i, agents in enumerate(per_frame):
+        hit = agents[np.nonzero(agents["track_id"] == track_id)[0]]
+        if len(hit) == 0:
+            continue
+        pos[i], yaws[i], ext[i], avail[i] = hit[0]["centroid"], hit[0]["yaw"], hit[0]["extent"][:2], 1.0
+    pos = _relative(pos, agent_from_world) * avail[:, None]
+    yaws = ((yaws - yaw0 + np.pi) % (2 * np.pi) - np.pi) * avail[:, None]
+    return pos, yaws, ext, avail
+
+
+def _reference_input(scene, frames_xy, frames_yaw, t):
+    n = scene.num_frames
+    hist = [f for f in range(t, t - H - 1, -1) if f >= 0]
+    fut = [f for f in range(t + 1, t + F + 1) if f < n]
+    centroid, yaw = frames_xy[t], frames_yaw[t]
+    world_from_agent = _pose(centroid, yaw)
+    agent_from_world = np.linalg.inv(world_from_agent)
+    hp = np.zeros((H + 1, 2))
+    hy = np.zeros((H + 1, 1))
+    ha = np.zeros(H + 1)
+    for i, f in enumerate(hist):  # ego history: from the (mutated) frames
+        hp[i], hy[i], ha[i] = frames_xy[f], frames_yaw[f], 1.0
+    hp = _relative(hp, agent_from_world) * ha[:, None]
+    hy = ((hy - yaw + np.pi) % (2 * np.pi) - np.pi) * ha[:, None]
+    tp, ty, ta = np.zeros((F, 2)), np.zeros((F, 1)), np.zeros(F)
+    logged_xy, logged_yaw = scene.ego_positions(), scene.ego_yaws()
+    for i, f in enumerate(fut):
+        tp[i], ty[i], ta[i] = logged_xy[f], logged_yaw[f], 1.0
+    tp = _relative(tp, agent_from_world) * ta[:, None]
+    hist_agents = [_agents_of(scene, f) for f in hist]
+    fut_agents = [_agents_of(scene, f) for f in fut]
+    flat = _by_labels(np.concatenate(hist_agents))
+    d = np.linalg.norm(flat["centroid"] - centroid, axis=-1)
+    flat = flat[d < RADIUS][np.argsort(d[d < RADIUS])]
+    cur = _by_labels(hist_agents[0])
+    d = np.linalg.norm(cur["centroid"] - centroid, axis=-1)
+    cur = cur[d < RADIUS][np.argsort(d[d < RADIUS])]
+    taken: list = []
+    for tid in np.concatenate([cur["track_id"], flat["track_id"]]):
+        if len(taken) >= N:
+            break
+        if tid not in taken:
+            taken.append(tid)
+    ap, ay, ae, aa = np.zeros((N, H + 1, 2)), np.zeros((N, H + 1, 1)), np.zeros((N, H + 1, 2)), np.zeros((N, H + 1))
+    types = np.zeros(N)
+    for k, tid in enumerate(taken):
+        ap[k, :len(hist)], ay[k, :len(hist)], ae[k, :len(hist)], aa[k, :len(hist)] = _relative_poses(
+            hist, tid, hist_agents, agent_from_world, yaw)
+        _relative_poses(fut, tid, fut_agents, agent_from_world, yaw)  # l5kit computes the agents' futures too
+        row = flat[flat["track_id"] == tid][0]
+        types[k] = np.argmax(row["label_probabilities"])
+    prev = frames_xy[t - 1] if t > 0 else frames_xy[t] - (logged_xy[1] - logged_xy[0])
+    speed = np.linalg.norm(frames_xy[t] - prev) / DT
+    sample = {"speed": np.array(speed), "extent": EGO_EXTENT, "history_positions": hp, "history_yaws": hy, "history_availabilities": ha, "target_positions": tp,
+              "target_yaws": ty, "target_availabilities": ta, "centroid": centroid, "yaw": np.array(yaw),
+              "world_from_agent": world_from_agent, "agent_from_world": agent_from_world,
+              "all_other_agents_history_positions": ap, "all_other_agents_history_yaws": ay,
+              "all_other_agents_history_extents": ae, "all_other_agents_history_availability": aa,
+              "all_other_agents_types": types}
+    return {k: torch.from_numpy(np.asarray(v, dtype=np.float32))[None] for k, v in sample.items()}
+
+
+def _reference_collision(centroid, yaw, agents):
+    """l5kit.planning.utils.detect_collision: shapely, first agent in range that intersects."""
+    ego = Polygon(box_corners(centroid, yaw, EGO_EXTENT))
+    ego_diag = np.linalg.norm(EGO_EXTENT[:2])
+    for agent in agents:
+        if np.linalg.norm(agent["centroid"] - centroid) >= 0.5 * (ego_diag + np.linalg.norm(agent["extent"][:2])):
+            continue
+        poly = Polygon(box_corners(agent["centroid"], agent["yaw"], agent["extent"]))
+        if ego.intersects(poly):
+            c = np.asarray(ego.exterior.coords)
+            edges = [LineString([c[i], c[i + 1]]) for i in (0, 2, 3, 1)]  # front, rear, left, right
+            side = int(np.argmax([poly.intersection(e).length for e in edges]))
+            return ("front", "rear", "side", "side")[side], agent["track_id"]
+    return "", -1
+
+
+def reference_unroll(scene: L5Scene, policy, drift_threshold: float = 10.0) -> tuple[float, float, int]:
+    """One scene, one forward per frame; returns (total s, model s, steps)."""
+    t0 = time.perf_counter()
+    model = 0.0
+    xy, yaw = scene.ego_positions().copy(), scene.ego_yaws().copy()
+    logged = scene.ego_positions()
+    steps = 0
+    with torch.no_grad():
+        for t in range(scene.num_frames):
+            batch = _reference_input(scene, xy, yaw, t)
+            tic = time.perf_counter()
+            out = policy(batch)
+            model += time.perf_counter() - tic
+            steps += 1
+            pos = out["positions"][0].numpy().astype(np.float64)
+            pred = _relative(pos[:1], batch["world_from_agent"][0].double().numpy())[0]
+            pred_yaw = yaw[t] + float(out["yaws"][0, 0, 0])
+            kind, _ = _reference_collision(xy[t], yaw[t], _agents_of(scene, t))
+            if kind or t + 1 >= scene.num_frames:
+                continue
+            if np.linalg.norm(pred - logged[t + 1]) > drift_threshold:
+                continue
+            xy[t + 1], yaw[t + 1] = pred, pred_yaw
+    return time.perf_counter() - t0, model, steps
+
+
+# --------------------------------------------------------------------------- generated scenes
+
+def generated_log(num_scenes: int, num_frames: int, seed: int = 0) -> LogArrays:
+    return stack_scenes(scenes_from_arrays(generate_scenes(num_scenes, num_frames, seed=seed)))
+
+
+def _rate(result) -> float:
+    return result.scene_steps / result.harness_time
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--model", help="TorchScript policy for part 2 (default: constant velocity)")
+    parser.add_argument("--scenes", type=int, default=64)
+    parser.add_argument("--frames", type=int, default=250)
+    parser.add_argument("--sample", default=str(SAMPLE))
+    args = parser.parse_args()
+    default_threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # both sides single-threaded: the comparison is about the harness
+    cv = torch.jit.script(ConstantVelocityPolicy(F))
+
+    print("== part 1: real sample scene, constant-velocity policy, harness time only")
+    scene = L5Dataset.open(args.sample).scene(0)
+    total, model, steps = reference_unroll(scene, cv)
+    ref_rate = steps / (total - model)
+    print(f"reference (seed notebook style): {steps} steps, harness {total - model:.3f} s, model {model:.3f} s "
+          f"-> {ref_rate:,.0f} scene-steps/s")
+    for copies in (1, 64):
+        t0 = time.perf_counter()
+        log = stack_scenes([scene] * copies)
+        prep = time.perf_counter() - t0
+        unroll(log, cv, CONFIG)  # warm-up
+        res = min((unroll(log, cv, CONFIG) for _ in range(3)), key=lambda r: r.harness_time)
+        print(f"engine, {copies:2d} scene(s) batched: {res.scene_steps} steps, harness {res.harness_time:.3f} s "
+              f"(+ {prep:.3f} s loading into arrays), model {res.model_time:.3f} s -> {_rate(res):,.0f} "
+              f"scene-steps/s = {_rate(res) / ref_rate:.1f}x the reference")
+
+    print(f"\n== part 2: {args.scenes} generated scenes x {args.frames} frames batched")
+    model = torch.jit.load(args.model) if args.model else cv
+    log = generated_log(args.scenes, args.frames)
+    if args.model:  # a real model gets the machine's threads, as in a real run
+        torch.set_num_threads(default_threads)
+    unroll(log.take(np.arange(min(2, args.scenes))), model, CONFIG)  # warm-up
+    res = unroll(log, model, CONFIG)
+    share = res.harness_time / res.total_time
+    print(f"model {args.model or 'constant velocity (TorchScript)'}: {res.forwards} forwards, "
+          f"{res.scene_steps} scene-steps, total {res.total_time:.3f} s, model {res.model_time:.3f} s, "
+          f"harness {res.harness_time:.3f} s = {100 * share:.1f}% of the total; "
+          f"harness rate {_rate(res):,.0f} scene-steps/s")
+
+
+if __name__ == "__main__":
+    main()

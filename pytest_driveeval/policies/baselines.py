@@ -1,0 +1,54 @@
+"""Reference policies: constant velocity and log replay.
+
+Both are ``torch.nn.Module`` taking the batch of
+:mod:`pytest_driveeval.policies.batch` and returning l5kit's planning output,
+``{"positions": (B, F, 2), "yaws": (B, F, 1)}`` in the ego frame, and both
+compile with ``torch.jit.script``.
+"""
+from __future__ import annotations
+
+from typing import Dict
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["ConstantVelocityPolicy", "ReplayLogPolicy"]
+
+
+class ConstantVelocityPolicy(nn.Module):
+    """Keep the last step's displacement and heading: a straight line at constant speed.
+
+    The step is ``history_positions[:, 0] - history_positions[:, 1]`` (one
+    frame back); at a scene's first frame, with no past, it is ``speed``
+    along the heading.  It never
+    brakes, so it runs red lights and into whatever stops ahead: the
+    baseline every real policy must beat.
+    """
+
+    def __init__(self, future_frames: int = 12, step_time: float = 0.1):
+        super().__init__()
+        self.future_frames = future_frames
+        self.step_time = step_time
+
+    def forward(self, data: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        pos = data["history_positions"]
+        avail = data["history_availabilities"]
+        has_past = avail[:, 1:2] > 0
+        ahead = torch.zeros_like(pos[:, 0])
+        ahead[:, 0] = data["speed"] * self.step_time
+        step = torch.where(has_past, pos[:, 0] - pos[:, 1], ahead)
+        k = torch.arange(1, self.future_frames + 1, dtype=pos.dtype, device=pos.device)
+        positions = pos[:, 0:1] + k[None, :, None] * step[:, None, :]
+        yaws = torch.zeros(positions.shape[0], self.future_frames, 1, dtype=pos.dtype, device=pos.device)
+        return {"positions": positions, "yaws": yaws}
+
+
+class ReplayLogPolicy(nn.Module):
+    """The oracle: return the logged future (``target_*``) as the prediction.
+
+    Driven by it, a closed-loop unroll reproduces the log up to float32
+    rounding, so any collision or drift it reports is a harness bug.
+    """
+
+    def forward(self, data: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        return {"positions": data["target_positions"], "yaws": data["target_yaws"]}

@@ -1,0 +1,287 @@
+"""Batched closed-loop unroll of a planning policy through logged scenes.
+
+Semantics are l5kit's closed loop (``ClosedLoopSimulator`` and the seed
+notebook): the policy fully controls the ego, other agents replay the log.
+At each frame t every active scene gets the inputs of
+:mod:`pytest_driveeval.policies.batch` built from its *driven* ego history,
+all of them go through ONE ``policy(batch)`` call, and the ego of each scene
+moves to the first predicted pose, taken from the ego frame to the world.
+
+Scenes of different lengths step together; a scene leaves the batch at its
+end or at its first error.  Errors are recorded per scene, never raised, so a
+bad row does not cost the other scenes their results:
+
+* the policy raises, or returns no dict / a missing key / a wrong shape:
+  every scene of that forward stops, the message names them and the frame;
+* a row with NaN/inf: only that scene stops.
+
+Per-frame metrics (collisions, drift, speed) are computed once at the end
+over the whole (scenes, frames) table: calling the metric functions per step
+would cost more than everything else in the loop.  Only the freeze rule needs
+to know about a collision during the loop; it uses the same overlap test as
+:func:`pytest_driveeval.metrics.collisions.detect_collisions`, on the few
+agents in range.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+import torch
+
+from pytest_driveeval.geometry import norm2d, oriented_boxes_overlap
+from pytest_driveeval.io.l5kit_zarr import L5Scene
+from pytest_driveeval.metrics.collisions import detect_collisions
+from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
+from pytest_driveeval.policies.batch import EGO_EXTENT, STEP_TIME, LogArrays, build_batch, stack_scenes, window_columns
+from pytest_driveeval.sim.kinematics import KinematicLimits, feasible_step
+
+__all__ = ["UnrollConfig", "UnrollResult", "unroll"]
+
+
+@dataclass(frozen=True)
+class UnrollConfig:
+    """Options of :func:`unroll`.
+
+    ``num_steps`` counts simulated frames from ``start_frame`` (the first one
+    is the logged pose), like l5kit's ``num_simulation_steps``; None runs each
+    scene to its end.  ``drift_threshold`` (m): when the next pose the policy
+    asks for is farther than that from the logged one, the ego is put back on
+    the log for that frame and ``reset`` is flagged (the seed notebook's
+    rule).  ``freeze_on_collision``: in a frame where the ego overlaps an
+    agent, the ego holds its pose for the next frame.  ``kinematic``: pass the
+    requested pose through :func:`feasible_step` with ``limits``.
+    """
+
+    start_frame: int = 0
+    num_steps: int | None = None
+    history_frames: int = 10
+    future_frames: int = 12
+    max_agents: int = 30
+    agents_radius: float = 35.0
+    drift_threshold: float | None = None
+    freeze_on_collision: bool = False
+    kinematic: bool = False
+    limits: KinematicLimits = field(default_factory=KinematicLimits)
+    step_time: float = STEP_TIME
+    ego_extent: tuple[float, float, float] = tuple(EGO_EXTENT)
+    device: str = "cpu"
+
+
+@dataclass
+class UnrollResult:
+    """Everything recorded by :func:`unroll`, per (scene, frame), shaped (S, T).
+
+    Frames outside ``valid`` (before ``start_frame``, past a scene's end or
+    after its error) hold zeros / -1 / NaN.  ``displacement_error`` is the
+    distance from the log of the pose the policy asked for: on a ``reset``
+    frame the ego was put back on the log, the value says why.  ``frozen``
+    marks frames where the ego held its pose after a collision.
+    ``errors[s]`` is None or why scene s stopped early; everything before is
+    kept.  ``total_time - model_time`` is the harness overhead (s).
+    """
+
+    scene_ids: np.ndarray
+    start_frame: int
+    valid: np.ndarray
+    driven_xy: np.ndarray
+    driven_yaw: np.ndarray
+    logged_xy: np.ndarray
+    logged_yaw: np.ndarray
+    collision_kind: np.ndarray  # int8: 0 none, 1 front, 2 side, 3 rear
+    collision_track_id: np.ndarray
+    collision_at_fault: np.ndarray
+    displacement_error: np.ndarray
+    distance_to_reference: np.ndarray
+    speed_difference: np.ndarray
+    reset: np.ndarray
+    frozen: np.ndarray
+    errors: list
+    model_time: float = 0.0
+    total_time: float = 0.0
+    forwards: int = 0
+    scene_steps: int = 0
+
+    @property
+    def harness_time(self) -> float:
+        return self.total_time - self.model_time
+
+    def scene(self, i: int) -> dict:
+        """Row i of every per-frame array, cut to its valid frames (the error too)."""
+        keep = self.valid[i]
+        out = {f: getattr(self, f)[i][keep] for f in _PER_FRAME}
+        out["frames"], out["error"] = np.flatnonzero(keep), self.errors[i]
+        return out
+
+
+_PER_FRAME = ("driven_xy", "driven_yaw", "logged_xy", "logged_yaw", "collision_kind", "collision_track_id",
+              "collision_at_fault", "displacement_error", "distance_to_reference", "speed_difference", "reset",
+              "frozen")
+
+
+def format_scenes(ids: np.ndarray) -> str:
+    ids = [int(i) for i in ids]
+    return str(ids) if len(ids) <= 20 else f"[{', '.join(map(str, ids[:20]))}, ... ({len(ids)} scenes)]"
+
+
+class _BadOutput(Exception):
+    pass
+
+
+def _first_pose(out: object, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """First predicted pose (B, 2), (B,) from a model output, or _BadOutput saying why not."""
+    if not isinstance(out, Mapping):
+        raise _BadOutput(f"expected a dict with 'positions' (B={rows}, T, 2) and 'yaws' (B={rows}, T, 1) "
+                         f"float tensors, found {type(out).__name__}")
+    got = {}
+    for key, last in (("positions", 2), ("yaws", 1)):
+        value = out.get(key)
+        want = f"'{key}' as a float tensor of shape (B={rows}, T, {last})"
+        if value is None:
+            raise _BadOutput(f"expected {want}, found no '{key}' key (keys: {sorted(map(str, out))})")
+        if not torch.is_tensor(value) or not value.is_floating_point():
+            kind = f"a {value.dtype} tensor" if torch.is_tensor(value) else type(value).__name__
+            raise _BadOutput(f"expected {want}, found {kind}")
+        shape = tuple(value.shape)
+        if len(shape) != 3 or shape[0] != rows or shape[1] < 1 or shape[2] != last:
+            raise _BadOutput(f"expected {want}, found shape {shape}")
+        got[key] = value[:, 0].detach().to("cpu", torch.float64).numpy()
+    return got["positions"], got["yaws"][:, 0]
+
+
+def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray,
+                 extent: np.ndarray) -> np.ndarray:
+    """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion)."""
+    a_xy, a_ext = log.agent_xy[rows, t], log.agent_extent[rows, t, :, :2].astype(np.float64)
+    d2 = ((a_xy - xy[:, None]) ** 2).sum(-1)
+    reach = 0.5 * (norm2d(extent[:2]) + norm2d(a_ext))
+    f, a = np.nonzero(log.available[rows, t] & (d2 < reach * reach))
+    hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], a_xy[f, a], log.agent_yaw[rows[f], t, a], a_ext[f, a])
+    out = np.zeros(rows.size, dtype=bool)
+    out[f[hit]] = True
+    return out
+
+
+def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -> np.ndarray:
+    """(S, T) speed from the step into each frame; frame ``start`` uses the logged step."""
+    step = np.zeros_like(xy)
+    step[:, 1:] = xy[:, 1:] - xy[:, :-1]
+    step[:, 0] = logged[:, min(1, xy.shape[1] - 1)] - logged[:, 0]
+    if start > 0:
+        step[:, start] = logged[:, start] - logged[:, start - 1]
+    return norm2d(step) / dt
+
+
+def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
+           config: UnrollConfig = UnrollConfig()) -> UnrollResult:
+    """Drive ``policy`` through all ``scenes`` together; see the module doc."""
+    t_begin = time.perf_counter()
+    log = scenes if isinstance(scenes, LogArrays) else stack_scenes(scenes)
+    cfg = config
+    n_scenes, n_frames = log.ego_yaw.shape
+    start = cfg.start_frame
+    end = log.num_frames if cfg.num_steps is None else np.minimum(log.num_frames, start + cfg.num_steps)
+    ext = np.asarray(cfg.ego_extent, dtype=np.float64)
+    driven_xy, driven_yaw = log.ego_xy.copy(), log.ego_yaw.copy()
+    proposed = np.zeros((n_scenes, n_frames))
+    valid = np.zeros((n_scenes, n_frames), bool)
+    reset = np.zeros((n_scenes, n_frames), bool)
+    frozen = np.zeros((n_scenes, n_frames), bool)
+    errors: list[str | None] = [None] * n_scenes
+    alive = end > start
+    for s in np.flatnonzero(~alive):
+        errors[s] = (f"scene {log.scene_ids[s]}: start_frame {start} is not before its end "
+                     f"({log.num_frames[s]} frames, num_steps {cfg.num_steps})")
+    speed = _backward_speed(log.ego_xy, start, log.ego_xy, cfg.step_time)[:, min(start, n_frames - 1)]
+    model_time, forwards, scene_steps = 0.0, 0, 0
+    options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
+                   radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
+                   candidates=window_columns(log, cfg.history_frames))
+
+    with torch.no_grad():
+        for t in range(start, int(end.max(initial=start))):
+            active = alive & (t < end)
+            valid[active, t] = True
+            rows = np.flatnonzero(active & (t + 1 < end))  # the last frame needs no forward
+            if rows.size == 0:
+                continue
+            batch = build_batch(log, rows, np.full(rows.size, t), driven_xy, driven_yaw, **options)
+            if cfg.device != "cpu":
+                batch = {k: v.to(cfg.device) for k, v in batch.items()}
+            forwards += 1
+            tic = time.perf_counter()
+            try:
+                out = policy(batch)
+                pos, dyaw = _first_pose(out, rows.size)
+            except Exception as exc:  # a broken model must not take the harness down
+                what = str(exc) if isinstance(exc, _BadOutput) else f"policy raised {type(exc).__name__}: {exc}"
+                msg = f"model output at frame {t} for scenes {format_scenes(log.scene_ids[rows])}: {what}"
+                for s in rows:
+                    errors[s] = msg
+                alive[rows] = False
+                continue
+            finally:
+                model_time += time.perf_counter() - tic
+            finite = np.isfinite(pos).all(-1) & np.isfinite(dyaw)
+            for s in rows[~finite]:
+                errors[s] = f"scene {log.scene_ids[s]}: model returned NaN/inf in its first pose at frame {t}"
+            alive[rows[~finite]] = False
+            rows, pos, dyaw = rows[finite], pos[finite], dyaw[finite]
+            scene_steps += rows.size
+
+            xy, yaw = driven_xy[rows, t], driven_yaw[rows, t]
+            c, s_ = np.cos(yaw), np.sin(yaw)
+            nxt = xy + np.stack([c * pos[:, 0] - s_ * pos[:, 1], s_ * pos[:, 0] + c * pos[:, 1]], -1)
+            nyaw = yaw + dyaw
+            if cfg.kinematic:
+                nxt, nyaw, speed[rows] = feasible_step(xy, yaw, speed[rows], nxt, nyaw, cfg.limits)
+            proposed[rows, t + 1] = norm2d(nxt - log.ego_xy[rows, t + 1])
+            if cfg.drift_threshold is not None:
+                back = proposed[rows, t + 1] > cfg.drift_threshold
+                nxt[back], nyaw[back] = log.ego_xy[rows[back], t + 1], log.ego_yaw[rows[back], t + 1]
+                reset[rows[back], t + 1] = True
+                speed[rows[back]] = norm2d(log.ego_xy[rows[back], t + 1] - log.ego_xy[rows[back], t]) / cfg.step_time
+            if cfg.freeze_on_collision:
+                hold = _overlapping(log, rows, t, xy, yaw, ext)
+                nxt[hold], nyaw[hold] = xy[hold], yaw[hold]
+                reset[rows[hold], t + 1] = False
+                frozen[rows[hold], t + 1] = True
+                speed[rows[hold]] = 0.0
+            driven_xy[rows, t + 1], driven_yaw[rows, t + 1] = nxt, nyaw
+
+    return _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
+                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext)
+
+
+def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors, timing, ext) -> UnrollResult:
+    """Per-frame metrics over the whole table in one pass each."""
+    t_metrics = time.perf_counter()
+    start = cfg.start_frame
+    dt = cfg.step_time
+    ego_speed = _backward_speed(driven_xy, start, log.ego_xy, dt)
+    # Velocity for blame: the step into the frame, along the motion.
+    step = np.zeros_like(driven_xy)
+    step[:, 1:] = driven_xy[:, 1:] - driven_xy[:, :-1]
+    step[:, : start + 1] = (log.ego_xy[:, 1:2] - log.ego_xy[:, 0:1]) if start == 0 else \
+        (log.ego_xy[:, start:start + 1] - log.ego_xy[:, start - 1:start])
+    col = detect_collisions(driven_xy, driven_yaw, ext, log.agent_xy, log.agent_yaw, log.agent_extent,
+                            log.available & valid[..., None], log.agent_velocity, step / dt,
+                            track_ids=log.track_id)
+    disp = np.where(reset, proposed, displacement_error(driven_xy, log.ego_xy))
+    frame_ok = np.arange(log.ego_yaw.shape[1]) < log.num_frames[:, None]
+    to_ref = distance_to_reference(driven_xy, log.ego_xy, frame_ok)
+    dspeed = speed_difference(ego_speed, _backward_speed(log.ego_xy, start, log.ego_xy, dt))
+    nan = np.nan
+    total, model_time, forwards, scene_steps = timing
+    return UnrollResult(
+        scene_ids=log.scene_ids.copy(), start_frame=start, valid=valid,
+        driven_xy=driven_xy, driven_yaw=driven_yaw, logged_xy=log.ego_xy, logged_yaw=log.ego_yaw,
+        collision_kind=np.where(valid, col.kind, 0).astype(np.int8),
+        collision_track_id=np.where(valid, col.track_id, -1), collision_at_fault=valid & col.at_fault,
+        displacement_error=np.where(valid, disp, nan), distance_to_reference=np.where(valid, to_ref, nan),
+        speed_difference=np.where(valid, dspeed, nan), reset=reset & valid, frozen=frozen & valid,
+        errors=errors, model_time=model_time, total_time=total + time.perf_counter() - t_metrics,
+        forwards=forwards, scene_steps=scene_steps,
+    )
