@@ -6,7 +6,13 @@ import pytest
 # Must precede the import below, or the helpers' asserts would not be rewritten.
 pytest.register_assert_rewrite("pytest_driveeval.assertions")
 
-from .assertions import assert_figure_within, assert_passed, assert_values_within  # noqa: E402
+from .assertions import (  # noqa: E402
+    assert_collision_free,
+    assert_drift_within,
+    assert_figure_within,
+    assert_passed,
+    assert_values_within,
+)
 from .errors import DataError, DriveEvalError, ModelError, ScenarioError  # noqa: E402
 from .outcome import FAILED, PASSED, Finding, Outcome  # noqa: E402
 from .scenario import Scenario, load_scenario  # noqa: E402
@@ -15,6 +21,7 @@ from .usecase import Case, ConditionsModel, RunContext, UseCase, register_usecas
 __version__ = "0.1.0"
 __all__ = [
     "Case", "ConditionsModel", "DataError", "DriveEvalError", "FAILED", "Finding", "ModelError", "Outcome",
-    "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_figure_within", "assert_passed",
+    "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_collision_free", "assert_drift_within",
+    "assert_figure_within", "assert_passed",
     "assert_values_within", "load_scenario", "register_usecase",
 ]

@@ -26,7 +26,9 @@ ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
 
 # Built-in use cases live in modules that import heavy libraries; they are
 # imported only when a scenario names them.
-_BUILTIN: dict[str, str] = {}
+_BUILTIN: dict[str, str] = {
+    "closed_loop": "pytest_driveeval.usecases.closed_loop",
+}
 
 
 class ConditionsModel(BaseModel):

@@ -10,11 +10,25 @@ from .outcome import Finding, format_figure
 MAX_FRAMES_LISTED = 5
 
 
+def runs_longer_than(mask: np.ndarray, tolerated: int) -> np.ndarray:
+    """Keep only the True runs of ``mask`` longer than ``tolerated`` frames."""
+    if tolerated <= 0 or not mask.any():
+        return mask
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    keep = np.zeros_like(mask)
+    for start, end in zip(starts[ends - starts > tolerated], ends[ends - starts > tolerated]):
+        keep[start:end] = True
+    return keep
+
+
 def within(values: Sequence[float] | np.ndarray, *, figure: str, max: float | None = None,
            min: float | None = None, frames: Sequence[int] | None = None, unit: str = "",
-           scene: int | str | None = None, keypath: tuple = ()) -> Finding | None:
+           scene: int | str | None = None, keypath: tuple = (), tolerated_frames: int = 0) -> Finding | None:
     """None if every value lies in [min, max]; else a finding naming the frames
-    that do not (first few, and the worst).  NaN is never within bounds."""
+    that do not (first few, and the worst).  NaN is never within bounds.
+    ``tolerated_frames``: violations lasting at most that many consecutive
+    frames are allowed (a validator's duration)."""
     values = np.asarray(values, dtype=float).reshape(-1)
     frame_ids = np.arange(values.size) if frames is None else np.asarray(frames).reshape(-1)
     bad = ~np.isfinite(values)
@@ -24,6 +38,7 @@ def within(values: Sequence[float] | np.ndarray, *, figure: str, max: float | No
     if min is not None:
         excess = np.where(values < min, min - values, excess)
     bad |= excess > 0
+    bad = runs_longer_than(bad, tolerated_frames)
     if not bad.any():
         return None
     index = np.flatnonzero(bad)
