@@ -28,6 +28,7 @@ ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
 # imported only when a scenario names them.
 _BUILTIN: dict[str, str] = {
     "closed_loop": "pytest_driveeval.usecases.closed_loop",
+    "obstacle_segmentation": "pytest_driveeval.usecases.obstacle_segmentation",
 }
 
 

@@ -1,0 +1,233 @@
+"""driving_log_replayer's result.jsonl: one JSON object per line.
+
+Line 1 is ``{"Condition": ...}``, line 2 the ``NoData`` header, then one
+record per evaluated frame ``{"Result": {"Success", "Summary"}, "Stamp":
+{"System", "ROS"}, "Frame": {...}}``, and a final record.  Their analysis
+tools read exactly this, so we write the same lines.
+
+Stamps are the cloud's header stamp in seconds for both ``System`` and
+``ROS``: a replay without ROS has no wall clock worth recording, and results
+must be identical run to run.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+__all__ = ["JsonlWriter", "read_jsonl", "key_structure"]
+
+
+def _clean(value: Any) -> Any:
+    # simplejson's ignore_nan (what driving_log_replayer uses) writes NaN as null.
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if hasattr(value, "item") and not hasattr(value, "__len__"):
+        return _clean(value.item())
+    return value
+
+
+class JsonlWriter:
+    """Appends records as they come, so a long evaluation never holds them all."""
+
+    def __init__(self, path: str | Path, condition: dict, first_stamp: float = 0.0):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self.path.open("w", encoding="utf-8")
+        self.write({"Condition": condition})
+        self.write({"Result": {"Success": False, "Summary": "NoData"}, "Stamp": {"System": first_stamp}, "Frame": {}})
+
+    def write(self, record: dict) -> None:
+        self._file.write(json.dumps(_clean(record), allow_nan=False) + "\n")
+
+    def record(self, success: bool, summary: str, stamp_s: float, frame: dict) -> None:
+        self.write({"Result": {"Success": bool(success), "Summary": summary},
+                    "Stamp": {"System": stamp_s, "ROS": stamp_s}, "Frame": frame})
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> "JsonlWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_jsonl(path: str | Path) -> list[dict]:
+    """Records of a result.jsonl, or of driving_log_replayer's result.json (a JSON list of them)."""
+    text = Path(path).read_text(encoding="utf-8")
+    stripped = text.lstrip()
+    if stripped.startswith("["):
+        return json.loads(stripped)
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def key_structure(value: Any, depth: int = 6) -> Any:
+    """Keys (recursively) without values: what a reader of the file relies on.
+    Dict keys that are data (UUIDs, distance bins, indices) collapse to '*'."""
+    if depth == 0:
+        return "..."
+    if isinstance(value, dict):
+        keys = list(value)
+        if keys and all(_is_data_key(k) for k in keys):
+            return {"*": key_structure(value[keys[0]], depth - 1)}
+        return {k: key_structure(v, depth - 1) for k, v in value.items()}
+    if isinstance(value, list):
+        return [key_structure(value[0], depth - 1)] if value and isinstance(value[0], (dict, list)) else []
+    return None
+
+
+def _is_data_key(key: str) -> bool:
+    k = str(key)
+    return k.isdigit() or (len(k) == 32 and all(c in "0123456789abcdef" for c in k)) or "-" in k and k.replace(
+        "-", "").isdigit()
+
+
+def merge_structures(structures: Iterable[Any]) -> Any:
+    """Union of key structures (dicts merged key-wise)."""
+    out: Any = None
+    for s in structures:
+        if isinstance(s, dict):
+            out = out if isinstance(out, dict) else {}
+            for k, v in s.items():
+                out[k] = merge_structures([out.get(k), v]) if k in out else v
+        elif out is None:
+            out = s
+    return out
+
+
+# -- obstacle_segmentation records ------------------------------------------------------
+# driving_log_replayer's own strings, so that their parsers and eyes read ours.
+def new_counters() -> dict:
+    return {"detection": {"total": 0, "passed": 0, "warn": 0}, "non_detection": {"total": 0, "passed": 0}}
+
+
+def count(counter: dict, verdict: str) -> None:
+    counter["total"] += 1
+    counter["passed"] += verdict == "Success"
+    if "warn" in counter:
+        counter["warn"] += verdict == "Warn"
+
+
+def rate(counter: dict) -> float:
+    return 100.0 * counter["passed"] / counter["total"] if counter["total"] else 0.0
+
+
+def part_success(counters: dict, detection_rate: float | None, non_detection_rate: float | None) -> bool:
+    return all(bound is None or rate(counters[part]) >= bound
+               for part, bound in (("detection", detection_rate), ("non_detection", non_detection_rate)))
+
+
+def summary(counters: dict, detection, non_detection) -> str:
+    parts = []
+    for name, cond, key in (("Detection", detection, "detection"), ("NonDetection", non_detection, "non_detection")):
+        if cond is None:
+            parts.append("Invalid")
+            continue
+        c = counters[key]
+        ok = "Success" if rate(c) >= cond.PassRate else "Fail"
+        text = f"{name} ({ok}): {c['passed']} / {c['total']} -> {rate(c):.2f}%"
+        parts.append(text + (f" (Warn: {c['warn']})" if key == "detection" else ""))
+    ok = all(p == "Invalid" or "(Success)" in p for p in parts)
+    return f"{'Passed' if ok else 'Failed'}: {', '.join(parts)}"
+
+
+def _stamp(stamp_ns: int) -> dict:
+    return {"sec": int(stamp_ns // 1_000_000_000), "nanosec": int(stamp_ns % 1_000_000_000)}
+
+
+def _ego(stamp_ns: int, ego) -> dict:
+    from ..io.tf import quat_to_matrix
+
+    t, q = ego
+    m = quat_to_matrix(q)
+    return {"TransformStamped": {
+        "header": {"stamp": _stamp(stamp_ns), "frame_id": "map"}, "child_frame_id": "base_link",
+        "transform": {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))},
+        "rotation_euler": {"roll": float(np.arctan2(m[2, 1], m[2, 2])), "pitch": float(-np.arcsin(np.clip(m[2, 0], -1, 1))),
+                           "yaw": float(np.arctan2(m[1, 0], m[0, 0]))}}}
+
+
+def _object_info(gt, counts, i: int, stamp_ns: int) -> dict:
+    w, l, h = (float(v) for v in gt.sizes[i])
+    return {"Annotation": {"Scale": {"x": l, "y": w, "z": h},
+                           "Position": {"position": dict(zip("xyz", map(float, gt.centers[i]))),
+                                        "orientation": dict(zip("xyzw", map(float, gt.rotations[i][[1, 2, 3, 0]])))},
+                           "UUID": str(gt.instance_tokens[i]), "StampFloat": gt.timestamp_us / 1e6},
+            "PointCloud": {"NumPoints": int(counts.counts[i]),
+                           "Nearest": [] if counts.counts[i] == 0 else [float(v) for v in counts.nearest[i]],
+                           "Stamp": _stamp(stamp_ns)}}
+
+
+def frame_record(name, skipped, topic_rate, stamp_ns, gt, counts, status, target, det_verdict, nd_verdict, result,
+                 ego, error) -> dict:
+    frame: dict = {}
+    if ego is not None:
+        frame["Ego"] = _ego(stamp_ns, ego)
+    frame.update(FrameName=name, FrameSkip=skipped, StopReasons=[],
+                 TopicRate="Unknown" if topic_rate is None else str(bool(topic_rate)))
+    det_ok = "Success" if rate(result.counters["detection"]) >= (result.detection_pass_rate or 0) else "Fail"
+    nd_ok = "Success" if rate(result.counters["non_detection"]) >= (result.non_detection_pass_rate or 0) else "Fail"
+    if det_verdict is None:
+        frame["Detection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
+    else:
+        info: dict = {}
+        objects = []
+        for i in np.flatnonzero(target):
+            key = {"Success": "DetectionSuccess", "Fail": "DetectionFail", "Warn": "DetectionWarn"}[str(status[i])]
+            entry = _object_info(gt, counts, i, stamp_ns)
+            # DLR keeps one object per kind (the last); the full list follows in Objects.
+            info[key] = entry
+            objects.append({"Result": str(status[i]), **entry})
+        frame["Detection"] = {"Result": {"Total": det_ok, "Frame": det_verdict}, "Info": info, "Objects": objects}
+    if nd_verdict is None:
+        frame["NonDetection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
+    else:
+        info = {}
+        if len(counts.area_points):
+            dist = np.linalg.norm(counts.area_points, axis=1)
+            bins = np.bincount(np.floor(dist[dist < 100]).astype(np.int64), minlength=100)
+            info = {"PointCloud": {"NumPoints": int(len(dist)),
+                                   "Distance": {f"{i}-{i + 1}": int(bins[i]) for i in range(100)}}}
+        frame["NonDetection"] = {"Result": {"Total": nd_ok, "Frame": nd_verdict}, "Info": info}
+    if error is not None:
+        frame["Error"] = error
+    return frame
+
+
+def final_record(result) -> dict:
+    """DLR rewrites its last line with graph data; ours: points per target box against distance."""
+    objs = result.objects
+    count_plot = {"x": {str(i): o["distance"] for i, o in enumerate(objs)},
+                  "y": {str(i): o["points"] for i, o in enumerate(objs)},
+                  "color": {str(i): o["uuid"][:6] for i, o in enumerate(objs)},
+                  "legend": {str(i): o["uuid"][:6] for i, o in enumerate(objs)}}
+    stamp = result.stamps_ns[-1] / 1e9
+    return {"Result": {"Success": bool(result.success), "Summary": result.summary},
+            "Stamp": {"System": stamp, "ROS": stamp}, "Frame": {"GraphData": {"PointcloudCount": count_plot}}}
+
+
+def describe_frame(result, i: int, part: str) -> str:
+    name, stamp = result.frame_names[i], result.stamps_ns[i] / 1e9
+    verdict = (result.detection if part == "detection" else result.non_detection)[i]
+    why = []
+    if result.errors[i]:
+        why.append(result.errors[i])
+    if result.topic_rate[i] is False:
+        why.append("topic rate in ERROR")
+    if part == "detection":
+        why += [f"UUID {o['uuid']} {o['status']} ({o['points']} point(s))"
+                for o in result.objects if o["frame"] == name and o["stamp_ns"] == result.stamps_ns[i]
+                and o["status"] != "Success"]
+    elif result.area_points[i]:
+        why.append(f"{result.area_points[i]} point(s) in the non-detection area")
+    return f"frame {name} @ {stamp:.6f}s {verdict}" + (f" ({', '.join(why)})" if why else "")

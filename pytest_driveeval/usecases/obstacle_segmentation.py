@@ -1,0 +1,162 @@
+"""Use case ``obstacle_segmentation``: driving_log_replayer's scenarios, evaluated without ROS.
+
+Each cloud of ``/perception/obstacle_segmentation/pointcloud`` in the dataset's
+input_bag is streamed (one message in memory) and judged as driving_log_replayer
+does: ground truth within 75 ms of the cloud stamp (else FrameSkip += 1); target
+boxes scaled in x/y by ``box_scale_0m .. box_scale_100m`` over 0..100 m; a box
+with >= ``min_points_threshold`` points is detected, one with visibility "none"
+is a Warn; the frame's Detection is Warn if any target warns, Success if every
+target is detected and the topic rate is fine, else Fail.  NonDetection: the
+ProposedArea prism in base_link, intersected with the map's road lanelets (moved
+to base_link by TF at the cloud stamp), minus every scaled box, must hold no
+point.  A part passes when its rate >= PassRate.  Artefacts: ``result.jsonl``
+in driving_log_replayer's line format and bird's-eye PNGs of the first failing
+frames (``Artefacts.FailingFramePlots``, default 5).
+
+Point clouds.  ``driveeval_pointclouds`` defaults to ``PointCloud.Topic`` of the
+input_bag, or, for a dataset without input_bag, to its key-frame lidar sweeps
+(data/LIDAR_*/*.pcd.bin moved to base_link by their calibration; one frame per
+sample).  To evaluate a point-cloud FILTER in-process, override the fixture
+with a callable ``raw_points -> obstacle_points``; the use case then streams
+``PointCloud.RawTopic`` (or the sweeps) and applies it::
+
+    @pytest.fixture
+    def driveeval_pointclouds():
+        return my_ground_filter          # structured (x, y, z, ...) in, same or (N, 3) out
+
+Any other value is taken as the clouds themselves (iterable of
+``(stamp_ns, frame_id, points)``).
+
+Where we differ from driving_log_replayer (deliberately):
+
+- Topic rate: DLR's callback skips the status it means to read (``if name ==
+  TARGET: return``), starts at False and so fails every frame of a bag without
+  diagnostics.  We read /diagnostics_agg (else /diagnostics), take the statuses
+  whose name contains ``PointCloud.TopicRateDiagnostic``, fail a frame at level
+  >= ERROR, and with no such status say "Unknown" (TopicRate: "Unknown" in the
+  jsonl) and do not fail the frame.
+- A failed TF lookup (map -> base_link, or the cloud's frame -> base_link) is an
+  error for that frame: both parts Fail, the jsonl line carries ``Error`` and the
+  outcome a finding; never an identity transform.
+- No map in the dataset: the area is the ProposedArea prism alone (DLR needs one).
+- Overlapping lanelets: a point counts once (union), not once per lanelet.
+- ProposedArea must be clockwise by signed area (DLR's check is wrong for
+  non-rectangles); counter-clockwise or self-intersecting polygons are errors at
+  their YAML line.  Both Detection and NonDetection null is an error.
+- UUIDs (BoundingBoxConfig / target_uuids) not in the dataset are an error naming
+  them at their YAML line (DLR silently evaluates nothing for them).
+- BoundingBoxConfig Start/End are absolute seconds of the cloud header stamp, as
+  in DLR; a frame whose windows hold no UUID is skipped and counted in FrameSkip.
+- Visibility "none" and nuScenes' "v0-40" both warn (perception_eval's alias).
+- jsonl: Stamp.System equals Stamp.ROS (the cloud stamp) so output is
+  deterministic; Detection carries ``Objects`` (every target; DLR's ``Info``
+  keeps one per kind); the final line's GraphData has PointcloudCount only.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from ..errors import DataError, Problem, ScenarioError
+from ..io.t4dataset import T4Dataset
+from ..obstacle import (FilteredPointClouds, ObstacleResult, UnknownUUIDError, dataset_pointclouds,
+                        evaluate_obstacle_segmentation)
+from ..outcome import FAILED, PASSED, Finding, Outcome
+from ..usecase import RunContext, UseCase, register_usecase
+from .obstacle_segmentation_config import LEGACY, V3, ObstacleSegmentationConfig
+
+
+@register_usecase
+class ObstacleSegmentation(UseCase):
+    name = "obstacle_segmentation"
+    format_versions = (*LEGACY, V3)
+    config_model = ObstacleSegmentationConfig
+    fixtures = ("driveeval_dataset", "driveeval_pointclouds")
+
+    def load_dataset(self, ctx: RunContext) -> T4Dataset:
+        return T4Dataset(super().load_dataset(ctx))
+
+    def load_pointclouds(self, ctx: RunContext) -> Any:
+        return None  # resolved in run(), where the dataset fixture is at hand
+
+    def run(self, config: ObstacleSegmentationConfig, ctx: RunContext) -> Outcome:
+        dataset: T4Dataset = ctx.fixtures["driveeval_dataset"]
+        clouds = ctx.fixtures.get("driveeval_pointclouds")
+        if clouds is None:
+            clouds = dataset_pointclouds(dataset, config.PointCloud.Topic)
+        elif callable(clouds) and not hasattr(clouds, "__iter__"):
+            clouds = FilteredPointClouds(dataset_pointclouds(dataset, config.PointCloud.RawTopic), clouds)
+        try:
+            result = evaluate_obstacle_segmentation(
+                dataset, clouds, config, jsonl=ctx.artefact("result.jsonl"), plots_dir=ctx.output_dir,
+                max_plots=config.Artefacts.FailingFramePlots)
+        except UnknownUUIDError as exc:
+            raise ScenarioError(ctx.scenario.path, _uuid_problems(ctx, config, exc)) from None
+        except DataError as exc:
+            partial = getattr(exc, "partial_result", None)
+            if partial is not None and partial.frames:
+                exc.outcome = self._outcome(partial, config, ctx, error=str(exc))
+            raise
+        return self._outcome(result, config, ctx)
+
+    def _outcome(self, result: ObstacleResult, config, ctx: RunContext, error: str | None = None) -> Outcome:
+        cond = config.Conditions
+        findings: list[Finding] = []
+        for part, bound, key in (("detection", result.detection_pass_rate, cond.detection_key),
+                                 ("non_detection", result.non_detection_pass_rate, "NonDetection")):
+            c = result.counters[part]
+            if bound is None or not c["total"] or result.rate(part) >= bound:
+                continue
+            from ..report.jsonl import describe_frame
+
+            bad = result.failing_frames(part)
+            listed = "; ".join(describe_frame(result, i, part) for i in bad[:5])
+            more = f"; ... {len(bad) - 5} more" if len(bad) > 5 else ""
+            findings.append(Finding(
+                f"{key}: {c['passed']} / {c['total']} frame(s) passed ({result.rate(part):.2f}%), {bound:g}% "
+                f"required; {listed}{more}", figure=f"{part}_rate", value=result.rate(part), limit=bound,
+                keypath=("Evaluation", "Conditions", key, "PassRate")))
+        errors = [e for e in result.errors if e]
+        if errors:
+            findings.append(Finding(f"{len(errors)} frame(s) could not be evaluated: {errors[0]}",
+                                    figure="frame_errors", value=len(errors)))
+        if result.frames == 0:
+            findings.append(Finding(f"no frame evaluated: {result.skipped} cloud(s) skipped (no ground truth within "
+                                    "75 ms, or no UUID in its BoundingBoxConfig window)"))
+        unknown_rate = result.frames and all(t is None for t in result.topic_rate)
+        figures = {"frames": result.frames, "frames_skipped": result.skipped, "frame_errors": len(errors)}
+        if result.detection_pass_rate is not None:
+            figures.update(detection_rate=result.rate("detection"), detection_warn=result.counters["detection"]["warn"])
+        if result.non_detection_pass_rate is not None:
+            figures.update(non_detection_rate=result.rate("non_detection"),
+                           max_area_points=max(result.area_points, default=0))
+        summary = result.summary + f" ({result.skipped} skipped)" + (
+            "; topic rate unknown (no diagnostics status)" if unknown_rate else "")
+        if error:
+            summary += f"; stopped early: {error}"
+        artefacts = {"result": result.jsonl} if result.jsonl is not None else {}
+        artefacts.update({p.stem: p for p in result.plots})
+        details = {"frames": [{"frame": n, "stamp_ns": s, "detection": d, "non_detection": nd, "topic_rate": t,
+                               "area_points": a, "error": e} for n, s, d, nd, t, a, e in
+                              zip(result.frame_names, result.stamps_ns, result.detection, result.non_detection,
+                                  result.topic_rate, result.area_points, result.errors)]}
+        ok = result.success and not errors and error is None
+        return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
+                       artefacts=artefacts, details=details)
+
+
+def _uuid_problems(ctx: RunContext, config, exc: UnknownUUIDError) -> list[Problem]:
+    problems = []
+    det = config.Conditions.Detection
+    for uuid in exc.uuids:
+        keypath: tuple = ()
+        for i, entry in enumerate((det.BoundingBoxConfig or []) if det is not None else []):
+            if uuid in entry:
+                keypath = ("Evaluation", "Conditions", "Detection", "BoundingBoxConfig", i, uuid)
+        targets = config.SensingEvaluationConfig.evaluation_config_dict.target_uuids or []
+        if not keypath and uuid in targets:
+            keypath = ("Evaluation", "SensingEvaluationConfig", "evaluation_config_dict", "target_uuids",
+                       targets.index(uuid))
+        where = ctx.dataset.path if ctx.dataset is not None else "the dataset"
+        problems.append(Problem(f"UUID '{uuid}' is not an instance of dataset {where} (annotation/instance.json)",
+                                ctx.scenario.line_of(*keypath), keypath))
+    return problems

@@ -1,0 +1,198 @@
+"""The YAML of an ``obstacle_segmentation`` scenario: driving_log_replayer's, unchanged.
+
+UseCaseFormatVersion 0.3.0::
+
+    Conditions:
+      Detection:                     # or null
+        PassRate: 99.0
+        BoundingBoxConfig:           # or null; overrides target_uuids
+          - dcb2b352232fff50c4fad23718f31611: {Start: null, End: null}
+      NonDetection:                  # or null
+        PassRate: 99.0
+        ProposedArea:
+          polygon_2d: [[10.0, 1.5], [10.0, -1.5], [0.0, -1.5], [0.0, 1.5]]   # clockwise, base_link
+          z_min: 0.0
+          z_max: 1.5
+    SensingEvaluationConfig:
+      evaluation_config_dict:
+        evaluation_task: sensing
+        target_uuids: null           # null: every annotated box
+        box_scale_0m: 1.0
+        box_scale_100m: 1.0
+        min_points_threshold: 1
+
+0.1.0 / 0.2.0 name the detection part ``ObstacleDetection: {PassRate}`` and take
+the targets from ``target_uuids``.  Keys of our own, all optional (a
+driving_log_replayer file needs none of them)::
+
+    PointCloud: {Topic: /perception/obstacle_segmentation/pointcloud,
+                 RawTopic: /sensing/lidar/concatenated/pointcloud,   # read when a filter is given
+                 TopicRateDiagnostic: topic_state_monitor_obstacle_segmentation_pointcloud}
+    Artefacts: {FailingFramePlots: 5}
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import (BaseModel, ConfigDict, Field, NonNegativeInt, PositiveFloat, ValidationInfo, field_validator,
+                      model_validator)
+
+from ..usecase import ConditionsModel
+
+V3 = "0.3.0"
+LEGACY = ("0.1.0", "0.2.0")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+RATE = Field(ge=0.0, le=100.0)
+
+
+class Window(_Strict):
+    """Seconds of the cloud's header stamp (absolute ROS time, as driving_log_replayer compares)."""
+
+    Start: float | None = None
+    End: float | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if self.Start is not None and self.End is not None and self.End < self.Start:
+            raise ValueError(f"End ({self.End}) is before Start ({self.Start})")
+        return self
+
+
+class DetectionCondition(_Strict):
+    PassRate: float = RATE
+    BoundingBoxConfig: list[dict[str, Window | None]] | None = None
+
+    def windows(self) -> dict[str, tuple[float, float]] | None:
+        if self.BoundingBoxConfig is None:
+            return None
+        out: dict[str, tuple[float, float]] = {}
+        for entry in self.BoundingBoxConfig:
+            for uuid, w in entry.items():
+                w = w or Window()
+                out[uuid] = (-np.inf if w.Start is None else w.Start, np.inf if w.End is None else w.End)
+        return out
+
+
+class LegacyDetectionCondition(_Strict):
+    PassRate: float = RATE
+
+
+def polygon_problem(vertices: np.ndarray) -> str | None:
+    """Why a proposed-area polygon is unusable, or None."""
+    from ..metrics.pointcloud import polygon_self_intersects, polygon_signed_area
+
+    if len(vertices) < 3:
+        return f"a polygon needs at least 3 vertices; found {len(vertices)}"
+    if not np.all(np.isfinite(vertices)):
+        return "vertices must be finite numbers"
+    if polygon_self_intersects(vertices):
+        return "the polygon intersects itself; list the vertices in order around its boundary"
+    area = polygon_signed_area(vertices)
+    if abs(area) < 1e-9:
+        return "the polygon has no area (its vertices are collinear or repeated)"
+    if area > 0:
+        # driving_log_replayer documents clockwise and rejects the other way round
+        # (its own check is wrong for non-rectangles; the signed area is not).
+        return (f"the polygon is counter-clockwise (signed area {area:.3g} m^2); driving_log_replayer "
+                "requires clockwise: list the same vertices in reverse order")
+    return None
+
+
+class ProposedAreaSpec(_Strict):
+    polygon_2d: list[tuple[float, float]]
+    z_min: float
+    z_max: float
+
+    @field_validator("polygon_2d")
+    @classmethod
+    def _valid_polygon(cls, v):
+        problem = polygon_problem(np.asarray(v, dtype=float).reshape(-1, 2))
+        if problem:
+            raise ValueError(problem)
+        return v
+
+    @model_validator(mode="after")
+    def _z_range(self):
+        if self.z_max < self.z_min:
+            raise ValueError(f"z_max ({self.z_max}) is below z_min ({self.z_min})")
+        return self
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return np.asarray(self.polygon_2d, dtype=np.float64)
+
+
+class NonDetectionCondition(_Strict):
+    PassRate: float = RATE
+    ProposedArea: ProposedAreaSpec
+
+
+class ConditionsSpec(_Strict):
+    Detection: DetectionCondition | None = None
+    ObstacleDetection: LegacyDetectionCondition | None = None  # 0.1.0 / 0.2.0 name
+    NonDetection: NonDetectionCondition | None = None
+
+    @model_validator(mode="after")
+    def _by_version(self, info: ValidationInfo):
+        version = (info.context or {}).get("version")
+        if self.ObstacleDetection is not None and self.Detection is not None:
+            raise ValueError("give Detection (0.3.0) or ObstacleDetection (0.1.0/0.2.0), not both")
+        if version == V3 and self.ObstacleDetection is not None:
+            raise ValueError("ObstacleDetection is the 0.1.0/0.2.0 name; UseCaseFormatVersion 0.3.0 calls it Detection")
+        if version in LEGACY and self.Detection is not None:
+            raise ValueError(f"Detection is the 0.3.0 name; UseCaseFormatVersion {version} calls it ObstacleDetection")
+        if self.Detection is None and self.ObstacleDetection is None and self.NonDetection is None:
+            raise ValueError("nothing to evaluate: Detection and NonDetection are both null")
+        return self
+
+    @property
+    def detection(self) -> DetectionCondition | None:
+        if self.ObstacleDetection is not None:
+            return DetectionCondition(PassRate=self.ObstacleDetection.PassRate)
+        return self.Detection
+
+    @property
+    def detection_key(self) -> str:
+        return "ObstacleDetection" if self.ObstacleDetection is not None else "Detection"
+
+
+class EvaluationConfigDict(_Strict):
+    evaluation_task: Literal["sensing"] = "sensing"
+    target_uuids: list[str] | None = None
+    box_scale_0m: PositiveFloat = 1.0
+    box_scale_100m: PositiveFloat = 1.0
+    min_points_threshold: NonNegativeInt = 1
+    label_prefix: str | None = None  # driving_log_replayer sets it to "autoware"; unused here
+
+
+class SensingSpec(_Strict):
+    evaluation_config_dict: EvaluationConfigDict = Field(default_factory=EvaluationConfigDict)
+
+
+class PointCloudOptions(_Strict):
+    Topic: str = "/perception/obstacle_segmentation/pointcloud"
+    RawTopic: str = "/sensing/lidar/concatenated/pointcloud"
+    TopicRateDiagnostic: str = "topic_state_monitor_obstacle_segmentation_pointcloud"
+
+
+class ArtefactOptions(_Strict):
+    FailingFramePlots: NonNegativeInt = 5
+
+
+class ObstacleSegmentationConfig(ConditionsModel):
+    Conditions: ConditionsSpec
+    SensingEvaluationConfig: SensingSpec = Field(default_factory=SensingSpec)
+    PointCloud: PointCloudOptions = Field(default_factory=PointCloudOptions)
+    Artefacts: ArtefactOptions = Field(default_factory=ArtefactOptions)
+
+    def condition_record(self) -> dict:
+        """The ``Condition`` driving_log_replayer writes first in result.jsonl."""
+        return self.Conditions.model_dump(mode="json", exclude_none=False,
+                                          exclude={"ObstacleDetection"} if self.Conditions.ObstacleDetection is None
+                                          else {"Detection"})
