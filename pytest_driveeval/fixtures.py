@@ -87,8 +87,10 @@ def driveeval_model(request: pytest.FixtureRequest, driveeval_context: RunContex
 
 
 @pytest.fixture
-def driveeval_pointclouds(driveeval_context: RunContext) -> Any:
-    """The point clouds under test, as the use case reads them from the dataset."""
+def driveeval_pointclouds(driveeval_context: RunContext, driveeval_dataset: Any) -> Any:
+    """The point clouds under test, as the use case reads them from the dataset
+    (the ``driveeval_dataset`` fixture, so an override of it applies here too)."""
+    driveeval_context.fixtures.setdefault("driveeval_dataset", driveeval_dataset)
     return driveeval_context.scenario.usecase.load_pointclouds(driveeval_context)
 
 

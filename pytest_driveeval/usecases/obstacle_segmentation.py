@@ -76,14 +76,12 @@ class ObstacleSegmentation(UseCase):
         return T4Dataset(super().load_dataset(ctx))
 
     def load_pointclouds(self, ctx: RunContext) -> Any:
-        return None  # resolved in run(), where the dataset fixture is at hand
+        return dataset_pointclouds(ctx.fixtures["driveeval_dataset"], ctx.scenario.config.PointCloud.Topic)
 
     def run(self, config: ObstacleSegmentationConfig, ctx: RunContext) -> Outcome:
         dataset: T4Dataset = ctx.fixtures["driveeval_dataset"]
-        clouds = ctx.fixtures.get("driveeval_pointclouds")
-        if clouds is None:
-            clouds = dataset_pointclouds(dataset, config.PointCloud.Topic)
-        elif callable(clouds) and not hasattr(clouds, "__iter__"):
+        clouds = ctx.fixtures["driveeval_pointclouds"]
+        if callable(clouds) and not hasattr(clouds, "__iter__"):
             clouds = FilteredPointClouds(dataset_pointclouds(dataset, config.PointCloud.RawTopic), clouds)
         try:
             result = evaluate_obstacle_segmentation(
