@@ -1,7 +1,6 @@
 """pytest hooks of pytest-driveeval.  Hooks only: the work is in the modules they call."""
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import pytest
@@ -9,7 +8,7 @@ import pytest
 from .collect import InvalidScenarioItem, ScenarioFile, failure_message, is_scenario_file
 from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR
-from .results import REPORT_ATTR, SUMMARY_NAME, ResultsReporter
+from .results import REPORT_ATTR, ResultsReporter
 from .settings import add_options, get_settings
 
 pytest_plugins = ["pytest_driveeval.fixtures"]
@@ -31,16 +30,6 @@ def pytest_configure(config: pytest.Config) -> None:
     get_settings(config)  # fail early on a bad option value
     if not _is_worker(config):
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_sessionstart(session: pytest.Session) -> None:
-    # Only the controller clears what an earlier run left, before any worker starts.
-    if _is_worker(session.config):
-        return
-    out = get_settings(session.config).output_dir
-    shutil.rmtree(out / "items", ignore_errors=True)
-    (out / SUMMARY_NAME).unlink(missing_ok=True)
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector):

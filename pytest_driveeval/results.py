@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Any
 import pytest
 
 from .outcome import format_figure
+from .settings import get_settings, safe_name
 
 SUMMARY_NAME = "summary.json"
 REPORT_ATTR = "driveeval"
@@ -114,7 +116,6 @@ class ResultsReporter:
     """Controller-side plugin: gathers records, writes the summary, prints the table."""
 
     def __init__(self, config: pytest.Config) -> None:
-        from .settings import get_settings
 
         self.settings = get_settings(config)
         self.collector = ResultCollector()
@@ -123,9 +124,17 @@ class ResultsReporter:
         self.collector.add(report)
 
     def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
-        if self.collector.records:
-            summary = self.collector.summary(exitstatus, self.settings.seed)
-            write_json_atomic(self.settings.output_dir / SUMMARY_NAME, summary)
+        # A run without scenario items leaves the last results alone; one with
+        # them replaces the summary and drops item folders it did not produce.
+        if not self.collector.records:
+            return
+        summary = self.collector.summary(exitstatus, self.settings.seed)
+        write_json_atomic(self.settings.output_dir / SUMMARY_NAME, summary)
+        items = self.settings.output_dir / "items"
+        produced = {safe_name(nodeid) for nodeid in self.collector.records}
+        for folder in items.iterdir() if items.is_dir() else ():
+            if folder.name not in produced:
+                shutil.rmtree(folder, ignore_errors=True)
 
     def pytest_terminal_summary(self, terminalreporter, exitstatus: int, config: pytest.Config) -> None:
         records = self.collector.sorted_records()

@@ -167,6 +167,17 @@ def test_stale_item_folders_are_cleared_by_the_next_run(gain):
     assert not stale.exists()
 
 
+def test_a_run_without_scenarios_leaves_the_last_results_alone(gain):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    gain.runpytest("-q").assert_outcomes(passed=1)
+    before = summary(gain)
+    (gain.path / "a.scenario.yaml").unlink()
+    gain.makepyfile(test_plain="def test_x():\n    pass\n")
+    gain.runpytest("-q").assert_outcomes(passed=1)
+    assert summary(gain) == before
+    assert (gain.path / "driveeval-results" / "items" / "a.scenario.yaml_gain" / "output.json").exists()
+
+
 def test_item_seeds_are_stable_distinct_and_follow_the_seed_option(gain):
     gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
 
