@@ -61,6 +61,7 @@ from ..io.t4dataset import T4Dataset
 from ..obstacle import (FilteredPointClouds, ObstacleResult, UnknownUUIDError, dataset_pointclouds,
                         evaluate_obstacle_segmentation)
 from ..outcome import FAILED, PASSED, Finding, Outcome
+from ..report.jsonl import describe_frame
 from ..usecase import RunContext, UseCase, register_usecase
 from .obstacle_segmentation_config import LEGACY, V3, ObstacleSegmentationConfig
 
@@ -104,8 +105,6 @@ class ObstacleSegmentation(UseCase):
             c = result.counters[part]
             if bound is None or not c["total"] or result.rate(part) >= bound:
                 continue
-            from ..report.jsonl import describe_frame
-
             bad = result.failing_frames(part)
             listed = "; ".join(describe_frame(result, i, part) for i in bad[:5])
             more = f"; ... {len(bad) - 5} more" if len(bad) > 5 else ""
