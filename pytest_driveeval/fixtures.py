@@ -17,6 +17,7 @@ import pytest
 
 from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR, Outcome
+from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
 from .settings import get_settings, item_seed
 from .usecase import Case, RunContext
@@ -94,6 +95,17 @@ def driveeval_pointclouds(driveeval_context: RunContext, driveeval_dataset: Any)
     return driveeval_context.scenario.usecase.load_pointclouds(driveeval_context)
 
 
+def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome) -> None:
+    """Keep the outcome on the item for the summary, and give it to the reports
+    that run inside the test (allure) or read the item (JUnit properties)."""
+    if outcome.scenario is None:
+        outcome.scenario = f"{ctx.scenario.name} [{ctx.case.name}]"
+    setattr(request.node, OUTCOME_ATTR, outcome)
+    request.node.user_properties.extend(junit_properties(outcome))
+    if allure_wanted(request.config):
+        attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None)
+
+
 @pytest.fixture
 def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Callable[..., Outcome]:
     """Run the scenario's evaluation with the current fixtures; return its Outcome.
@@ -111,11 +123,9 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
             outcome = usecase.run(ctx.scenario.config, ctx)
         except DriveEvalError as exc:
             if isinstance(exc.outcome, Outcome):
-                setattr(request.node, OUTCOME_ATTR, exc.outcome)
+                _keep(request, ctx, exc.outcome)
             raise
-        if outcome.scenario is None:
-            outcome.scenario = f"{ctx.scenario.name} [{ctx.case.name}]"
-        setattr(request.node, OUTCOME_ATTR, outcome)
+        _keep(request, ctx, outcome)
         return outcome
 
     return run

@@ -8,6 +8,7 @@ import pytest
 from .collect import InvalidScenarioItem, ScenarioFile, failure_message, is_scenario_file
 from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR
+from .report.attachments import html_extras, html_wanted
 from .results import REPORT_ATTR, ResultsReporter
 from .settings import add_options, get_settings
 
@@ -65,6 +66,10 @@ def pytest_runtest_makereport(item: pytest.Item, call):
         # Bad input, in any phase (a fixture that cannot open a dataset fails
         # in setup, where repr_failure is not asked): the message, no traceback.
         report.longrepr = failure_message(item, error)
+    outcome = getattr(item, OUTCOME_ATTR, None)
+    if outcome is not None and not getattr(item, "_driveeval_html_done", False) and html_wanted(item.config):
+        item._driveeval_html_done = True  # one set of extras per item, whatever the phases
+        report.extras = list(getattr(report, "extras", [])) + html_extras(outcome)
     record = _item_record(item)
     if record is not None:
         if error is not None:

@@ -21,6 +21,9 @@ from .outcome import format_figure
 from .settings import get_settings, safe_name
 
 SUMMARY_NAME = "summary.json"
+MARKDOWN_NAME = "summary.md"
+STEP_SUMMARY_ENV = "GITHUB_STEP_SUMMARY"
+STATUS_MARK = {"passed": "✅", "failed": "❌", "error": "💥", "skipped": "⏭️", "xfailed": "✔️", "xpassed": "⚠️"}
 REPORT_ATTR = "driveeval"
 SCHEMA_VERSION = 1
 
@@ -79,17 +82,21 @@ class ResultCollector:
         }
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
+def write_text_atomic(path: Path, text: str) -> None:
+    """Readers see the old file or the new one, never half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            json.dump(data, handle, indent=2, sort_keys=False, allow_nan=False)
-            handle.write("\n")
+            handle.write(text)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
@@ -112,6 +119,24 @@ def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
     return lines
 
 
+def _cell(text: Any) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ").strip()
+
+
+def markdown_summary(summary: dict[str, Any]) -> str:
+    """The session as Markdown: counts, then one row per scenario item."""
+    counts = ", ".join(f"{n} {status}" for status, n in summary["counts"].items())
+    lines = [f"## pytest-driveeval: {counts}", "",
+             "| verdict | scenario | use case | summary | key figures |", "|---|---|---|---|---|"]
+    for r in summary["results"]:
+        status = r.get("status", "?")
+        text = r.get("summary") or (r.get("message") or "").splitlines()[0:1]
+        text = text if isinstance(text, str) else " ".join(text)
+        lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
+                     f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
+    return "\n".join(lines) + "\n"
+
+
 class ResultsReporter:
     """Controller-side plugin: gathers records, writes the summary, prints the table."""
 
@@ -130,6 +155,13 @@ class ResultsReporter:
             return
         summary = self.collector.summary(exitstatus, self.settings.seed)
         write_json_atomic(self.settings.output_dir / SUMMARY_NAME, summary)
+        markdown = markdown_summary(summary)
+        write_text_atomic(self.settings.output_dir / MARKDOWN_NAME, markdown)
+        step_summary = os.environ.get(STEP_SUMMARY_ENV)
+        if step_summary:
+            # CI systems show this file on the run's page; others may have written to it too.
+            with open(step_summary, "a", encoding="utf-8") as handle:
+                handle.write(markdown)
         items = self.settings.output_dir / "items"
         produced = {safe_name(nodeid) for nodeid in self.collector.records}
         for folder in items.iterdir() if items.is_dir() else ():

@@ -1,0 +1,97 @@
+"""An outcome's figures and artefacts, handed to the reports people already use.
+
+pytest-html, allure and JUnit XML are each optional: nothing here is imported
+or attempted unless that plugin is active and its report was asked for.
+Attachments are made on the process that ran the item (an xdist worker too),
+once, in the phase that produced the outcome.
+"""
+from __future__ import annotations
+
+import base64
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from ..outcome import Outcome, format_figure
+
+IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
+TEXT_TYPES = {".json": "json", ".jsonl": "text", ".txt": "text", ".csv": "text", ".md": "text"}
+
+
+def html_wanted(config: pytest.Config) -> bool:
+    return config.pluginmanager.hasplugin("html") and bool(config.getoption("htmlpath", None))
+
+
+def allure_wanted(config: pytest.Config) -> bool:
+    return config.pluginmanager.hasplugin("allure_pytest") and bool(config.getoption("allure_report_dir", None))
+
+
+def scalar_figures(outcome: Outcome) -> dict[str, Any]:
+    return {k: v for k, v in outcome.figures.items() if isinstance(v, (bool, int, float, str))}
+
+
+def junit_properties(outcome: Outcome) -> list[tuple[str, str]]:
+    """Key figures as JUnit test-case properties (``driveeval.<figure>``)."""
+    props = [("driveeval.use_case", outcome.use_case), ("driveeval.verdict", outcome.verdict)]
+    return props + [(f"driveeval.{k}", format_figure(v)) for k, v in scalar_figures(outcome).items()]
+
+
+def _figures_table(outcome: Outcome) -> str:
+    from html import escape
+
+    rows = "".join(f"<tr><td>{escape(k)}</td><td>{escape(format_figure(v))}</td></tr>"
+                   for k, v in scalar_figures(outcome).items())
+    return (f"<div class='driveeval'><p><b>{escape(outcome.use_case)}: {escape(outcome.verdict)}</b> "
+            f"{escape(outcome.summary)}</p><table>{rows}</table></div>")
+
+
+def html_extras(outcome: Outcome) -> list[dict]:
+    """pytest-html extras: a figures table, images inline (base64, so a
+    self-contained report carries them), result files as JSON / text."""
+    from pytest_html import extras
+
+    out = [extras.html(_figures_table(outcome))]
+    # pytest-html shows images one at a time: animations first, they say the most.
+    ordered = sorted(outcome.artefacts.items(), key=lambda item: Path(item[1]).suffix.lower() != ".gif")
+    for name, path in ordered:
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if not path.is_file():
+            continue
+        if suffix in IMAGE_TYPES:
+            data = base64.b64encode(path.read_bytes()).decode("ascii")
+            out.append(extras.image(data, name=name, mime_type=IMAGE_TYPES[suffix], extension=suffix[1:]))
+        elif suffix in TEXT_TYPES:
+            text = path.read_text(encoding="utf-8")
+            out.append(extras.json(text, name=name) if TEXT_TYPES[suffix] == "json" else extras.text(text, name=name))
+    return out
+
+
+def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None = None) -> None:
+    """Allure: scenario and use case as labels, figures as parameters, artefacts
+    as typed attachments.  Called while the test runs, so allure files them
+    under it."""
+    import allure
+    from allure_commons.types import AttachmentType
+
+    types = {".png": AttachmentType.PNG, ".gif": AttachmentType.GIF, ".json": AttachmentType.JSON,
+             ".jsonl": AttachmentType.TEXT, ".txt": AttachmentType.TEXT, ".csv": AttachmentType.CSV,
+             ".jpg": AttachmentType.JPG, ".svg": AttachmentType.SVG}
+    allure.dynamic.label("use_case", outcome.use_case)
+    allure.dynamic.feature(outcome.use_case)
+    if scenario is not None:
+        allure.dynamic.title(f"{scenario.name}" + (f" [{dataset}]" if dataset else ""))
+        allure.dynamic.story(scenario.name)
+        if scenario.description:
+            allure.dynamic.description(scenario.description)
+    if dataset:
+        allure.dynamic.parameter("dataset", dataset)
+    for key, value in scalar_figures(outcome).items():
+        # Excluded from allure's history id: a figure changing is the news, not a new test.
+        allure.dynamic.parameter(key, value, excluded=True)
+    for name, path in outcome.artefacts.items():
+        path = Path(path)
+        if path.is_file():
+            allure.attach.file(str(path), name=name, attachment_type=types.get(path.suffix.lower()),
+                               extension=None if path.suffix.lower() in types else path.suffix[1:])

@@ -1,0 +1,110 @@
+"""Each report kind carries every item's figures and artefacts, exactly once."""
+from __future__ import annotations
+
+import html
+import json
+import re
+import shutil
+import xml.etree.ElementTree as ET
+
+import pytest
+
+pytest.importorskip("torch")
+
+from conftest import REPO_ROOT  # noqa: E402
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+ScenarioDescription: replaying the log, for the reports
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - logs: {{Path: gen.zarr}}
+  Model: {model}
+  Unroll: {{Scenes: [0], StartFrame: 10, Steps: 20}}
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0}}
+  Artefacts: {{Animations: all}}
+"""
+ARTEFACTS = {"result", "chart", "scene_0_gif"}
+
+
+@pytest.fixture
+def two(pytester):
+    shutil.copytree(REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr", pytester.path / "gen.zarr")
+    pytester.makefile(".scenario.yaml", a=SCENARIO.format(name="a", model="log_replay"),
+                      b=SCENARIO.format(name="b", model="log_replay"))
+    return pytester
+
+
+def html_tests(path) -> dict:
+    blob = re.search(r'data-jsonblob="([^"]*)"', path.read_text()).group(1)
+    return json.loads(html.unescape(blob))["tests"]
+
+
+@pytest.mark.parametrize("workers", [[], ["-n", "2"]])
+def test_pytest_html_extras_inline_images_once_per_item(two, workers):
+    two.runpytest("-q", "--html=report.html", "--self-contained-html", *workers).assert_outcomes(passed=2)
+    tests = html_tests(two.path / "report.html")
+    assert len(tests) == 2
+    for phases in tests.values():
+        extras = [e for phase in phases for e in phase["extras"]]
+        names = [e["name"] for e in extras if e["format_type"] != "html"]
+        assert sorted(names) == sorted(ARTEFACTS)
+        by_name = {e["name"]: e for e in extras}
+        assert by_name["scene_0_gif"]["content"].startswith("data:image/gif;base64,R0lGOD")
+        assert by_name["chart"]["content"].startswith("data:image/png;base64,iVBOR")
+        assert by_name["result"]["format_type"] == "json"
+        figures = [e["content"] for e in extras if e["format_type"] == "html"]
+        assert len(figures) == 1 and "<td>front</td><td>0</td>" in figures[0]
+
+
+@pytest.mark.parametrize("workers", [[], ["-n", "2"]])
+def test_allure_results_have_typed_attachments_labels_and_figures(two, workers):
+    two.runpytest("-q", "--alluredir=allure", *workers).assert_outcomes(passed=2)
+    results = [json.loads(p.read_text()) for p in (two.path / "allure").glob("*-result.json")]
+    assert sorted(r["name"] for r in results) == ["a [logs]", "b [logs]"]
+    for r in results:
+        types = sorted((a["name"], a["type"]) for a in r["attachments"])
+        assert types == [("chart", "image/png"), ("result", "application/json"), ("scene_0_gif", "image/gif")]
+        labels = {(label["name"], label["value"]) for label in r["labels"]}
+        assert ("use_case", "closed_loop") in labels and ("feature", "closed_loop") in labels
+        params = {p["name"]: p["value"] for p in r["parameters"]}
+        assert params["dataset"] == "'logs'" and params["front"] == "0" and params["steps"] == "20"
+        assert r["description"] == "replaying the log, for the reports"
+        for attachment in r["attachments"]:
+            assert (two.path / "allure" / attachment["source"]).stat().st_size > 100
+
+
+@pytest.mark.parametrize("workers", [[], ["-n", "2"]])
+def test_junit_properties_carry_key_figures(two, workers):
+    two.runpytest("-q", "--junitxml=junit.xml", *workers).assert_outcomes(passed=2)
+    cases = ET.parse(two.path / "junit.xml").getroot().iter("testcase")
+    for case in cases:
+        props = [(p.get("name"), p.get("value")) for p in case.iter("property")]
+        names = [n for n, _ in props]
+        assert len(names) == len(set(names)), "a property appears twice"
+        assert ("driveeval.verdict", "passed") in props and ("driveeval.front", "0") in props
+        assert ("driveeval.use_case", "closed_loop") in props
+
+
+def test_markdown_summary_and_ci_step_summary(two, monkeypatch):
+    step = two.path / "step_summary.md"
+    step.write_text("earlier step\n")
+    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(step))
+    two.makefile(".scenario.yaml", c=SCENARIO.format(name="c", model="constant_velocity").replace(
+        "Steps: 20", "Steps: 140").replace("Rear: 0}", "Rear: 0}\n    MaxResets: 0"))
+    two.runpytest("-q", "-n", "2")
+    markdown = (two.path / "driveeval-results" / "summary.md").read_text()
+    assert markdown.startswith("## pytest-driveeval: 1 failed, 2 passed\n")
+    assert "| ✅ passed | `a.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
+    assert "| ❌ failed | `c.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
+    assert step.read_text() == "earlier step\n" + markdown
+
+
+def test_without_the_report_plugins_nothing_breaks(two):
+    result = two.runpytest("-q", "-p", "no:html", "-p", "no:allure_pytest", "-n", "2")
+    result.assert_outcomes(passed=2)
+    assert (two.path / "driveeval-results" / "summary.json").exists()
