@@ -3,9 +3,12 @@
 One frame asks two questions of every point: which (scaled) ground-truth boxes
 hold it, and does it lie in the non-detection area (a prism over a polygon,
 clipped to road lanelets, minus every box).  Both are answered after a single
-pass over all points: a coarse uint8 occupancy grid of the boxes' and the
-area's bounds flags the few points worth an exact test, so the per-frame cost
-is a handful of array operations over N plus exact tests on the survivors.
+pass over all points: a coarse 255 x 255 grid (the boxes' footprints rasterised
+exactly, the area's bounds) flags the few points worth an exact test.  The pass
+reads x, y as one complex64 per point, scales, clips and casts to an int8 pair
+that is itself the uint16 table key, in L2-sized chunks: five array operations
+over N.  Points in cells inside a single box's footprint need only the z test;
+all exact tests run in float64 on the survivors.
 
 Semantics follow perception_eval's sensing evaluation: a box is scaled in x/y
 only, by ``box_scale_0m + (box_scale_100m - box_scale_0m) * d / 100`` with d the
@@ -63,10 +66,20 @@ def points_in_polygon(x: np.ndarray, y: np.ndarray, vertices: np.ndarray, chunk:
     """Crossing-number test (perception_eval's rule: half-open in y), points x edges at once."""
     v = np.asarray(vertices, dtype=np.float64)
     xi, yi = v[:, 0], v[:, 1]
-    xj, yj = np.roll(xi, -1), np.roll(yi, -1)
+    nxt = np.arange(1, len(v) + 1) % max(len(v), 1)
+    xj, yj = xi.take(nxt), yi.take(nxt)
     dy = yj - yi
     flat = dy == 0
     slope = np.where(flat, 0.0, (xj - xi) / np.where(flat, 1.0, dy))
+    if np.count_nonzero(~flat) <= 8:
+        # Few edges: one pass per edge (horizontal edges never straddle a point's y).
+        out = np.zeros(len(x), dtype=bool)
+        px, py = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        for e in np.flatnonzero(~flat):
+            straddles = (yi[e] <= py) != (yj[e] <= py)
+            straddles &= px < xi[e] + (py - yi[e]) * slope[e]
+            out ^= straddles
+        return out
     out = np.zeros(len(x), dtype=bool)
     # Chunks bound the (points x edges) temporaries for long lanelet outlines.
     for s in range(0, len(x), chunk):
@@ -164,69 +177,199 @@ def xyz_columns(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 MULTI = -2  # grid label of a cell touched by several boxes
+_C64 = np.dtype(np.complex64)
+_CHUNK = 1 << 16  # points per step of the full pass: its temporaries stay in L2
+# Grid cell flags.  BOX: a box footprint may touch the cell; INNER: the cell lies inside
+# the footprint of its (single) box, so only z needs testing; AREA: inside the area's bounds.
+BOX, AREA, INNER = 1, 2, 4
 
 
-def _grid_candidates(x, y, boxes: np.ndarray, area: np.ndarray | None, cell_budget: int = 1 << 16):
-    """Indices of points whose grid cell touches a box or the area, with each
-    cell's flags (bit 1: some box, bit 2: area) and box label (index, or MULTI)."""
-    regions = boxes if area is None else np.concatenate([boxes, area[None]])
-    lo, hi = regions[:, :2].min(axis=0), regions[:, 3:5].max(axis=0)
-    span = np.maximum(hi - lo, 1e-3)
-    cell = max(float(np.sqrt(span[0] * span[1] / cell_budget)), 0.25)
-    shape = (np.floor(span / cell).astype(np.int64) + 3)  # one empty cell of padding on each side
-    origin = lo - cell
-    flags = np.zeros(shape[::-1], dtype=np.uint8)  # rows: y, cols: x
-    labels = np.full(shape[::-1], -1, dtype=np.int16)
-    i0 = np.floor((regions[:, :2] - origin) / cell).astype(np.int64)
-    i1 = np.floor((regions[:, 3:5] - origin) / cell).astype(np.int64) + 1
-    for k, ((a, b), (c, d)) in enumerate(zip(i0, i1)):  # loop over regions (tens), not points
-        if k < len(boxes):
-            flags[b:d, a:c] |= 1
-            sub = labels[b:d, a:c]
-            sub[...] = np.where(sub == -1, k, MULTI)
-        else:
-            flags[b:d, a:c] |= 2
-    inv = np.float32(1.0 / cell)
-    fx = np.subtract(x, np.float32(origin[0]), dtype=np.float32)
-    fx *= inv
-    np.clip(fx, 0, shape[0] - 1, out=fx)
-    fy = np.subtract(y, np.float32(origin[1]), dtype=np.float32)
-    fy *= inv
-    np.clip(fy, 0, shape[1] - 1, out=fy)
-    key = fy.astype(np.int32)
-    key *= np.int32(shape[0])
-    key += fx.astype(np.int32)
-    hit = flags.reshape(-1).take(key)
-    idx = np.flatnonzero(hit)
-    return idx, hit[idx], labels.reshape(-1).take(key[idx])
+class _Strided:
+    """Wraps raw strided memory so numpy can view it with another dtype (keeps ``base`` alive)."""
+
+    def __init__(self, base, addr: int, typestr: str, n: int, stride: int):
+        self.base = base
+        self.__array_interface__ = {"shape": (n,), "typestr": typestr, "data": (addr, True),
+                                    "strides": (stride,), "version": 3}
 
 
-def _box_pairs(boxes: BoxSet, x, y, z, labels) -> tuple[np.ndarray, np.ndarray]:
+def _xy_complex(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """x + i y with no copy when y directly follows x in memory (XYZ clouds, (N, 3) arrays)."""
+    if (x.ndim == 1 and x.dtype == y.dtype and x.dtype in (np.float32, np.float64) and x.dtype.isnative
+            and x.strides == y.strides and len(x) == len(y)):
+        ax, ay = x.__array_interface__["data"][0], y.__array_interface__["data"][0]
+        if ay - ax == x.dtype.itemsize:
+            ctype = np.dtype(np.complex64 if x.dtype == np.float32 else np.complex128)
+            return np.asarray(_Strided(x, ax, ctype.str, len(x), x.strides[0]))
+    c = np.empty(len(x), _C64)
+    c.real, c.imag = x, y
+    return c
+
+
+def _keys(rows, cols):
+    """Table key of cells: the (col, row) int8 pair read as a little-endian uint16."""
+    return ((rows & 255) << 8) | (cols & 255)
+
+
+def _expand(rows, lo, hi):
+    """Keys of the cells lo..hi (inclusive) of each row; rows with hi < lo give none."""
+    length = np.maximum(hi - lo + 1, 0)
+    ends = np.cumsum(length)
+    if not len(ends) or ends[-1] == 0:
+        return np.zeros(0, np.intp), length
+    cols = np.repeat(lo - (ends - length), length) + np.arange(ends[-1])
+    return _keys(np.repeat(rows, length), cols), length
+
+
+class _Grid:
+    """A 255 x 255 grid centred on base_link.  A point's cell is (trunc(x / cell),
+    trunc(y / cell)) computed in float32 (cell 0 is twice as wide); a cell has flags
+    (BOX | INNER | AREA) and a box label (index, MULTI, or -1 for area-only cells).
+    Box footprints are rasterised exactly (the oriented rectangle's x extent, and inner
+    x extent, within each row of cells) with a ``margin`` that covers the float32
+    rounding of the per-point lookup, so no point inside a box or the area is missed."""
+
+    def __init__(self, boxes: BoxSet, area: Area | None):
+        nb = len(boxes)
+        fp = boxes.footprints()  # (B, 4, 2)
+        area_box = None if area is None else area.aabb()
+        reach = float(np.max(np.abs(fp))) if nb else 0.0
+        if area_box is not None:
+            reach = max(reach, float(np.max(np.abs(area_box[[0, 1, 3, 4]]))))
+        m_abs = 1e-5 * (reach + 1.0)  # >> float32 rounding of coordinates of this size
+        # The per-point lookup runs in float32: rasterise with exactly that float32 scale.
+        self.inv = np.float32(1.0 / max((reach + 2 * m_abs) / 125.0, 8 * m_abs))
+        cell = 1.0 / float(self.inv)
+        m = m_abs + 1e-3 * cell
+        flags = np.zeros(1 << 16, dtype=np.uint8)
+        labels = np.empty(1 << 16, dtype=np.int16)  # read only where flags != 0
+
+        def index(v):  # trunc cell index of coordinates, as the per-point lookup computes it
+            return np.trunc(np.asarray(v) * (1.0 / cell)).astype(np.intp)
+
+        area_keys = None
+        if area_box is not None:
+            (c0, r0), (c1, r1) = index(area_box[:2] - m), index(area_box[3:5] + m)
+            area_keys = (np.arange(r0, r1 + 1)[:, None] & 255) << 8 | (np.arange(c0, c1 + 1) & 255)
+            labels[area_keys] = -1
+        if nb:
+            # Rows of cells each box spans.  Per (box, row): the x extent of the footprint
+            # within the row's dilated band [ya, yb], and its chords at the lines ya and yb,
+            # whose overlap is the inner extent (the footprint is convex).  An extent is that
+            # of the 4 edges, each clipped to the band (a line is a band of height 0).
+            j0, j1 = index(fp[:, :, 1].min(axis=1) - m), index(fp[:, :, 1].max(axis=1) + m)
+            j = j0[:, None] + np.arange(int(np.max(j1 - j0)) + 1)  # (B, R)
+            ya = (j - (j <= 0)) * cell - m  # cell 0 spans [-1, 1]
+            yb = (j + (j >= 0)) * cell + m
+            # Layout (edge, kind, box * row): broadcasting runs over the long last axis.
+            lo_y = np.stack([ya, ya, yb]).reshape(1, 3, -1)  # kinds: band, line ya, line yb
+            hi_y = np.stack([yb, ya, yb]).reshape(1, 3, -1)
+            edge = np.stack([fp, fp[:, [1, 2, 3, 0]] - fp]).transpose(0, 3, 2, 1)  # (p/e, x/y, edge, box)
+            (px, py), (ex, ey) = np.repeat(edge, j.shape[1], axis=3)[:, :, :, None, :]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ta, tb = (lo_y - py) / ey, (hi_y - py) / ey
+                t0 = np.maximum(np.minimum(ta, tb), 0.0)
+                t1 = np.minimum(np.maximum(ta, tb), 1.0)
+            flat = ey == 0  # a horizontal edge lies in the band or not
+            t0 = np.where(flat, np.where((py >= lo_y) & (py <= hi_y), 0.0, 2.0), t0)
+            t1 = np.where(flat, 1.0, t1)
+            ok = t0 <= t1
+            xa, xb = px + t0 * ex, px + t1 * ex
+            xlo = np.where(ok, np.minimum(xa, xb), np.inf).min(axis=0).reshape(3, *j.shape)  # (3, B, R)
+            xhi = np.where(ok, np.maximum(xa, xb), -np.inf).max(axis=0).reshape(3, *j.shape)
+            xlo[0][j > j1[:, None]] = np.inf
+            inner_lo, inner_hi = np.maximum(xlo[1], xlo[2]), np.minimum(xhi[1], xhi[2])
+            xlo, xhi = xlo[0], xhi[0]
+            # Column ranges: every cell touching the dilated extent; inner cells, dilated, inside it.
+            out = np.isfinite(xlo)
+            lo = index(np.where(out, xlo - m, 0.0))
+            hi = np.where(out, index(np.where(out, xhi + m, 0.0)), lo - 1)
+            inn = np.isfinite(inner_lo) & np.isfinite(inner_hi)
+            with np.errstate(invalid="ignore"):
+                a = np.where(inn, np.ceil((inner_lo + m) * (1.0 / cell)), 1.0).astype(np.intp)
+                b = np.where(inn, np.floor((inner_hi - m) * (1.0 / cell)), 0.0).astype(np.intp)
+            rows = np.concatenate([j.ravel(), j.ravel()])
+            keys, length = _expand(rows, np.concatenate([lo.ravel(), (a + (a <= 0)).ravel()]),
+                                   np.concatenate([hi.ravel(), (b - (b >= 0)).ravel()]))
+            n_out = int(length[:lo.size].sum())
+            keys, inner = keys[:n_out], keys[n_out:]
+            owner = np.repeat(np.repeat(np.arange(nb, dtype=np.int16), j.shape[1]), length[:lo.size])
+            flags[keys] = BOX
+            labels[keys] = owner
+            if nb > 1:  # a cell of several boxes keeps one owner's label: the others see it
+                labels[keys[labels.take(keys) != owner]] = MULTI
+            flags[inner] = BOX | INNER  # inner cells are cells of their box
+        if area_keys is not None:
+            flags[area_keys] |= AREA
+        self.flags, self.labels = flags, labels
+
+    def candidates(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the points whose cell is flagged, and those cells' keys.  The
+        only passes over all points: five array operations per chunk of _CHUNK points."""
+        xy = _xy_complex(x, y)
+        n = len(xy)
+        u = np.empty(min(n, _CHUNK), _C64)
+        f = u.view(np.float32)  # col, row, col, row, ...
+        hit = np.empty(len(u), np.uint8)
+        lim = np.float32(127)
+        idx, keys = [], []
+        with np.errstate(invalid="ignore"):  # NaN coordinates land somewhere; the exact tests reject them
+            for s in range(0, n, _CHUNK):
+                k = min(n - s, _CHUNK)
+                uk, fk, hk = u[:k], f[:2 * k], hit[:k]
+                np.multiply(xy[s:s + k], self.inv, out=uk, dtype=_C64)
+                np.clip(fk, -lim, lim, out=fk)
+                key = fk.astype(np.int8).view(np.uint16)
+                self.flags.take(key, out=hk)
+                i = np.flatnonzero(hk.view(bool))
+                keys.append(key[i])
+                idx.append(i + s if s else i)
+        idx = np.concatenate(idx) if len(idx) > 1 else idx[0]
+        key = np.concatenate(keys) if len(keys) > 1 else keys[0]
+        if not np.little_endian:  # pragma: no cover - the int8 pair reads the other way round
+            key = key.byteswap()
+        return idx, key
+
+
+def _box_pairs(boxes: BoxSet, x, y, z, labels, flags) -> tuple[np.ndarray, np.ndarray]:
     """(point, box) index pairs with the point inside the box.  A point in a
-    single-box cell is tested against that box only; MULTI cells against all."""
-    single = np.flatnonzero(labels >= 0)
-    b = labels[single].astype(np.intp)
-    cos, sin = np.cos(boxes.yaws), np.sin(boxes.yaws)
-    dx, dy = x[single] - boxes.centers[b, 0], y[single] - boxes.centers[b, 1]
-    c, s = cos[b], sin[b]
-    ok = ((np.abs(dx * c + dy * s) <= boxes.half[b, 0]) & (np.abs(dy * c - dx * s) <= boxes.half[b, 1])
-          & (np.abs(z[single] - boxes.centers[b, 2]) <= boxes.half[b, 2]))
+    single-box cell is tested against that box only (z only in an INNER cell);
+    MULTI cells against all.  The float64 tests are those of BoxSet.contains."""
+    single = labels >= 0
+    inner = single & (flags & INNER).astype(bool)
+    edge = np.flatnonzero(single & ~inner)
+    inner = np.flatnonzero(inner)
+    cz, hz = boxes.centers[:, 2], boxes.half[:, 2]
+    bi = labels.take(inner).astype(np.intp)
+    ok = np.abs(z.take(inner) - cz.take(bi)) <= hz.take(bi)
+    pairs, owners = [inner[ok]], [bi[ok]]
+    if len(edge):
+        b = labels.take(edge).astype(np.intp)
+        c, s = np.cos(boxes.yaws).take(b), np.sin(boxes.yaws).take(b)
+        dx = x.take(edge) - boxes.centers[:, 0].take(b)
+        dy = y.take(edge) - boxes.centers[:, 1].take(b)
+        ok = np.abs(dx * c + dy * s) <= boxes.half[:, 0].take(b)
+        ok &= np.abs(dy * c - dx * s) <= boxes.half[:, 1].take(b)
+        ok &= np.abs(z.take(edge) - cz.take(b)) <= hz.take(b)
+        pairs.append(edge[ok])
+        owners.append(b[ok])
     multi = np.flatnonzero(labels == MULTI)
-    mp, mb = np.nonzero(boxes.contains(x[multi], y[multi], z[multi]))
-    return np.concatenate([single[ok], multi[mp]]), np.concatenate([b[ok], mb])
+    if len(multi):
+        mp, mb = np.nonzero(boxes.contains(x[multi], y[multi], z[multi]))
+        pairs.append(multi[mp])
+        owners.append(mb)
+    return np.concatenate(pairs), np.concatenate(owners)
 
 
-def _nearest_per_box(dist2: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """Per box id, the index (into dist2) of its smallest value (-1 for absent ids)."""
-    order = np.argsort(box.astype(np.int16), kind="stable")  # radix sort on small ints
-    sb, sd = box[order], dist2[order]
-    new_group = np.r_[True, sb[1:] != sb[:-1]]
-    mins = np.minimum.reduceat(sd, np.flatnonzero(new_group))
-    group = np.cumsum(new_group) - 1
-    cand = np.flatnonzero(sd == mins[group])
-    first = cand[np.r_[True, group[cand][1:] != group[cand][:-1]]]
-    out = np.full(int(box.max()) + 1, -1, dtype=np.intp)
-    out[sb[first]] = order[first]
+def _nearest_per_box(dist2: np.ndarray, box: np.ndarray, point: np.ndarray, nb: int) -> np.ndarray:
+    """Per box id, the smallest ``point`` among the pairs of least dist2 (-1 for absent ids)."""
+    mins = np.full(nb, np.inf)
+    np.minimum.at(mins, box, dist2)
+    tie = np.flatnonzero(dist2 == mins.take(box))
+    big = np.iinfo(np.intp).max
+    out = np.full(nb, big, dtype=np.intp)
+    np.minimum.at(out, box.take(tie), point.take(tie))
+    out[out == big] = -1
     return out
 
 
@@ -239,34 +382,45 @@ def evaluate_cloud(points: np.ndarray, boxes: BoxSet, area: Area | None = None) 
     use_area = area is not None and not area.empty
     if (not nb and not use_area) or len(x) == 0:
         return CloudCounts(counts, nearest, np.zeros((0, 3)))
-    idx, flags, labels = _grid_candidates(x, y, boxes.aabbs().reshape(-1, 6), area.aabb() if use_area else None)
-    cx, cy, cz = (np.asarray(c[idx], dtype=np.float64) for c in (x, y, z))
+    grid = _Grid(boxes, area if use_area else None)
+    idx, key = grid.candidates(x, y)
+    flags, labels = grid.flags.take(key), grid.labels.take(key)
+    # One gather of whole records, then float64 columns of the few candidates.
+    cx, cy, cz = (np.asarray(c, dtype=np.float64) for c in xyz_columns(points.take(idx, axis=0)))
+    with np.errstate(all="ignore"):
+        if np.isnan(cx.sum() + cy.sum()):  # NaN x/y land in an arbitrary cell: drop them
+            ok = ~(np.isnan(cx) | np.isnan(cy))
+            idx, flags, labels, cx, cy, cz = (a[ok] for a in (idx, flags, labels, cx, cy, cz))
 
+    in_box = None
     if nb:
-        pi, bi = _box_pairs(boxes, cx, cy, cz, labels)
+        pi, bi = _box_pairs(boxes, cx, cy, cz, labels, flags)
         counts = np.bincount(bi, minlength=nb).astype(np.int64)
         if len(pi):
-            nearest_idx = _nearest_per_box(cx[pi] ** 2 + cy[pi] ** 2 + cz[pi] ** 2, bi)
+            px, py, pz = cx.take(pi), cy.take(pi), cz.take(pi)
+            first = _nearest_per_box(px ** 2 + py ** 2 + pz ** 2, bi, pi, nb)  # first in cloud order on ties
             has = np.flatnonzero(counts)
-            take = pi[nearest_idx[has]]
-            nearest[has] = np.stack([cx[take], cy[take], cz[take]], axis=1)
+            take = first[has]
+            nearest[has] = np.stack([cx.take(take), cy.take(take), cz.take(take)], axis=1)
+            in_box = np.zeros(len(idx), dtype=bool)
+            in_box[pi] = True
     area_points = np.zeros((0, 3))
     if use_area:
-        keep = (flags & 2).astype(bool) & (cz >= area.z_min) & (cz <= area.z_max)
+        keep = (flags & AREA).astype(bool)
+        keep &= cz >= area.z_min
+        keep &= cz <= area.z_max
+        if in_box is not None:
+            keep &= ~in_box
         sel = np.flatnonzero(keep)
-        inside = points_in_polygon(cx[sel], cy[sel], area.polygon)
-        sel = sel[inside]
+        sx, sy = cx.take(sel), cy.take(sel)
+        inside = points_in_polygon(sx, sy, area.polygon)
         if area.clips is not None:
             on_road = np.zeros(len(sel), dtype=bool)
             for clip in area.clips:  # loop over lanelets, each test vectorised over points
-                on_road |= points_in_polygon(cx[sel], cy[sel], clip)
-            sel = sel[on_road]
-        if nb and len(sel):
-            in_box, _ = _box_pairs(boxes, cx[sel], cy[sel], cz[sel], labels[sel])
-            outside = np.ones(len(sel), dtype=bool)
-            outside[in_box] = False
-            sel = sel[outside]
-        area_points = np.stack([cx[sel], cy[sel], cz[sel]], axis=1)
+                on_road |= points_in_polygon(sx, sy, clip)
+            inside &= on_road
+        sel = sel[inside]
+        area_points = np.stack([cx.take(sel), cy.take(sel), cz.take(sel)], axis=1)
     return CloudCounts(counts, nearest, area_points, candidates=len(idx))
 
 
