@@ -134,7 +134,29 @@ def markdown_summary(summary: dict[str, Any]) -> str:
         text = text if isinstance(text, str) else " ".join(text)
         lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
                      f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + policy_table(summary["results"])) + "\n"
+
+
+def policy_table(records: list[dict[str, Any]]) -> list[str]:
+    """Policies side by side on the same data: one row per (use case, dataset),
+    one column per policy, when an evaluation names its policy in details."""
+    cells: dict[tuple, dict[str, str]] = {}
+    for r in records:
+        policy = (r.get("details") or {}).get("policy")
+        if policy is None or r.get("dataset") is None:
+            continue
+        cell = f"{STATUS_MARK.get(r.get('status', ''), '')} {_cell(_key_figures(r, limit=4))}"
+        cells.setdefault((r.get("use_case"), r["dataset"]), {})[policy] = cell
+    if not any(len(by_policy) > 1 for by_policy in cells.values()):
+        return []
+    policies = sorted({p for by_policy in cells.values() for p in by_policy})
+    lines = ["", "### Policies by scenario", "",
+             "| use case | dataset | " + " | ".join(f"`{_cell(p)}`" for p in policies) + " |",
+             "|---|---|" + "---|" * len(policies)]
+    for (use_case, dataset), by_policy in sorted(cells.items()):
+        lines.append(f"| {_cell(use_case)} | {_cell(dataset)} | "
+                     + " | ".join(by_policy.get(p, "") for p in policies) + " |")
+    return lines
 
 
 class ResultsReporter:

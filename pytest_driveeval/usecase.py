@@ -98,6 +98,8 @@ class RunContext:
     output_dir: Path
     seed: int
     fixtures: dict[str, Any] = field(default_factory=dict)
+    #: what a default fixture learnt that run() reports (e.g. which model was loaded)
+    notes: dict[str, Any] = field(default_factory=dict)
 
     def artefact(self, filename: str) -> Path:
         self.output_dir.mkdir(parents=True, exist_ok=True)

@@ -108,3 +108,12 @@ def test_without_the_report_plugins_nothing_breaks(two):
     result = two.runpytest("-q", "-p", "no:html", "-p", "no:allure_pytest", "-n", "2")
     result.assert_outcomes(passed=2)
     assert (two.path / "driveeval-results" / "summary.json").exists()
+
+
+def test_markdown_compares_policies_on_the_same_data(two):
+    two.makefile(".scenario.yaml", cv=SCENARIO.format(name="cv", model="constant_velocity"))
+    two.runpytest("-q")
+    markdown = (two.path / "driveeval-results" / "summary.md").read_text()
+    table = markdown.split("### Policies by scenario")[1].strip().splitlines()
+    assert table[0] == "| use case | dataset | `constant_velocity` | `log_replay` |"
+    assert table[2].startswith("| closed_loop | logs | ✅ front=0") and table[2].count("✅") == 2

@@ -41,6 +41,7 @@ class ClosedLoop(UseCase):
         if not spec:
             raise ModelError(f"{ctx.scenario.path}: no Model given (Evaluation.Model, --driveeval-model, "
                              "or a driveeval_model fixture)")
+        ctx.notes["policy"] = Path(spec).name if spec not in BASELINES and ":" not in spec else spec
         if spec in BASELINES:
             return baseline(spec)
         return load_model(spec, base=None if from_option else ctx.scenario.folder)
@@ -75,7 +76,7 @@ class ClosedLoop(UseCase):
                    f"{figures['side']}, rear {figures['rear']} ({figures['at_fault']} at fault); "
                    f"{figures['displacement_error']} drift reset(s)")
         artefacts = _artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
-        details = {"scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
+        details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
                                "error": unroll.result.errors[row]} for row, v in enumerate(verdicts)]}
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
