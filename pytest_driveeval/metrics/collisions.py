@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from pytest_driveeval.geometry import box_corners, norm2d, oriented_boxes_overlap, segment_box_overlap_length
+from pytest_driveeval.geometry import norm2d
 
 NONE, FRONT, SIDE, REAR = 0, 1, 2, 3
 KIND_NAMES = ("", "front", "side", "rear")
@@ -97,67 +97,94 @@ def detect_collisions(
     ego_velocity (..., 2) world frame, or instead ego_speed (...) signed speed
     along the heading (l5kit's ego state); track_ids (..., A) ints (default:
     the agent index).  ``speed_tol`` in m/s.
+
+    The arithmetic of every decision (range, separating axes, edge lengths,
+    blame) is that of :func:`~pytest_driveeval.geometry.oriented_boxes_overlap`,
+    :func:`~pytest_driveeval.geometry.box_corners` and
+    :func:`~pytest_driveeval.geometry.segment_box_overlap_length`, operation
+    for operation, only laid out for few numpy calls: per-frame terms (ego
+    cos/sin, half extents) once per frame, pair terms gathered by flat index,
+    x and y as planes.
     """
     ec = np.asarray(ego_centroid, dtype=np.float64)
     ac = np.asarray(agent_centroid, dtype=np.float64)
-    ayaw = np.asarray(agent_yaw, dtype=np.float64)
+    ayaw = np.asarray(agent_yaw)
+    eyaw = np.asarray(ego_yaw, dtype=np.float64)
     num_agents = ac.shape[-2]
-    lead = np.broadcast_shapes(ec.shape[:-1], np.shape(ego_yaw), ac.shape[:-2], ayaw.shape[:-1])
+    lead = ac.shape[:-2]
+    if ec.shape[:-1] != lead or eyaw.shape != lead or ayaw.shape[:-1] != lead:
+        lead = np.broadcast_shapes(ec.shape[:-1], eyaw.shape, lead, ayaw.shape[:-1])
     frames = math.prod(lead)
 
-    def per_frame(x, tail):  # -> (F, *tail), copying only when broadcasting
-        return np.broadcast_to(np.asarray(x, dtype=np.float64), lead + tail).reshape((frames,) + tail)
+    def per_frame(x, tail, dtype=np.float64):  # -> (F, *tail), copying only when broadcasting
+        x = np.asarray(x, dtype=dtype)
+        if x.shape != lead + tail:
+            x = np.broadcast_to(x, lead + tail)
+        return x.reshape((frames,) + tail)
+
+    def per_pair(x, tail, dtype=None):  # -> (F * A, *tail), same rule
+        x = np.asarray(x, dtype=dtype)
+        if x.shape != lead + (num_agents,) + tail:
+            x = np.broadcast_to(x, lead + (num_agents,) + tail)
+        return x.reshape((frames * num_agents,) + tail)
 
     e_xy = per_frame(ec, (2,))
-    e_yaw = per_frame(ego_yaw, ())
-    e_ext = per_frame(np.asarray(ego_extent)[..., :2], (2,))
-    a_xy = np.broadcast_to(ac, lead + (num_agents, 2)).reshape(frames, num_agents, 2)
-    a_ext2 = np.asarray(agent_extent, dtype=np.float64)[..., :2]
-    a_ext = np.broadcast_to(a_ext2, lead + (num_agents, 2)).reshape(frames, num_agents, 2)
+    e_yaw = per_frame(eyaw, ())
+    e_ext = np.asarray(ego_extent, dtype=np.float64)[..., :2]
+    const_ext = e_ext.ndim == 1  # one ego box for every frame: per-frame terms are scalars
+    if not const_ext:
+        e_ext = per_frame(e_ext, (2,))
+    a_xy = per_pair(ac, (2,))
+    a_ext_raw = np.asarray(agent_extent)
+    a_ext = per_pair(a_ext_raw[..., :2] if a_ext_raw.shape[-1] != 2 else a_ext_raw, (2,))  # dtype kept; exact
 
     # 1. Coarse range test on every pair, against the largest possible
     # reach: the fewest passes over the (frames x agents) table.
-    agent_diag = float(np.hypot(_max_or_zero(a_ext[..., 0]), _max_or_zero(a_ext[..., 1])))
+    agent_diag = float(np.hypot(_max_or_zero(a_ext[:, 0]), _max_or_zero(a_ext[:, 1])))
     max_reach = 0.5 * (_max_or_zero(norm2d(e_ext)) + agent_diag)
-    dx = a_xy[..., 0] - e_xy[:, None, 0]
-    dy = a_xy[..., 1] - e_xy[:, None, 1]
+    a_xy3 = a_xy.reshape(frames, num_agents, 2)
+    dx = a_xy3[..., 0] - e_xy[:, None, 0]
+    dy = a_xy3[..., 1] - e_xy[:, None, 1]
     dx *= dx
     dy *= dy
     dx += dy
     near = dx < max_reach * max_reach
     if agent_available is not None:
-        near &= np.broadcast_to(np.asarray(agent_available, dtype=bool), lead + (num_agents,)).reshape(
-            frames, num_agents
-        )
+        near &= per_pair(agent_available, (), bool).reshape(frames, num_agents)
+    pair = np.flatnonzero(near)  # row-major: by frame, then agent index
+    f_idx = pair // num_agents
 
-    # 2. Exact separating-axis test on the pairs in range only.
-    f_idx, a_idx = np.nonzero(near)
-    a_yaw_f = np.broadcast_to(ayaw, lead + (num_agents,)).reshape(frames, num_agents)
-    hit = oriented_boxes_overlap(
-        e_xy[f_idx], e_yaw[f_idx], e_ext[f_idx], a_xy[f_idx, a_idx], a_yaw_f[f_idx, a_idx], a_ext[f_idx, a_idx]
-    )
-    # l5kit's own within_range (strict, per pair): only drops boxes touching
-    # corner to corner exactly along the diagonal, kept for parity.
-    r = 0.5 * (norm2d(e_ext[f_idx]) + norm2d(a_ext[f_idx, a_idx]))
-    hit &= dx[f_idx, a_idx] < r * r
-    overlap = np.zeros((frames, num_agents), dtype=bool)
-    overlap[f_idx[hit], a_idx[hit]] = True
+    # 2. l5kit's own within_range (strict, per pair), then the exact
+    # separating-axis test on the pairs left.  l5kit's range test only drops
+    # boxes touching corner to corner exactly along the diagonal.
+    ext_p = np.take(a_ext, pair, axis=0).astype(np.float64)  # (P, 2)
+    e_norm = norm2d(e_ext) if const_ext else np.take(norm2d(e_ext), f_idx)
+    r = 0.5 * (e_norm + norm2d(ext_p))
+    r *= r
+    keep = np.take(dx, pair) < r
+    pair, f_idx, ext_p = pair[keep], f_idx[keep], ext_p[keep]
+    e_cos, e_sin = np.cos(e_yaw), np.sin(e_yaw)
+    hit = _sat_overlap(e_xy, e_cos, e_sin, e_ext, const_ext, f_idx, np.take(a_xy, pair, axis=0),
+                       np.take(per_pair(ayaw, ()), pair).astype(np.float64), ext_p)
+    hit_pair = pair[hit]
+    overlap = np.zeros(frames * num_agents, dtype=bool)
+    overlap[hit_pair] = True
 
-    # 3. l5kit's partner: first colliding agent in array order.  np.nonzero is
+    # 3. l5kit's partner: first colliding agent in array order.  The pairs are
     # row-major, so the first hit per frame is the lowest agent index.
-    hf, ha = f_idx[hit], a_idx[hit]
+    hf = f_idx[hit]
     first = np.ones(hf.shape, dtype=bool)
     first[1:] = hf[1:] != hf[:-1]
-    cf, ca = hf[first], ha[first]
+    cp = hit_pair[first]
+    cf, ca = hf[first], cp - hf[first] * num_agents
 
     # 4. Ego-edge lengths inside the partner's box -> kind.
-    corners = box_corners(e_xy[cf], e_yaw[cf], e_ext[cf])  # (K, 4, 2)
-    starts = corners[:, _L5KIT_EDGE_ORDER]
-    ends = corners[:, _L5KIT_EDGE_END]
-    lengths = segment_box_overlap_length(
-        starts, ends, a_xy[cf, ca][:, None], a_yaw_f[cf, ca][:, None], a_ext[cf, ca][:, None]
+    side = _contact_side(
+        np.take(e_xy, cf, axis=0), np.take(e_cos, cf), np.take(e_sin, cf),
+        e_ext if const_ext else np.take(e_ext, cf, axis=0),
+        np.take(a_xy, cp, axis=0), np.take(per_pair(ayaw, ()), cp).astype(np.float64),
+        np.take(a_ext, cp, axis=0).astype(np.float64),
     )
-    side = np.argmax(lengths, axis=1)  # first maximum wins, as np.argmax in l5kit
 
     kind = np.zeros(frames, dtype=np.int8)
     kind[cf] = _KIND_OF_L5KIT_SIDE[side]
@@ -167,13 +194,11 @@ def detect_collisions(
     if track_ids is None:
         track[cf] = ca
     else:
-        tid = np.broadcast_to(np.asarray(track_ids), lead + (num_agents,)).reshape(frames, num_agents)
-        track[cf] = tid[cf, ca]
+        track[cf] = np.take(per_pair(track_ids, ()), cp)
 
     at_fault = np.zeros(frames, dtype=bool)
-    at_fault[cf] = _blame(
-        side, e_yaw[cf], cf, ca, lead, frames, num_agents, ego_velocity, ego_speed, agent_velocity, speed_tol
-    )
+    at_fault[cf] = _blame(side, np.take(e_cos, cf), np.take(e_sin, cf), cf, cp, lead, frames, num_agents,
+                          ego_velocity, ego_speed, agent_velocity, speed_tol, per_pair)
     return CollisionResult(
         kind.reshape(lead),
         agent_index.reshape(lead),
@@ -181,6 +206,100 @@ def detect_collisions(
         at_fault.reshape(lead),
         overlap.reshape(lead + (num_agents,)),
     )
+
+
+def _sat_overlap(e_xy, e_cos, e_sin, e_ext, const_ext, f_idx, b_xy, b_yaw, b_ext) -> np.ndarray:
+    """``oriented_boxes_overlap(ego of frame f_idx, agent pair)`` (tol 0), same operations."""
+    ca, sa = np.take(e_cos, f_idx), np.take(e_sin, f_idx)
+    cb, sb = np.cos(b_yaw), np.sin(b_yaw)
+    ea = 0.5 * e_ext
+    if const_ext:
+        al, aw = float(ea[0]), float(ea[1])
+    else:
+        ea = np.take(ea, f_idx, axis=0)
+        al, aw = ea[:, 0], ea[:, 1]
+    eb = 0.5 * b_ext
+    bl, bw = eb[:, 0], eb[:, 1]
+    d = b_xy - np.take(e_xy, f_idx, axis=0)
+    dx, dy = d[:, 0], d[:, 1]
+    cos_rel = ca * cb
+    cos_rel += sa * sb
+    np.abs(cos_rel, out=cos_rel)
+    sin_rel = ca * sb
+    sin_rel -= sa * cb
+    np.abs(sin_rel, out=sin_rel)
+    # Each axis: |projection of d| <= sum of the projected half extents.  The
+    # "+ tol" of the geometry function (0.0) changes no comparison.
+    ok = _axis_fits(dx * ca + dy * sa, al + cos_rel * bl + sin_rel * bw)
+    ok &= _axis_fits(dy * ca - dx * sa, aw + sin_rel * bl + cos_rel * bw)
+    ok &= _axis_fits(dx * cb + dy * sb, bl + cos_rel * al + sin_rel * aw)
+    ok &= _axis_fits(dy * cb - dx * sb, bw + sin_rel * al + cos_rel * aw)
+    return ok
+
+
+def _axis_fits(proj: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    np.abs(proj, out=proj)
+    return proj <= reach
+
+
+_CORNER_U = np.array([1.0, 1.0, -1.0, -1.0])[:, None]  # front-left, front-right, rear-right, rear-left
+_CORNER_V = np.array([1.0, -1.0, -1.0, 1.0])[:, None]
+
+
+def _contact_side(e_xy, e_cos, e_sin, e_ext, b_xy, b_yaw, b_ext) -> np.ndarray:
+    """Index (l5kit order: front, rear, left, right) of the ego edge with the
+    longest length inside the partner box, first maximum on ties.
+
+    ``box_corners`` then ``segment_box_overlap_length`` on the four ego edges,
+    with the same operations, on (4, K) planes (edges first).
+    """
+    half = 0.5 * e_ext
+    hl, hw = (half[0], half[1]) if half.ndim == 1 else (half[:, 0], half[:, 1])
+    # box_corners: c * (u * hl) == u * (c * hl) exactly for u = +-1.
+    chl, shl, chw, shw = e_cos * hl, e_sin * hl, e_cos * hw, e_sin * hw
+    cx = e_xy[:, 0] + _CORNER_U * chl
+    cx -= _CORNER_V * shw
+    cy = e_xy[:, 1] + _CORNER_U * shl
+    cy += _CORNER_V * chw
+    start_x, start_y = cx[_L5KIT_EDGE_ORDER], cy[_L5KIT_EDGE_ORDER]  # (4, K)
+    vec_x, vec_y = cx[_L5KIT_EDGE_END], cy[_L5KIT_EDGE_END]
+    vec_x -= start_x
+    vec_y -= start_y
+
+    # segment_box_overlap_length, into the box frame.
+    c, s = np.cos(b_yaw), np.sin(b_yaw)
+    rel_x = start_x - b_xy[:, 0]
+    rel_y = start_y - b_xy[:, 1]
+    p0 = np.empty((2,) + rel_x.shape)  # (axis, edge, K)
+    d = np.empty_like(p0)
+    np.add(rel_x * c, rel_y * s, out=p0[0])
+    np.subtract(rel_y * c, rel_x * s, out=p0[1])
+    np.add(vec_x * c, vec_y * s, out=d[0])
+    np.subtract(vec_y * c, vec_x * s, out=d[1])
+    half_b = (0.5 * b_ext).T[:, None, :]  # (axis, 1, K)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta = (-half_b - p0) / d
+        tb = (half_b - p0) / d
+    # A segment parallel to a slab is either wholly inside it (no constraint)
+    # or wholly outside (empty); lying exactly on the border counts as inside.
+    parallel = d == 0
+    t_lo = np.minimum(ta, tb)
+    t_hi = np.maximum(ta, tb, out=tb)
+    if parallel.any():
+        in_slab = (p0 >= -half_b) & (p0 <= half_b)
+        t_lo = np.where(parallel, np.where(in_slab, -np.inf, np.inf), t_lo)
+        t_hi = np.where(parallel, np.where(in_slab, np.inf, -np.inf), t_hi)
+    lo = np.maximum(t_lo[0], t_lo[1])
+    np.maximum(lo, 0.0, out=lo)
+    hi = np.minimum(t_hi[0], t_hi[1])
+    np.minimum(hi, 1.0, out=hi)
+    hi -= lo
+    np.maximum(hi, 0.0, out=hi)
+    d *= d
+    length = d[0] + d[1]
+    np.sqrt(length, out=length)
+    hi *= length
+    return np.argmax(hi, axis=0)  # first maximum wins, as np.argmax in l5kit
 
 
 def _max_or_zero(x: np.ndarray) -> float:
@@ -192,27 +311,33 @@ def _max_or_zero(x: np.ndarray) -> float:
     return float(np.nan_to_num(np.nanmax(x))) if np.isnan(m) else m
 
 
-def _blame(side, yaw, cf, ca, lead, frames, num_agents, ego_velocity, ego_speed, agent_velocity, speed_tol):
-    """At-fault flag for the K colliding frames (rules in the module doc)."""
+def _blame(side, c, s, cf, cp, lead, frames, num_agents, ego_velocity, ego_speed, agent_velocity, speed_tol,
+           per_pair):
+    """At-fault flag for the K colliding frames (rules in the module doc);
+    ``c``/``s``: cos/sin of the ego yaw, ``cp``: flat (frame, agent) pair index."""
     kind = _KIND_OF_L5KIT_SIDE[side]
     if ego_velocity is None and ego_speed is None:
         return kind != REAR
-    c, s = np.cos(yaw), np.sin(yaw)
     ln = _EDGE_NORMALS[side]
-    normal = np.stack([c * ln[:, 0] - s * ln[:, 1], s * ln[:, 0] + c * ln[:, 1]], axis=1)  # world
+    lx, ly = ln[:, 0], ln[:, 1]
+    nx = c * lx - s * ly  # world normal
+    ny = s * lx + c * ly
 
     if ego_velocity is not None:
-        ev = np.broadcast_to(np.asarray(ego_velocity, dtype=np.float64), lead + (2,))
-        ev_k = ev.reshape(frames, 2)[cf]
+        ev = np.broadcast_to(np.asarray(ego_velocity, dtype=np.float64), lead + (2,)).reshape(frames, 2)
+        ev_k = np.take(ev, cf, axis=0)
+        evx, evy = ev_k[:, 0], ev_k[:, 1]
     else:
-        speed = np.broadcast_to(np.asarray(ego_speed, dtype=np.float64), lead).reshape(frames)[cf]
-        ev_k = np.stack([speed * c, speed * s], axis=1)
-    ego_closing = np.einsum("kd,kd->k", ev_k, normal)
+        speed = np.take(np.broadcast_to(np.asarray(ego_speed, dtype=np.float64), lead).reshape(frames), cf)
+        evx, evy = speed * c, speed * s
+    ego_closing = evx * nx + evy * ny
     if agent_velocity is None:
         agent_closing = np.zeros_like(ego_closing)
     else:
-        av = np.broadcast_to(np.asarray(agent_velocity, dtype=np.float64), lead + (num_agents, 2))
-        agent_closing = -np.einsum("kd,kd->k", av.reshape(frames, num_agents, 2)[cf, ca], normal)
+        av = np.take(per_pair(agent_velocity, (2,)), cp, axis=0).astype(np.float64)
+        agent_closing = av[:, 0] * nx
+        agent_closing += av[:, 1] * ny
+        np.negative(agent_closing, out=agent_closing)
 
     keeps_up = ego_closing >= agent_closing
     return np.where(kind == FRONT, keeps_up, keeps_up & (ego_closing > speed_tol))

@@ -6,6 +6,9 @@ metres, yaws radians, speeds m/s.
 """
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 
 from pytest_driveeval.geometry import norm2d, wrap_angle
@@ -42,13 +45,187 @@ def distance_to_reference(
     Unavailable waypoints drop out together with their segments; with no
     usable waypoint the result is inf.
 
-    Exact, but avoids the full point-to-segment work on all T x (R-1) pairs:
-    the nearest waypoint (one small matrix product) bounds the answer, and
-    only segments whose midpoint lies within that bound plus half their
-    length can beat it; those few get the exact projection.
+    Exact, but avoids the point-to-segment work on all T x (R-1) pairs: the
+    waypoints around the same index (the driven ego follows its log) bound
+    the answer, the polyline is cut into chunks of :data:`_CHUNK` segments
+    with a bounding box each, and only the chunks whose box is within that
+    bound (typically the one or two around the frame index) get the exact
+    projection.  A far-off driven position simply qualifies more chunks, so
+    the search stays exact whatever the drift.
     """
     p = np.asarray(driven, dtype=np.float64)
     ref = np.asarray(reference, dtype=np.float64)
+    if not waypoints_only and ref.shape[-2] >= 2 * _CHUNK and p.shape[-2] >= 1:
+        out = _distance_to_polyline_chunked(p, ref, reference_available)
+        if out is not None:
+            return out
+    return _distance_to_reference_full(p, ref, reference_available, waypoints_only)
+
+
+# Segments per chunk of the reference polyline, and waypoints each side of the
+# frame index for the first bound (see distance_to_reference).
+_CHUNK = 16
+_WINDOW = 4
+
+
+@functools.lru_cache(maxsize=32)
+def _chunk_layout(t_len: int, r_len: int) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoint indices of each frame's window (2W+1, T) and of each chunk
+    (CHUNK+1, C: its segments' ends), clipped to the polyline (a clipped index
+    repeats the last waypoint, which is harmless: it is a waypoint).  Long
+    axis last: numpy reduces much faster across rows than along short ones."""
+    window = np.arange(-_WINDOW, _WINDOW + 1)[:, None] + np.minimum(np.arange(t_len), r_len - 1)
+    np.clip(window, 0, r_len - 1, out=window)
+    n_chunk = max(1, -(-(r_len - 1) // _CHUNK))
+    chunk = np.minimum(np.arange(_CHUNK + 1)[:, None] + np.arange(n_chunk) * _CHUNK, r_len - 1)
+    window.setflags(write=False)
+    chunk.setflags(write=False)
+    return window, chunk
+
+
+def _distance_to_polyline_chunked(p: np.ndarray, ref: np.ndarray, reference_available) -> np.ndarray | None:
+    """distance_to_reference (segments) by chunks; None when a position or an
+    available waypoint is not finite (the full search has its own way with those).
+
+    Coordinates are held as (2, ...) planes so that every step is one call
+    for x and y together; ``sum(0)`` over such a plane pair is exactly x + y.
+    """
+    t_len, r_len = p.shape[-2], ref.shape[-2]
+    same = p.shape[:-2] == ref.shape[:-2]
+    lead = p.shape[:-2] if same else np.broadcast_shapes(p.shape[:-2], ref.shape[:-2])
+    origin = ref[..., :1, :]
+    p = p - origin
+    ref = ref - origin
+    if not same:
+        p = np.broadcast_to(p, lead + (t_len, 2))
+        ref = np.broadcast_to(ref, lead + (r_len, 2))
+    n_b = math.prod(lead)
+    pts = np.ascontiguousarray(np.moveaxis(p.reshape(n_b, t_len, 2), -1, 0))  # (2, B, T)
+    way = np.ascontiguousarray(np.moveaxis(ref.reshape(n_b, r_len, 2), -1, 0))  # (2, B, R)
+    avail = None
+    if reference_available is not None:
+        avail = np.broadcast_to(np.asarray(reference_available, dtype=bool), lead + (r_len,)).reshape(n_b, r_len)
+        if not np.isfinite(way[:, avail]).all():
+            return None
+    elif not np.isfinite(way).all():
+        return None
+    if not np.isfinite(pts).all():
+        return None
+    window, chunk = _chunk_layout(t_len, r_len)
+    # A few scenes at a time: the (scenes, chunks, frames) temporaries then
+    # stay in cache instead of costing page faults.
+    step = max(1, _BLOCK // (t_len * chunk.shape[1]))
+    if step >= n_b:
+        best = _chunked_block(pts, way, avail, window)
+    else:
+        best = np.empty((n_b, t_len))
+        for b0 in range(0, n_b, step):
+            blk = slice(b0, b0 + step)
+            best[blk] = _chunked_block(pts[:, blk], way[:, blk], None if avail is None else avail[blk], window)
+    return np.sqrt(best).reshape(lead + (t_len,))
+
+
+# Elements of the (scenes, chunks, frames) table handled per block.
+_BLOCK = 4096
+
+
+def _chunked_block(pts: np.ndarray, way: np.ndarray, avail: np.ndarray | None, window: np.ndarray) -> np.ndarray:
+    """Squared distances (B, T) for pts (2, B, T), way (2, B, R), avail (B, R) or None."""
+    t_len = pts.shape[-1]
+
+    # 1. Upper bound: exact distance to the available waypoints around the frame index.
+    d = np.take(way, window, axis=2)  # (2, B, W, T)
+    d -= pts[:, :, None, :]  # (way - p)^2 == (p - way)^2: rounding is symmetric
+    d *= d
+    d2 = d.sum(0)
+    if avail is not None:
+        d2[~np.take(avail, window, axis=1)] = np.inf
+    bound = d2.min(axis=1)  # (B, T); inf when no waypoint of the window is available
+
+    # A stop repeats the same waypoint for many frames: drop the repeats (an
+    # available waypoint equal to the available one before it).  Nothing is
+    # lost: a repeat's segments are a point (its waypoint's distance) and the
+    # segment out of the run, which now starts at the identical first waypoint.
+    # Without this, every chunk of a long stop would be a candidate.
+    same = way[:, :, 1:] == way[:, :, :-1]
+    dup = same[0] & same[1]
+    if avail is not None:
+        dup &= avail[:, 1:]
+        dup &= avail[:, :-1]
+    if dup.any():
+        keep = np.ones(dup.shape[:1] + (dup.shape[1] + 1,), dtype=bool)
+        np.logical_not(dup, out=keep[:, 1:])
+        count = keep.sum(axis=1)
+        b_idx, j_idx = np.nonzero(keep)
+        pos = np.arange(b_idx.size) - np.repeat(np.cumsum(count) - count, count)
+        kept = np.repeat(j_idx[np.cumsum(count) - 1][:, None], int(count.max()), axis=1)  # pad: last kept
+        kept[b_idx, pos] = j_idx
+        way = np.take_along_axis(way, kept[None], axis=2)
+        if avail is not None:
+            avail = np.take_along_axis(avail, kept, axis=1)
+    r_len = way.shape[-1]
+    chunk = _chunk_layout(t_len, r_len)[1]
+    n_chunk = chunk.shape[1]
+
+    # 2. Bounding box of each chunk's (available) waypoints.
+    box = np.take(way, chunk, axis=2)  # (2, B, CHUNK+1, C)
+    if avail is not None:
+        c_ok = np.take(avail, chunk, axis=1)[None]
+        lo, hi = np.where(c_ok, box, np.inf).min(axis=2), np.where(c_ok, box, -np.inf).max(axis=2)
+    else:
+        lo, hi = box.min(axis=2), box.max(axis=2)  # (2, B, C)
+
+    # 3. Chunks whose box may hold something within the bound (slack for rounding).
+    q = pts[:, :, None, :]  # (2, B, 1, T)
+    gap = np.maximum(lo[..., None] - q, q - hi[..., None])  # (2, B, C, T)
+    np.maximum(gap, 0.0, out=gap)
+    gap *= gap
+    bound_ = bound * (1.0 + 1e-8)
+    bound_ += 1e-6
+    flat = np.flatnonzero(gap.sum(0) <= bound_[:, None, :])
+    b_c, ti = np.divmod(flat, t_len)
+    bi, ci = np.divmod(b_c, n_chunk)
+    bt = bi * t_len
+    bt += ti
+
+    # 4. Exact distances to every waypoint and segment of those chunks, with
+    # the arithmetic of the full search.
+    best = bound.reshape(-1)  # a view: updated in place
+    if flat.size:
+        bi *= r_len
+        cell = chunk[:, ci]
+        cell += bi  # (CHUNK+1, P)
+        w = np.take(way.reshape(2, -1), cell, axis=1)  # (2, CHUNK+1, P)
+        d = np.take(pts.reshape(2, -1), bt, axis=1)[:, None, :] - w  # point minus waypoint
+        e = w[:, 1:] - w[:, :-1]  # segment vectors
+        wd2 = np.multiply(d, d, out=w).sum(0)  # (CHUNK+1, P)
+        ds = d[:, :-1]  # point minus segment start
+        len2 = (e * e).sum(0)
+        proj = (ds * e).sum(0)
+        # Zero-length segment: proj is 0 too, so any divisor gives u = 0.
+        u = proj / np.where(len2 > 0, len2, 1.0)
+        np.maximum(u, 0.0, out=u)
+        np.minimum(u, 1.0, out=u)
+        e *= u
+        np.subtract(ds, e, out=e)
+        e *= e
+        sd2 = e.sum(0)  # (CHUNK, P)
+        if avail is not None:
+            w_ok = np.take(avail, cell)
+            sd2[~(w_ok[1:] & w_ok[:-1])] = np.inf
+            wd2[~w_ok] = np.inf
+        vals = sd2.min(axis=0)
+        np.minimum(vals, wd2.min(axis=0), out=vals)
+        np.minimum.at(best, bt, vals)
+    return bound
+
+
+def _distance_to_reference_full(p: np.ndarray, ref: np.ndarray, reference_available,
+                                waypoints_only: bool) -> np.ndarray:
+    """distance_to_reference over all T x R pairs: the nearest waypoint (one
+    small matrix product) bounds the answer, and only segments whose midpoint
+    lies within that bound plus half their length can beat it; those few get
+    the exact projection."""
     lead = np.broadcast_shapes(p.shape[:-2], ref.shape[:-2])
     t_len, r_len = p.shape[-2], ref.shape[-2]
     # Relative to the first waypoint: world coordinates are km-sized and the

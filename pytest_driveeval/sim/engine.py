@@ -33,9 +33,10 @@ import torch
 
 from pytest_driveeval.geometry import norm2d, oriented_boxes_overlap
 from pytest_driveeval.io.l5kit_zarr import L5Scene
-from pytest_driveeval.metrics.collisions import detect_collisions
+from pytest_driveeval.metrics.collisions import _max_or_zero, detect_collisions
 from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
-from pytest_driveeval.policies.batch import EGO_EXTENT, STEP_TIME, LogArrays, build_batch, stack_scenes, window_columns
+from pytest_driveeval.policies.batch import (EGO_EXTENT, STEP_TIME, LogArrays, _log_cells, build_batch, stack_scenes,
+                                             window_columns)
 from pytest_driveeval.sim.kinematics import KinematicLimits, feasible_step
 
 __all__ = ["UnrollConfig", "UnrollResult", "unroll"]
@@ -151,16 +152,46 @@ def _first_pose(out: object, rows: int) -> tuple[np.ndarray, np.ndarray]:
     return got["positions"], got["yaws"][:, 0]
 
 
+def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
+    """Square of a range no ego-agent pair of the log exceeds (detect_collisions'
+    reach with the largest agent extents), widened a little so that rounding
+    cannot make it smaller than a pair's own reach."""
+    if log.agent_extent.size == 0:
+        return 0.0
+    longest = [_max_or_zero(log.agent_extent[..., i]) for i in (0, 1)]
+    reach = 0.5 * (float(norm2d(extent[:2])) + float(np.hypot(longest[0], longest[1])))
+    reach *= 1.0 + 1e-9
+    return reach * reach
+
+
 def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray,
-                 extent: np.ndarray) -> np.ndarray:
-    """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion)."""
-    a_xy, a_ext = log.agent_xy[rows, t], log.agent_extent[rows, t, :, :2].astype(np.float64)
-    d2 = ((a_xy - xy[:, None]) ** 2).sum(-1)
-    reach = 0.5 * (norm2d(extent[:2]) + norm2d(a_ext))
-    f, a = np.nonzero(log.available[rows, t] & (d2 < reach * reach))
-    hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], a_xy[f, a], log.agent_yaw[rows[f], t, a], a_ext[f, a])
+                 extent: np.ndarray, coarse2: float | None = None) -> np.ndarray:
+    """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion).
+
+    A coarse range test (``coarse2``, :func:`_coarse_reach_squared` of the
+    log, computed here when not given) leaves the few agents near the ego;
+    those get the exact per-pair range and separating-axis tests."""
+    if coarse2 is None:
+        coarse2 = _coarse_reach_squared(log, extent)
+    all_rows = rows.size == log.ego_xy.shape[0]  # rows is sorted and unique: all scenes, in order
+    a_xy = log.agent_xy[:, t] if all_rows else log.agent_xy[rows, t]
+    dx = a_xy[..., 0] - xy[:, 0, None]
+    dy = a_xy[..., 1] - xy[:, 1, None]
+    dx *= dx
+    dy *= dy
+    dx += dy
+    near = dx < coarse2
+    near &= log.available[:, t] if all_rows else log.available[rows, t]
+    f, a = np.nonzero(near)
     out = np.zeros(rows.size, dtype=bool)
-    out[f[hit]] = True
+    if f.size:
+        r = rows[f]
+        a_ext = log.agent_extent[r, t, a, :2].astype(np.float64)
+        reach = 0.5 * (norm2d(extent[:2]) + norm2d(a_ext))
+        close = dx[f, a] < reach * reach
+        f, a, r, a_ext = f[close], a[close], r[close], a_ext[close]
+        hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], a_xy[f, a], log.agent_yaw[r, t, a], a_ext)
+        out[f[hit]] = True
     return out
 
 
@@ -198,7 +229,8 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     model_time, forwards, scene_steps = 0.0, 0, 0
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=window_columns(log, cfg.history_frames))
+                   candidates=window_columns(log, cfg.history_frames), cells=_log_cells(log))
+    coarse2 = _coarse_reach_squared(log, ext) if cfg.freeze_on_collision else None
 
     with torch.no_grad():
         for t in range(start, int(end.max(initial=start))):
@@ -244,7 +276,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                 reset[rows[back], t + 1] = True
                 speed[rows[back]] = norm2d(log.ego_xy[rows[back], t + 1] - log.ego_xy[rows[back], t]) / cfg.step_time
             if cfg.freeze_on_collision:
-                hold = _overlapping(log, rows, t, xy, yaw, ext)
+                hold = _overlapping(log, rows, t, xy, yaw, ext, coarse2)
                 nxt[hold], nyaw[hold] = xy[hold], yaw[hold]
                 reset[rows[hold], t + 1] = False
                 frozen[rows[hold], t + 1] = True
