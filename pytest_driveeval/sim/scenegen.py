@@ -207,7 +207,7 @@ def _simulate(lane_id, s0, v0, v_desired, params, length, stop_s, light_state, n
     for t in range(num_frames):
         out_s[t], out_v[t] = s, v
         order = np.lexsort((s, lane_id))
-        s_o, l_o = s[order], lane_id[order]
+        l_o = lane_id[order]
         has_leader = np.append(l_o[1:] == l_o[:-1], False)
         leader = np.empty(n, dtype=int)
         leader[order] = np.where(has_leader, np.append(order[1:], 0), -1)
