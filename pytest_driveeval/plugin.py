@@ -39,7 +39,7 @@ def pytest_collect_file(file_path: Path, parent: pytest.Collector):
     return None
 
 
-def _item_record(item: pytest.Item) -> dict | None:
+def _item_record(item: pytest.Item, with_outcome: bool) -> dict | None:
     scenario = getattr(item, "driveeval_scenario", None)
     outcome = getattr(item, OUTCOME_ATTR, None)
     if scenario is None and outcome is None and not isinstance(item, InvalidScenarioItem):
@@ -53,7 +53,7 @@ def _item_record(item: pytest.Item) -> dict | None:
                       dataset=case.dataset.name if case is not None and case.dataset is not None else None)
     if isinstance(item, InvalidScenarioItem):
         record.update(scenario=None, use_case=None, message=str(item.error))
-    if outcome is not None:
+    if outcome is not None and with_outcome:
         record.update(outcome.to_json(relative_to=get_settings(item.config).output_dir))
     return record
 
@@ -66,11 +66,15 @@ def pytest_runtest_makereport(item: pytest.Item, call):
         # Bad input, in any phase (a fixture that cannot open a dataset fails
         # in setup, where repr_failure is not asked): the message, no traceback.
         report.longrepr = failure_message(item, error)
+    # The outcome (and its html extras) travels once, with the report of the
+    # phase that produced it; the controller merges an item's records.
     outcome = getattr(item, OUTCOME_ATTR, None)
-    if outcome is not None and not getattr(item, "_driveeval_html_done", False) and html_wanted(item.config):
-        item._driveeval_html_done = True  # one set of extras per item, whatever the phases
-        report.extras = list(getattr(report, "extras", [])) + html_extras(outcome)
-    record = _item_record(item)
+    fresh = outcome is not None and not getattr(item, "_driveeval_outcome_sent", False)
+    if fresh:
+        item._driveeval_outcome_sent = True
+        if html_wanted(item.config):
+            report.extras = list(getattr(report, "extras", [])) + html_extras(outcome)
+    record = _item_record(item, with_outcome=fresh)
     if record is not None:
         if error is not None:
             # Built from the exception, not from report.longrepr, which xdist

@@ -41,6 +41,7 @@ import numcodecs
 import numpy as np
 
 from ..errors import DataError
+from ..geometry import yaw_from_rotation33
 
 __all__ = [
     "AGENT_DTYPE",
@@ -381,9 +382,7 @@ class L5Scene:
         return self.frames["ego_translation"][:, :2]
 
     def ego_yaws(self) -> np.ndarray:
-        # Rotation about z: yaw = atan2(R[1,0], R[0,0]); matches l5kit's rotation33_as_yaw.
-        rot = self.frames["ego_rotation"]
-        return np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+        return yaw_from_rotation33(self.frames["ego_rotation"])  # as l5kit's rotation33_as_yaw
 
     def agents_of_frame(self, t: int) -> np.ndarray:
         if not -self.num_frames <= t < self.num_frames:

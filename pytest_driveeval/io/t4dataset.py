@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
+from .tf import matrix_to_quat, quat_to_matrix
 
 from .pcd import read_pcd_bin
 
@@ -34,15 +35,8 @@ class T4DatasetError(DataError, ValueError):
 
 
 def quat_wxyz_to_matrix(q) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z) -> (..., 3, 3)."""
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
+    """(..., 4) quaternions (w, x, y, z), the t4/nuScenes order -> (..., 3, 3)."""
+    return quat_to_matrix(np.asarray(q, dtype=np.float64)[..., [1, 2, 3, 0]])
 
 
 def yaw_from_quat_wxyz(q) -> np.ndarray:
@@ -52,9 +46,7 @@ def yaw_from_quat_wxyz(q) -> np.ndarray:
 
 
 def _matrix_to_quat_wxyz(m: np.ndarray) -> np.ndarray:
-    from .tf import matrix_to_quat
-    xyzw = matrix_to_quat(m)
-    return xyzw[..., [3, 0, 1, 2]]
+    return matrix_to_quat(m)[..., [3, 0, 1, 2]]
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pytest_driveeval.geometry import oriented_boxes_overlap, yaw_as_rotation33
 from pytest_driveeval.io.l5kit_zarr import (
     AGENT_DTYPE,
     FRAME_DTYPE,
@@ -38,7 +39,7 @@ from pytest_driveeval.io.l5kit_zarr import (
     write_l5_zarr,
 )
 
-__all__ = ["EGO_EXTENT", "boxes_overlap", "generate_scenes", "generate_zarr", "road_layout"]
+__all__ = ["EGO_EXTENT", "generate_scenes", "generate_zarr", "road_layout"]
 
 DT = 0.1  # l5kit logs at 10 Hz
 EGO_EXTENT = np.array([4.869, 1.852, 1.61])  # l5kit's ego dimensions (length, width, height)
@@ -246,38 +247,6 @@ def _simulate(lane_id, s0, v0, v_desired, params, length, stop_s, light_state, n
     return out_s, out_v
 
 
-def _yaw_matrix(yaw: np.ndarray) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    rot = np.zeros(yaw.shape + (3, 3))
-    rot[..., 0, 0], rot[..., 0, 1], rot[..., 1, 0], rot[..., 1, 1], rot[..., 2, 2] = c, -s, s, c, 1.0
-    return rot
-
-
-def boxes_overlap(c1, yaw1, ext1, c2, yaw2, ext2) -> np.ndarray:
-    """Separating-axis test for oriented rectangles, broadcast over leading axes.
-
-    ``c`` (..., 2) centres, ``yaw`` (...), ``ext`` (..., >=2) length, width.
-    """
-    c1, c2 = np.asarray(c1, float), np.asarray(c2, float)
-    axes = []
-    half = []
-    for yaw, ext in ((yaw1, ext1), (yaw2, ext2)):
-        yaw, ext = np.asarray(yaw, float), np.asarray(ext, float)
-        u = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
-        w = np.stack([-np.sin(yaw), np.cos(yaw)], axis=-1)
-        axes.append((u, w))
-        half.append((0.5 * ext[..., 0], 0.5 * ext[..., 1]))
-    d = c2 - c1
-    separated = np.zeros(np.broadcast_shapes(d.shape[:-1], np.shape(yaw1), np.shape(yaw2)), dtype=bool)
-    (u1, w1), (u2, w2) = axes
-    (l1, b1), (l2, b2) = half
-    for axis in (u1, w1, u2, w2):
-        r1 = l1 * np.abs(np.sum(u1 * axis, -1)) + b1 * np.abs(np.sum(w1 * axis, -1))
-        r2 = l2 * np.abs(np.sum(u2 * axis, -1)) + b2 * np.abs(np.sum(w2 * axis, -1))
-        separated |= np.abs(np.sum(d * axis, -1)) > r1 + r2
-    return ~separated
-
-
 def _one_scene(rng: np.random.Generator, num_frames: int, lanes: list[_Lane], junction_x: float,
                red_light: bool, knobs: dict):
     """Simulate one scene; returns per-frame ego pose and the dense agent states."""
@@ -364,7 +333,7 @@ def _overlaps_ego(pos, yaw, extent, n_agents, visible) -> bool:
     if not near.any():
         return False
     t, a = np.nonzero(near)
-    hit = boxes_overlap(ego_pos[t, 0], ego_yaw[t, 0], EGO_EXTENT[None], pos[t, a], yaw[t, a], extent[a])
+    hit = oriented_boxes_overlap(ego_pos[t, 0], ego_yaw[t, 0], EGO_EXTENT[None], pos[t, a], yaw[t, a], extent[a])
     return bool(hit.any())
 
 
@@ -402,7 +371,7 @@ def generate_scenes(num_scenes: int, num_frames: int = 100, seed: int = 0, **kno
         fr = frames[rows]
         fr["timestamp"] = t0 + np.arange(num_frames, dtype=np.int64) * 100_000_000
         fr["ego_translation"][:, :2] = pos[:, -1]
-        fr["ego_rotation"] = _yaw_matrix(yaw[:, -1])
+        fr["ego_rotation"] = yaw_as_rotation33(yaw[:, -1])
 
         # Agents, frame-major; track ids 1.. in order of first appearance.
         t_idx, a_idx = np.nonzero(visible)
