@@ -110,9 +110,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
     scene = int(r.scene_ids[row])
     figures = scene_figures(unroll, row)
     findings: list[Finding] = []
-    error = r.errors[row]
-    if error:
-        findings.append(Finding(error if error.startswith("scene") else f"scene {scene}: {error}", scene=scene))
+    if r.errors[row]:  # the engine's messages already name the scene(s) and frame
+        findings.append(Finding(r.errors[row], scene=scene))
     limits = conditions.Collisions
     for kind in KINDS:
         events = collision_events(unroll, row, (kind,), limits.AtFaultOnly)
