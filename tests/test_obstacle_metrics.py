@@ -1,4 +1,4 @@
-"""obstacle_segmentation geometry: the vectorised kernel agrees with perception_eval's rule."""
+"""obstacle_segmentation geometry: both kernels agree with perception_eval's rule, and with each other."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,12 +6,14 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from pytest_driveeval.io.lanelet2 import Lanelet2Error, load_lanelet_map
+from pytest_driveeval.metrics import cloud_jit
 from pytest_driveeval.metrics.pointcloud import (Area, BoxSet, box_corners_3d, box_scale, crop_reference,
-                                                 evaluate_cloud, points_in_polygon, polygon_self_intersects,
-                                                 polygon_signed_area)
+                                                 evaluate_cloud, points_in_polygon, polygon_edges,
+                                                 polygon_self_intersects, polygon_signed_area)
 from pytest_driveeval.usecases.obstacle_segmentation_config import polygon_problem
 
 DLR_AREA = np.array([[10.0, 1.5], [10.0, -1.5], [0.0, -1.5], [0.0, 1.5]])
+KERNELS = ["numpy", pytest.param("numba", marks=pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba absent"))]
 
 
 def scene(seed: int, n: int = 20000, boxes: int = 12):
@@ -26,11 +28,12 @@ def scene(seed: int, n: int = 20000, boxes: int = 12):
     return pts, BoxSet.from_ground_truth(centers, sizes, rng.uniform(-np.pi, np.pi, boxes), 1.0, 1.5)
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_counts_nearest_and_area_match_the_reference(seed):
+def test_counts_nearest_and_area_match_the_reference(seed, kernel):
     pts, boxes = scene(seed)
     area = Area(DLR_AREA, 0.0, 1.5)
-    got = evaluate_cloud(pts, boxes, area)
+    got = evaluate_cloud(pts, boxes, area, kernel=kernel)
     for b, corners in enumerate(box_corners_3d(boxes)):
         inside = crop_reference(pts, corners)
         assert got.counts[b] == len(inside)
@@ -44,18 +47,84 @@ def test_counts_nearest_and_area_match_the_reference(seed):
     assert sorted(map(tuple, got.area_points)) == sorted(map(tuple, rest))
 
 
-def test_structured_float32_cloud_and_lanelet_clip():
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_structured_float32_cloud_and_lanelet_clip(kernel):
     pts, boxes = scene(3)
     cloud = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1")])
     for i, k in enumerate("xyz"):
         cloud[k] = pts[:, i]
     f32 = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1).astype(np.float64)
     half_lane = Area(DLR_AREA, 0.0, 1.5, clips=[np.array([[0, 0], [20, 0], [20, 5], [0, 5]], float)])
-    got = evaluate_cloud(cloud, BoxSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)), half_lane)
+    got = evaluate_cloud(cloud, BoxSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)), half_lane, kernel=kernel)
     want = f32[(f32[:, 0] > 0) & (f32[:, 0] < 10) & (f32[:, 1] > 0) & (f32[:, 1] < 1.5)
                & (f32[:, 2] >= 0) & (f32[:, 2] <= 1.5)]
     assert len(got.area_points) == len(want)
-    assert evaluate_cloud(cloud, boxes, Area(DLR_AREA, 0.0, 1.5, clips=[])).area_points.shape == (0, 3)
+    assert evaluate_cloud(cloud, boxes, Area(DLR_AREA, 0.0, 1.5, clips=[]), kernel=kernel).area_points.shape == (0, 3)
+
+
+def adversarial_cloud(rng, boxes: BoxSet, n: int, dtype) -> np.ndarray:
+    """Points on and just inside box corners, on round coordinates, far away, and NaN."""
+    corners = boxes.footprints()  # (B, 4, 2)
+    centre = boxes.centers[:, None, :2]
+    faces = np.concatenate([corners, corners + 1e-9 * (centre - corners), corners + 1e-6 * (centre - corners)],
+                           axis=1).reshape(-1, 2)
+    faces = np.c_[faces, np.repeat(boxes.centers[:, 2] + boxes.half[:, 2], 12)]
+    near = rng.uniform(-30, 30, (n, 3))
+    near[: n // 4, :2] = np.round(near[: n // 4, :2] * 4) / 4  # on round coordinates
+    far = rng.uniform(-1e4, 1e4, (16, 3))
+    nan = np.array([[np.nan, 1.0, 0.5], [1.0, np.nan, 0.5], [5.0, 0.0, np.nan], [np.inf, 0.0, 0.5]])
+    return np.concatenate([faces, near, far, nan]).astype(dtype)
+
+
+@pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba absent")
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(0, 9), st.sampled_from([np.float32, np.float64]),
+       st.sampled_from(["none", "polygon", "clipped"]))
+def test_both_kernels_agree_point_for_point(seed, n_boxes, dtype, area_kind):
+    rng = np.random.default_rng(seed)
+    centers = np.c_[rng.uniform(-25, 25, (n_boxes, 2)), rng.uniform(0, 1.5, n_boxes)]
+    sizes = rng.uniform(0.2, 8.0, (n_boxes, 3))
+    yaws = rng.choice([0.0, np.pi / 2, rng.uniform(-np.pi, np.pi)], n_boxes)  # axis-aligned edges too
+    boxes = BoxSet.from_ground_truth(centers, sizes, yaws, 1.0, 1.3)
+    area = {"none": None, "polygon": Area(DLR_AREA, 0.0, 1.5),
+            "clipped": Area(np.array([[12.0, 6.0], [12.0, -6.0], [-2.0, -6.0], [-4.0, 0.0], [-2.0, 6.0]]), 0.0, 2.0,
+                            clips=[np.array([[0, 0], [20, 0], [20, 4], [0, 4]], float),
+                                   np.array([[-5, -1], [3, -5], [6, -1]], float)])}[area_kind]
+    cloud = adversarial_cloud(rng, boxes, 3000, dtype)
+    fast, slow = (evaluate_cloud(cloud, boxes, area, kernel=k) for k in ("numba", "numpy"))
+    np.testing.assert_array_equal(fast.counts, slow.counts)
+    np.testing.assert_array_equal(fast.nearest, slow.nearest)
+    np.testing.assert_array_equal(fast.area_points, slow.area_points)
+    # Both right, too.  On the faces, against the same float64 rule applied to every point
+    # (the grid must not lose a point that rounding leaves just inside) ...
+    xyz = cloud.astype(np.float64)
+    with np.errstate(invalid="ignore"):  # inf * 0
+        assert fast.counts.tolist() == boxes.contains(*xyz.T).sum(axis=0).tolist()
+    # ... and off them against perception_eval's rule, which is half-open on faces.
+    on_faces = 12 * n_boxes
+    if n_boxes:
+        rest = evaluate_cloud(cloud[on_faces:], boxes, area, kernel="numba")
+        finite = xyz[on_faces:][np.isfinite(xyz[on_faces:]).all(axis=1)]
+        assert rest.counts.tolist() == [len(crop_reference(finite, c)) for c in box_corners_3d(boxes)]
+
+
+def test_kernel_choice_is_checked(monkeypatch):
+    pts, boxes = scene(0, n=100)
+    with pytest.raises(ValueError, match="'numba' or 'numpy'"):
+        evaluate_cloud(pts, boxes, kernel="cuda")
+    monkeypatch.setattr(cloud_jit, "AVAILABLE", False)
+    with pytest.raises(ImportError, match="pip install"):
+        evaluate_cloud(pts, boxes, kernel="numba")
+    assert evaluate_cloud(pts, boxes).counts.tolist() == evaluate_cloud(pts, boxes, kernel="numpy").counts.tolist()
+
+
+def test_polygon_edges_of_several_polygons_close_each_one():
+    tri, square = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 2.0]]), DLR_AREA
+    table, ends = polygon_edges(tri, np.zeros((0, 2)), square)
+    assert ends.tolist() == [3, 3, 7]
+    assert table[2, 2] == 0.0 and table[6, 2] == square[0, 1]  # last edges end on their first vertices
+    assert table[1, 3] == -2.0  # (0 - 4) / (2 - 0)
+    assert table[0, 3] == 0.0  # horizontal edge
 
 
 def test_box_scale_is_linear_in_distance_and_xy_only():
