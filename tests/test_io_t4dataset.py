@@ -80,6 +80,17 @@ def test_dangling_token_names_table(t4_copy):
         T4Dataset(t4_copy).ground_truth_at(TS)
 
 
+@pytest.mark.parametrize("key, value", [("translation", [1.0, float("nan"), 0.0]), ("size", [1.0, 2.0]),
+                                        ("rotation", "upright")])
+def test_a_malformed_box_names_its_annotation(t4_copy, key, value):
+    p = t4_copy / "annotation/sample_annotation.json"
+    rows = json.loads(p.read_text())
+    rows[0][key] = value
+    p.write_text(json.dumps(rows))  # json writes NaN, as Python's own writers do
+    with pytest.raises(T4DatasetError, match=rf"record 'ef63.*': {key} should be \d finite numbers, found"):
+        T4Dataset(t4_copy).ground_truth_at(TS)
+
+
 def test_bad_json_and_category_via_instance(t4_copy):
     p = t4_copy / "annotation/sample_annotation.json"
     rows = json.loads(p.read_text())

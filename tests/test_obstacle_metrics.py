@@ -118,6 +118,14 @@ def test_kernel_choice_is_checked(monkeypatch):
     assert evaluate_cloud(pts, boxes).counts.tolist() == evaluate_cloud(pts, boxes, kernel="numpy").counts.tolist()
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_a_non_finite_box_is_an_error_not_a_count(kernel):
+    pts, boxes = scene(0, n=100)
+    boxes.centers[3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"box 3 has a non-finite centre"):
+        evaluate_cloud(pts, boxes, kernel=kernel)
+
+
 def test_polygon_edges_of_several_polygons_close_each_one():
     tri, square = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 2.0]]), DLR_AREA
     table, ends = polygon_edges(tri, np.zeros((0, 2)), square)

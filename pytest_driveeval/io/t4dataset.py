@@ -138,6 +138,23 @@ class T4Dataset:
         except KeyError:
             raise T4DatasetError(f"{table}.json record {rec.get('token')!r} lacks {key!r}") from None
 
+    @classmethod
+    def _vectors(cls, anns: list[dict], key: str, n: int) -> np.ndarray:
+        """(len(anns), n) float64 of each annotation's ``key``; one of another length, or
+        not finite, is an error naming its annotation."""
+        out = np.empty((len(anns), n))
+        for row, ann in zip(out, anns):
+            value = cls._field(ann, key, "sample_annotation")
+            try:
+                row[:] = np.asarray(value, dtype=np.float64)
+                ok = bool(np.isfinite(row).all())
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise T4DatasetError(f"sample_annotation.json record {ann.get('token')!r}: {key} should be "
+                                     f"{n} finite numbers, found {value!r}")
+        return out
+
     # -- paths -------------------------------------------------------------
     @property
     def input_bag(self) -> Path | None:
@@ -242,12 +259,9 @@ class T4Dataset:
             sample_token=sample_token,
             timestamp_us=int(sample["timestamp"]),
             frame_id="map",
-            centers=np.array([self._field(a, "translation", where) for a in anns],
-                             dtype=np.float64).reshape(-1, 3),
-            sizes=np.array([self._field(a, "size", where) for a in anns],
-                           dtype=np.float64).reshape(-1, 3),
-            rotations=np.array([self._field(a, "rotation", where) for a in anns],
-                               dtype=np.float64).reshape(-1, 4),
+            centers=self._vectors(anns, "translation", 3),
+            sizes=self._vectors(anns, "size", 3),
+            rotations=self._vectors(anns, "rotation", 4),
             instance_tokens=strs([a["instance_token"] for a in anns]),
             category_names=strs([self._category(a) for a in anns]),
             visibility=strs(vis),
