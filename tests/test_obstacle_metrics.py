@@ -119,6 +119,19 @@ def test_kernel_choice_is_checked(monkeypatch):
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("dtype", [">f4", "<f2", "<i2"])
+def test_clouds_of_any_numeric_field_type(kernel, dtype):
+    pts, boxes = scene(4, n=5000)
+    cloud = np.zeros(len(pts), dtype=[("x", dtype), ("y", dtype), ("z", dtype)])
+    for i, k in enumerate("xyz"):
+        cloud[k] = pts[:, i]
+    xyz = np.stack([cloud[k].astype(np.float64) for k in "xyz"], axis=1)
+    got = evaluate_cloud(cloud, boxes, Area(DLR_AREA, -10.0, 10.0), kernel=kernel)
+    assert got.counts.tolist() == boxes.contains(*xyz.T).sum(axis=0).tolist()
+    assert len(got.area_points) == len(evaluate_cloud(xyz, boxes, Area(DLR_AREA, -10.0, 10.0)).area_points)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
 def test_a_non_finite_box_is_an_error_not_a_count(kernel):
     pts, boxes = scene(0, n=100)
     boxes.centers[3, 0] = np.nan

@@ -198,6 +198,8 @@ def _buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def evaluate(points: np.ndarray, boxes: BoxSet, area: Area | None) -> CloudCounts:
     """``evaluate_cloud`` for a non-empty cloud; ``area`` is None when it is not checked."""
     x, y, z = xyz_columns(points)
+    if not all(c.dtype in (np.float32, np.float64) and c.dtype.isnative for c in (x, y, z)):
+        x, y, z = (np.asarray(c, dtype=np.float64) for c in (x, y, z))  # big-endian, integer, half...
     box = np.column_stack([boxes.centers, boxes.half, np.cos(boxes.yaws), np.sin(boxes.yaws)])
     if area is None:  # an empty box (lo > hi) and no edges: no cell is the area's
         area_box, z_range = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.array([1.0, 0.0])
