@@ -218,6 +218,10 @@ def evaluate_cloud(points: np.ndarray, boxes: BoxSet, area: Area | None = None,
     both give the same result, point for point."""
     from . import cloud_jit, cloud_numpy
 
+    if kernel not in (None, "numba", "numpy"):
+        raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
+    if kernel == "numba" and not cloud_jit.AVAILABLE:
+        raise ImportError("kernel='numba' needs numba: pip install 'pytest-driveeval[obstacle]'")
     x = xyz_columns(points)[0]
     nb = len(boxes)
     for name, values in (("centre", boxes.centers), ("size", boxes.half), ("yaw", boxes.yaws)):
@@ -227,12 +231,7 @@ def evaluate_cloud(points: np.ndarray, boxes: BoxSet, area: Area | None = None,
     use_area = area is not None and not area.empty
     if (not nb and not use_area) or len(x) == 0:
         return CloudCounts(np.zeros(nb, dtype=np.int64), np.full((nb, 3), np.nan), np.zeros((0, 3)))
-    kernel = kernel or ("numba" if cloud_jit.AVAILABLE else "numpy")
-    if kernel == "numba" and not cloud_jit.AVAILABLE:
-        raise ImportError("kernel='numba' needs numba: pip install 'pytest-driveeval[obstacle]'")
-    if kernel not in ("numba", "numpy"):
-        raise ValueError(f"kernel must be 'numba' or 'numpy', not {kernel!r}")
-    impl = cloud_jit if kernel == "numba" else cloud_numpy
+    impl = cloud_jit if (kernel or ("numba" if cloud_jit.AVAILABLE else "numpy")) == "numba" else cloud_numpy
     return impl.evaluate(points, boxes, area if use_area else None)
 
 
