@@ -20,6 +20,17 @@ settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True
 settings.register_profile("dev", deadline=None)
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
+try:
+    import numba
+except ImportError:  # the obstacle kernel's numpy path runs instead
+    numba = None
+if numba is not None:
+    # pytester's in-process runs drop the modules first imported inside them. numba
+    # imports some on its first compile and registers their types in registries that
+    # outlive the run, so a second run re-registers them and fails ("duplicate
+    # registration"). One compile here, before any pytester run, makes them permanent.
+    numba.njit(lambda: 0)()
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
