@@ -1,9 +1,8 @@
 """Read and write Lyft Level 5 (l5kit) datasets stored as zarr format 2.
 
 l5kit is no longer installable and zarr 3 cannot read its structured dtypes, so
-this module parses the zarr v2 layout itself (``.zarray`` JSON + one file per
-chunk, decoded with ``numcodecs``).  Only what l5kit stores is supported:
-1-D arrays with a structured dtype, C order.
+the arrays are read and written by ``zarr_v2`` (``.zarray`` JSON + one file per
+chunk, decoded with ``numcodecs``); this module knows l5kit's schema and scenes.
 
 Layout of a store (a zarr v2 group directory)::
 
@@ -29,19 +28,17 @@ Public API::
 """
 from __future__ import annotations
 
-import base64
 import json
 import os
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numcodecs
 import numpy as np
 
-from ..errors import DataError
 from ..geometry import yaw_from_rotation33
+from .zarr_v2 import ZarrArray1D, ZarrFormatError, describe_dtype, dtype_mismatch, write_array, zarr_json
 
 __all__ = [
     "AGENT_DTYPE",
@@ -121,7 +118,6 @@ PERCEPTION_LABELS = (
 
 # l5kit's defaults, also what the real sample uses.
 DEFAULT_CHUNK_SIZES = {"scenes": 10_000, "frames": 10_000, "agents": 20_000, "traffic_light_faces": 10_000}
-_CHUNK_CACHE_SIZE = 8  # decoded chunks kept per array: neighbouring scenes share chunks
 
 
 def label_index(name: str) -> int:
@@ -133,7 +129,7 @@ def label_index(name: str) -> int:
         raise ValueError(f"unknown perception label {name!r}; known: {', '.join(PERCEPTION_LABELS)}") from None
 
 
-class L5FormatError(DataError, ValueError):
+class L5FormatError(ZarrFormatError):
     """The store does not hold what the l5kit format promises."""
 
 
@@ -142,172 +138,6 @@ class L5Arrays(NamedTuple):
     frames: np.ndarray
     agents: np.ndarray
     traffic_light_faces: np.ndarray
-
-
-# --------------------------------------------------------------------------- dtype handling
-
-
-def _dtype_from_zarr(descr: Any) -> np.dtype:
-    """zarr 2 writes ``dtype.descr`` as JSON, so tuples became lists."""
-    if isinstance(descr, str):
-        return np.dtype(descr)
-    fields = []
-    for field in descr:
-        name, typ = field[0], field[1]
-        if isinstance(typ, list):  # nested structured field
-            typ = _dtype_from_zarr(typ)
-        fields.append((name, typ, tuple(field[2])) if len(field) > 2 else (name, typ))
-    return np.dtype(fields)
-
-
-def _dtype_to_zarr(dtype: np.dtype) -> list:
-    # descr entries are (name, type) or (name, type, shape); JSON wants lists.
-    return [[field[0], field[1], list(field[2])] if len(field) > 2 else [field[0], field[1]] for field in dtype.descr]
-
-
-def _describe_dtype(dtype: np.dtype) -> str:
-    if dtype.names is None:
-        return dtype.str
-    parts = []
-    for name in dtype.names:
-        sub = dtype.fields[name][0]
-        base, shape = (sub.base, sub.shape) if sub.subdtype else (sub, ())
-        parts.append(f"{name}:{base.str}{list(shape) if shape else ''}")
-    return "{" + ", ".join(parts) + "}"
-
-
-def _dtype_mismatch(expected: np.dtype, found: np.dtype) -> str | None:
-    """Human-readable difference between two structured dtypes, or None if equal."""
-    if expected == found:
-        return None
-    exp_names, found_names = expected.names or (), found.names or ()
-    if exp_names != found_names:
-        missing = [n for n in exp_names if n not in found_names]
-        extra = [n for n in found_names if n not in exp_names]
-        detail = []
-        if missing:
-            detail.append(f"missing fields {missing}")
-        if extra:
-            detail.append(f"unexpected fields {extra}")
-        if not detail:
-            detail.append(f"field order {list(found_names)} instead of {list(exp_names)}")
-        return "; ".join(detail)
-    diffs = []
-    for name in exp_names:
-        e, f = expected.fields[name][0], found.fields[name][0]
-        if e != f:
-            diffs.append(f"field {name!r} is {_describe_dtype(np.dtype([(name, f)]))[1:-1]} "
-                         f"instead of {_describe_dtype(np.dtype([(name, e)]))[1:-1]}")
-    return "; ".join(diffs) or "layout (offsets/itemsize) differs"
-
-
-# --------------------------------------------------------------------------- minimal zarr v2 array
-
-
-class _ZarrArray1D:
-    """Lazy reader of one 1-D zarr v2 array directory."""
-
-    def __init__(self, store: Path, name: str, expected_dtype: np.dtype | None = None):
-        self.store, self.name, self.dir = store, name, store / name
-        meta_path = self.dir / ".zarray"
-        if not meta_path.is_file():
-            raise L5FormatError(f"{store}: array {name!r} is missing (expected {meta_path})")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise L5FormatError(f"{meta_path}: unreadable array metadata: {exc}") from exc
-        self.meta_path = meta_path
-        self._check(meta.get("zarr_format") == 2, f"zarr_format 2 expected, found {meta.get('zarr_format')!r}")
-        self._check(meta.get("order", "C") == "C", f"order 'C' expected, found {meta.get('order')!r}")
-        shape, chunks = meta.get("shape"), meta.get("chunks")
-        self._check(isinstance(shape, list) and len(shape) == 1 and isinstance(chunks, list) and len(chunks) == 1,
-                    f"a 1-D array expected, found shape {shape} chunks {chunks}")
-        self.length, self.chunk_len = int(shape[0]), int(chunks[0])
-        self._check(self.chunk_len > 0, f"chunk length must be positive, found {self.chunk_len}")
-        try:
-            self.dtype = _dtype_from_zarr(meta["dtype"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise L5FormatError(f"{meta_path}: array {name!r} has an unreadable dtype {meta.get('dtype')!r}: {exc}") from exc
-        if expected_dtype is not None:
-            diff = _dtype_mismatch(expected_dtype, self.dtype)
-            if diff:
-                raise L5FormatError(
-                    f"{meta_path}: array {name!r} has the wrong dtype ({diff}); "
-                    f"expected {_describe_dtype(expected_dtype)}, found {_describe_dtype(self.dtype)}")
-        try:
-            self.compressor = numcodecs.get_codec(meta["compressor"]) if meta.get("compressor") else None
-            self.filters = [numcodecs.get_codec(f) for f in meta.get("filters") or []]
-        except (KeyError, TypeError, ValueError) as exc:
-            raise L5FormatError(f"{meta_path}: array {name!r} uses an unsupported codec: {exc}") from exc
-        self.fill = self._fill_value(meta.get("fill_value"))
-        self.num_chunks = -(-self.length // self.chunk_len)
-        self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
-
-    def _check(self, ok: bool, what: str) -> None:
-        if not ok:
-            raise L5FormatError(f"{self.dir / '.zarray'}: array {self.name!r}: {what}")
-
-    def _fill_value(self, raw: Any) -> np.ndarray:
-        fill = np.zeros((), dtype=self.dtype)
-        if raw is None or raw == 0:
-            return fill
-        if self.dtype.names is not None:  # zarr 2 stores structured fill values as base64 bytes
-            try:
-                data = base64.standard_b64decode(raw)
-            except (TypeError, ValueError) as exc:
-                raise L5FormatError(f"{self.meta_path}: array {self.name!r}: bad fill_value: {exc}") from exc
-            self._check(len(data) == self.dtype.itemsize,
-                        f"fill_value holds {len(data)} bytes, dtype itemsize is {self.dtype.itemsize}")
-            return np.frombuffer(data, dtype=self.dtype).reshape(())
-        fill[()] = raw
-        return fill
-
-    def _chunk(self, index: int) -> np.ndarray:
-        cached = self._cache.get(index)
-        if cached is not None:
-            self._cache.move_to_end(index)
-            return cached
-        path = self.dir / str(index)
-        if not path.exists():  # zarr leaves chunks equal to the fill value unwritten
-            chunk = np.full(self.chunk_len, self.fill, dtype=self.dtype)
-        else:
-            raw = path.read_bytes()
-            try:
-                buf = self.compressor.decode(raw) if self.compressor is not None else raw
-                for codec in reversed(self.filters):
-                    buf = codec.decode(buf)
-                data = np.frombuffer(memoryview(buf).cast("B"), dtype=np.uint8)
-            except Exception as exc:  # numcodecs raises assorted types for garbage input
-                raise L5FormatError(
-                    f"{path}: corrupt chunk {index} of array {self.name!r} in {self.store}: "
-                    f"cannot decode with {self.compressor}: {exc}") from exc
-            full = self.chunk_len * self.dtype.itemsize
-            # Edge chunks are written padded by zarr, but be lenient with trimmed ones.
-            valid = min(self.chunk_len, self.length - index * self.chunk_len) * self.dtype.itemsize
-            if data.size not in (full, valid):
-                raise L5FormatError(
-                    f"{path}: corrupt chunk {index} of array {self.name!r} in {self.store}: "
-                    f"decoded {data.size} bytes, expected {full} ({self.chunk_len} x {self.dtype.itemsize}-byte rows)")
-            chunk = data.view(self.dtype)
-        self._cache[index] = chunk
-        if len(self._cache) > _CHUNK_CACHE_SIZE:
-            self._cache.popitem(last=False)
-        return chunk
-
-    def read(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Rows ``[start, stop)`` as a fresh (writable, owned) structured array."""
-        stop = self.length if stop is None else stop
-        if not 0 <= start <= stop <= self.length:
-            raise L5FormatError(f"{self.store}: array {self.name!r}: rows [{start}, {stop}) outside [0, {self.length})")
-        out = np.empty(stop - start, dtype=self.dtype)
-        if stop == start:
-            return out
-        first, last = start // self.chunk_len, (stop - 1) // self.chunk_len
-        for c in range(first, last + 1):
-            c0 = c * self.chunk_len
-            lo, hi = max(start, c0), min(stop, c0 + self.chunk_len)
-            out[lo - start:hi - start] = self._chunk(c)[lo - c0:hi - c0]
-        return out
 
 
 # --------------------------------------------------------------------------- scenes
@@ -440,7 +270,7 @@ class L5Scene:
 class L5Dataset:
     """A read-only l5kit zarr store; use :meth:`open`."""
 
-    def __init__(self, path: Path, arrays: dict[str, _ZarrArray1D], attrs: dict):
+    def __init__(self, path: Path, arrays: dict[str, ZarrArray1D], attrs: dict):
         self.path = path
         self._arrays = arrays
         self.attrs = attrs
@@ -459,7 +289,7 @@ class L5Dataset:
                 attrs = json.loads((path / ".zattrs").read_text())
             except ValueError as exc:
                 raise L5FormatError(f"{path / '.zattrs'}: invalid JSON: {exc}") from exc
-        arrays = {name: _ZarrArray1D(path, name, EXPECTED_DTYPES[name]) for name in ARRAY_NAMES}
+        arrays = {name: ZarrArray1D(path, name, EXPECTED_DTYPES[name], error=L5FormatError) for name in ARRAY_NAMES}
         return cls(path, arrays, attrs)
 
     def __repr__(self) -> str:
@@ -534,9 +364,9 @@ class L5Dataset:
 def _check_for_write(name: str, array: np.ndarray) -> np.ndarray:
     array = np.asarray(array)
     expected = EXPECTED_DTYPES[name]
-    diff = _dtype_mismatch(expected, array.dtype)
+    diff = dtype_mismatch(expected, array.dtype)
     if diff:
-        raise L5FormatError(f"cannot write array {name!r}: wrong dtype ({diff}); expected {_describe_dtype(expected)}")
+        raise L5FormatError(f"cannot write array {name!r}: wrong dtype ({diff}); expected {describe_dtype(expected)}")
     if array.ndim != 1:
         raise L5FormatError(f"cannot write array {name!r}: 1-D expected, found shape {array.shape}")
     return np.ascontiguousarray(array)
@@ -549,11 +379,6 @@ def _check_intervals(owner: str, field: str, intervals: np.ndarray, target: str,
     if bad.size:
         raise L5FormatError(f"cannot write: {owner}[{bad[0]}].{field} = {intervals[bad[0]].tolist()} "
                             f"is not a valid interval of {target!r} (length {target_len})")
-
-
-def _json(obj: Any) -> str:
-    # Same formatting as zarr 2, so stores diff cleanly against zarr-written ones.
-    return json.dumps(obj, indent=4, sort_keys=True, ensure_ascii=True, separators=(",", ": "))
 
 
 def write_l5_zarr(
@@ -589,35 +414,10 @@ def write_l5_zarr(
         raise FileExistsError(f"{path} exists and is not empty; pass overwrite=True to replace the arrays")
 
     path.mkdir(parents=True, exist_ok=True)
-    (path / ".zgroup").write_text(_json({"zarr_format": 2}))
+    (path / ".zgroup").write_text(zarr_json({"zarr_format": 2}))
     root_attrs = {"format_version": 2, "labels": list(PERCEPTION_LABELS), **(attrs or {})}
-    (path / ".zattrs").write_text(_json(root_attrs))
+    (path / ".zattrs").write_text(zarr_json(root_attrs))
     codec = numcodecs.Blosc(cname="lz4", clevel=5, shuffle=numcodecs.Blosc.SHUFFLE, blocksize=0)
     for name, array in data.items():
-        _write_array(path / name, array, int(sizes[name]), codec)
+        write_array(path / name, array, int(sizes[name]), codec)
     return path
-
-
-def _write_array(directory: Path, array: np.ndarray, chunk_len: int, codec: numcodecs.abc.Codec) -> None:
-    directory.mkdir(exist_ok=True)
-    for stale in directory.iterdir():  # an overwrite with fewer rows must not leave old chunks behind
-        if stale.name.isdigit():
-            stale.unlink()
-    meta = {
-        "chunks": [chunk_len],
-        "compressor": codec.get_config(),
-        "dtype": _dtype_to_zarr(array.dtype),
-        "fill_value": base64.standard_b64encode(bytes(array.dtype.itemsize)).decode("ascii"),
-        "filters": None,
-        "order": "C",
-        "shape": [len(array)],
-        "zarr_format": 2,
-    }
-    (directory / ".zarray").write_text(_json(meta))
-    for index, c0 in enumerate(range(0, len(array), chunk_len)):
-        chunk = array[c0:c0 + chunk_len]
-        if len(chunk) < chunk_len:  # zarr v2 stores edge chunks at full size
-            padded = np.zeros(chunk_len, dtype=array.dtype)
-            padded[:len(chunk)] = chunk
-            chunk = padded
-        (directory / str(index)).write_bytes(codec.encode(chunk.view(np.uint8)))
