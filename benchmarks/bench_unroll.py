@@ -33,7 +33,7 @@ from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.batch import EGO_EXTENT, LogArrays, scenes_from_arrays, stack_scenes
 from pytest_driveeval.sim.engine import UnrollConfig, unroll
-from pytest_driveeval.sim.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes
 
 SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "l5kit" / "single_scene.zarr"
 H, F, N, RADIUS, DT = 10, 12, 30, 35.0, 0.1

@@ -18,7 +18,7 @@ import torch
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.batch import scenes_from_arrays, stack_scenes
 from pytest_driveeval.sim.engine import UnrollConfig, unroll
-from pytest_driveeval.sim.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes
 
 
 def _peak_rss_mb() -> float:

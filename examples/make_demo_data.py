@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pytest_driveeval.sim.scenegen import generate_zarr
+from pytest_driveeval.synth.scenegen import generate_zarr
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -14,7 +14,7 @@ import shutil
 import time
 from pathlib import Path
 
-from pytest_driveeval.sim.t4gen import generate_t4_dataset
+from pytest_driveeval.synth.t4gen import generate_t4_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 # Fewer rays than the default 30k keep each dataset ~3 MB while every target

@@ -42,7 +42,7 @@ from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.batch import LogArrays, build_batch, scenes_from_arrays, stack_scenes
 from pytest_driveeval.policies.planning_model import PlanningModel
 from pytest_driveeval.sim.engine import UnrollConfig, UnrollResult, unroll
-from pytest_driveeval.sim.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_SCENE = ROOT / "fixtures" / "l5kit" / "single_scene.zarr"

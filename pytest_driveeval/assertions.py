@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from .outcome import Outcome, format_figure
-from .validators import within
+from .verdict import within
 
 
 def _scenario_prefix(outcome_or_name: Outcome | str | None) -> str:

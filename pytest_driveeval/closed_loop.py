@@ -16,7 +16,7 @@ import numpy as np
 from .errors import DataError
 from .io.l5kit_zarr import L5Dataset
 from .outcome import Finding
-from .validators import within
+from .verdict import within
 
 KINDS = ("front", "side", "rear")
 KIND_CODE = {"front": 1, "side": 2, "rear": 3}

@@ -20,7 +20,8 @@ import numpy as np
 
 from .errors import DataError
 from .io.t4dataset import T4Dataset
-from .io.tf import TransformError, matrix_to_quat
+from .geometry.quaternions import matrix_to_quat, quat_wxyz_to_matrix
+from .io.tf import TransformError
 from .metrics.pointcloud import Area, BoxSet, evaluate_cloud, xyz_columns
 from .report import jsonl as rec
 from .report.jsonl import JsonlWriter
@@ -51,8 +52,6 @@ def bag_pointclouds(dataset: T4Dataset | str | os.PathLike, topic: str) -> Itera
 
 def sweep_pointclouds(dataset: T4Dataset | str | os.PathLike) -> Iterator[tuple]:
     """Key-frame lidar sweeps (data/LIDAR_*/*.pcd.bin) moved to base_link by their calibration."""
-    from .io.t4dataset import quat_wxyz_to_matrix
-
     ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
     for token in ds.sample_tokens:
         sd = ds.lidar_sample_data(token)

@@ -9,7 +9,7 @@ import pytest
 import pytest_driveeval.assertions as assertions
 from pytest_driveeval import Outcome, assert_figure_within, assert_passed, assert_values_within
 from pytest_driveeval.outcome import Finding
-from pytest_driveeval.validators import within
+from pytest_driveeval.verdict import within
 
 
 def test_within_names_first_and_worst_frames():

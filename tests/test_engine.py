@@ -14,7 +14,7 @@ from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLo
 from pytest_driveeval.policies.batch import EGO_EXTENT, scenes_from_arrays, stack_scenes
 from pytest_driveeval.sim.engine import UnrollConfig, unroll
 from pytest_driveeval.sim.kinematics import KinematicLimits, feasible_step
-from pytest_driveeval.sim.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes
 
 STOP_SCENE = 2  # of red_light_log(): CV runs into a car stopped at the red light
 

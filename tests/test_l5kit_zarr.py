@@ -94,7 +94,7 @@ def test_matches_zarr_on_real_sample(sample):
 
 
 def test_agents_rebased_per_scene(tmp_path):
-    from pytest_driveeval.sim.scenegen import generate_scenes
+    from pytest_driveeval.synth.scenegen import generate_scenes
 
     arrays = generate_scenes(3, 20, seed=5)
     write_l5_zarr(tmp_path / "s.zarr", *arrays, chunk_sizes={"agents": 7, "frames": 6})
@@ -160,7 +160,7 @@ def test_scene_index_out_of_range(sample):
 
 
 def test_interval_outside_array(tmp_path):
-    from pytest_driveeval.sim.scenegen import generate_scenes
+    from pytest_driveeval.synth.scenegen import generate_scenes
 
     scenes, frames, agents, faces = generate_scenes(1, 5, seed=0)
     write_l5_zarr(tmp_path / "s.zarr", scenes, frames, agents, faces)
@@ -245,7 +245,7 @@ def test_round_trip_property(tmp_path_factory, data):
 
 def test_zarr_reads_what_we_write(tmp_path):
     zarr = pytest.importorskip("zarr")
-    from pytest_driveeval.sim.scenegen import generate_scenes
+    from pytest_driveeval.synth.scenegen import generate_scenes
 
     arrays = generate_scenes(2, 30, seed=3)
     path = write_l5_zarr(tmp_path / "s.zarr", *arrays, chunk_sizes={"agents": 100, "frames": 7})

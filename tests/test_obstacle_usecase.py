@@ -9,7 +9,7 @@ import pytest
 
 from pytest_driveeval.report.jsonl import key_structure, merge_structures, read_jsonl
 
-t4gen = pytest.importorskip("pytest_driveeval.sim.t4gen")
+t4gen = pytest.importorskip("pytest_driveeval.synth.t4gen")
 
 DLR_FILES = ("scenario.yaml", "scenario_detection_only.yaml", "scenario_non_detection_only.yaml")
 

@@ -12,7 +12,7 @@ from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.batch import build_batch, scenes_from_arrays, stack_scenes
 from pytest_driveeval.policies.planning_model import PlanningModel
 from pytest_driveeval.sim.engine import UnrollConfig, unroll
-from pytest_driveeval.sim.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "fixtures" / "models" / "planning_model.pt"

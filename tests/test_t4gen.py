@@ -9,8 +9,8 @@ import pytest
 
 from pytest_driveeval.io.rosbag import Bag
 from pytest_driveeval.io.t4dataset import T4Dataset
-from pytest_driveeval.sim.lidar import points_in_boxes
-from pytest_driveeval.sim.t4gen import DIAG_NAME, TARGET_TOKEN, generate_t4_dataset
+from pytest_driveeval.geometry import points_in_boxes
+from pytest_driveeval.synth.t4gen import DIAG_NAME, TARGET_TOKEN, generate_t4_dataset
 
 N_FRAMES, RAYS = 6, 8000
 REPO = Path(__file__).resolve().parents[1]
@@ -41,7 +41,7 @@ def _frames(m):
         for fr in bag.pointclouds(m.pointcloud_topic):
             gt = ds.ground_truth_at(fr.stamp_ns // 1000).to_base_link()
             xyz = np.column_stack([fr.points[c] for c in "xyz"]).astype(np.float64)
-            out.append((gt, xyz, points_in_boxes(xyz, gt.centers, gt.sizes, gt.yaws)))
+            out.append((gt, xyz, points_in_boxes(xyz, gt.centers, gt.yaws, gt.sizes[:, [1, 0, 2]]).mask))
     return out
 
 
@@ -94,7 +94,7 @@ def test_clean_passes_detection_and_non_detection(clean):
         assert not _in_area(xyz, inbox).any()
         # ground removed: nothing low on the road but object returns (range noise
         # scatters those a few cm outside their boxes)
-        near_box = points_in_boxes(xyz, gt.centers, gt.sizes, gt.yaws, margin=0.1).any(1)
+        near_box = points_in_boxes(xyz, gt.centers, gt.yaws, gt.sizes[:, [1, 0, 2]], margin=0.1).mask.any(1)
         low = (xyz[:, 2] < 0.15) & (np.abs(xyz[:, 1]) < 5.0) & (np.abs(xyz[:, 0]) < 30)
         assert not (low & ~near_box).any()
 

@@ -10,7 +10,7 @@ import numpy as np
 from pydantic import BaseModel, PositiveFloat
 
 from pytest_driveeval import ConditionsModel, DataError, Outcome, UseCase, register_usecase
-from pytest_driveeval.validators import within
+from pytest_driveeval.verdict import within
 
 
 class Limits(BaseModel, extra="forbid"):

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from .tf import matrix_to_quat, quat_to_matrix
+from ..geometry.quaternions import matrix_to_quat_wxyz, quat_wxyz_to_matrix, yaw_from_quat_wxyz
 
 from .pcd import read_pcd_bin
 
-__all__ = ["T4DatasetError", "T4Dataset", "GroundTruth", "quat_wxyz_to_matrix", "yaw_from_quat_wxyz"]
+__all__ = ["T4DatasetError", "T4Dataset", "GroundTruth"]
 
 REQUIRED_TABLES = ("sample", "sample_data", "sample_annotation", "instance", "category",
                    "visibility", "ego_pose", "calibrated_sensor", "sensor", "scene", "log")
@@ -32,21 +32,6 @@ REQUIRED_TABLES = ("sample", "sample_data", "sample_annotation", "instance", "ca
 
 class T4DatasetError(DataError, ValueError):
     """Missing/invalid table or a token that points nowhere."""
-
-
-def quat_wxyz_to_matrix(q) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z), the t4/nuScenes order -> (..., 3, 3)."""
-    return quat_to_matrix(np.asarray(q, dtype=np.float64)[..., [1, 2, 3, 0]])
-
-
-def yaw_from_quat_wxyz(q) -> np.ndarray:
-    q = np.asarray(q, dtype=np.float64)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def _matrix_to_quat_wxyz(m: np.ndarray) -> np.ndarray:
-    return matrix_to_quat(m)[..., [3, 0, 1, 2]]
 
 
 @dataclass(frozen=True)
@@ -80,7 +65,7 @@ class GroundTruth:
         inv_r = self.ego_pose[:3, :3].T
         centers = (self.centers - self.ego_pose[:3, 3]) @ inv_r.T
         rot = inv_r @ quat_wxyz_to_matrix(self.rotations) if len(self) else np.zeros((0, 3, 3))
-        quats = _matrix_to_quat_wxyz(rot) if len(self) else np.zeros((0, 4))
+        quats = matrix_to_quat_wxyz(rot) if len(self) else np.zeros((0, 4))
         return replace(self, frame_id="base_link", centers=centers, rotations=quats)
 
 

@@ -14,7 +14,8 @@ import threading
 
 import numpy as np
 
-from .pointcloud import Area, BoxSet, CloudCounts, points_in_polygon, xyz_columns
+from ..geometry.polygons import points_in_polygon
+from .pointcloud import Area, BoxSet, CloudCounts, xyz_columns
 
 
 MULTI = -2  # grid label of a cell touched by several boxes

@@ -146,15 +146,14 @@ def _stamp(stamp_ns: int) -> dict:
 
 
 def _ego(stamp_ns: int, ego) -> dict:
-    from ..io.tf import quat_to_matrix
+    from ..geometry.quaternions import matrix_to_rpy, quat_to_matrix
 
     t, q = ego
-    m = quat_to_matrix(q)
+    roll, pitch, yaw = matrix_to_rpy(quat_to_matrix(q))
     return {"TransformStamped": {
         "header": {"stamp": _stamp(stamp_ns), "frame_id": "map"}, "child_frame_id": "base_link",
         "transform": {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))},
-        "rotation_euler": {"roll": float(np.arctan2(m[2, 1], m[2, 2])), "pitch": float(-np.arcsin(np.clip(m[2, 0], -1, 1))),
-                           "yaw": float(np.arctan2(m[1, 0], m[0, 0]))}}}
+        "rotation_euler": {"roll": roll, "pitch": pitch, "yaw": yaw}}}
 
 
 def _object_info(gt, counts, i: int, stamp_ns: int) -> dict:

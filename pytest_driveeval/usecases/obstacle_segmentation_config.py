@@ -38,6 +38,7 @@ import numpy as np
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeInt, PositiveFloat, ValidationInfo, field_validator,
                       model_validator)
 
+from ..geometry.polygons import polygon_self_intersects, polygon_signed_area
 from ..usecase import ConditionsModel
 
 V3 = "0.3.0"
@@ -85,8 +86,6 @@ class LegacyDetectionCondition(_Strict):
 
 def polygon_problem(vertices: np.ndarray) -> str | None:
     """Why a proposed-area polygon is unusable, or None."""
-    from ..metrics.pointcloud import polygon_self_intersects, polygon_signed_area
-
     if len(vertices) < 3:
         return f"a polygon needs at least 3 vertices; found {len(vertices)}"
     if not np.all(np.isfinite(vertices)):

@@ -1,16 +1,14 @@
-"""Planar rigid transforms and oriented boxes, vectorised over leading axes.
+"""Oriented boxes, vectorised over leading axes.
 
 Conventions (shared with l5kit so logged data can be used unchanged):
 
-* yaw is the heading in radians, counter-clockwise from the world x axis;
 * a box ``extent``/``size`` is ``(length, width[, height])`` with *length along
-  the heading*;
+  the heading* (yaw, counter-clockwise from the world x axis);
 * :func:`box_corners` returns corners in the order front-left, front-right,
   rear-right, rear-left, so edge ``k`` runs from corner ``k`` to ``k+1``:
   0 front, 1 right, 2 rear, 3 left (see ``EDGE_*``).
 
-Every function broadcasts over leading dimensions, so a whole scene
-(scenes, frames, agents) goes through in one call; none loops in Python over
+Every function broadcasts over leading dimensions; none loops in Python over
 boxes or points.
 """
 from __future__ import annotations
@@ -19,72 +17,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .planar import norm2d
+
 EDGE_FRONT, EDGE_RIGHT, EDGE_REAR, EDGE_LEFT = 0, 1, 2, 3
 
 # Unit corner offsets in the box frame (x forward, y left), scaled by the
 # half-extents; the order fixes the edge numbering above.
 _UNIT_CORNERS = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
-
-
-def norm2d(v: np.ndarray) -> np.ndarray:
-    """(..., 2) -> (...) Euclidean length.
-
-    Not np.hypot: that is ~10x slower and its overflow safety is moot at
-    driving scales.
-    """
-    v = np.asarray(v, dtype=np.float64)
-    x, y = v[..., 0], v[..., 1]
-    return np.sqrt(x * x + y * y)
-
-
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Wrap angles to [-pi, pi)."""
-    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def yaw_as_rotation33(yaw: np.ndarray) -> np.ndarray:
-    """(...) yaw -> (..., 3, 3) homogeneous rotation."""
-    yaw = np.asarray(yaw, dtype=np.float64)
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = np.zeros(yaw.shape + (3, 3))
-    out[..., 0, 0], out[..., 0, 1] = c, -s
-    out[..., 1, 0], out[..., 1, 1] = s, c
-    out[..., 2, 2] = 1.0
-    return out
-
-
-def yaw_from_rotation33(matrix: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) (or (..., 2, 2)) rotation -> (...) yaw in [-pi, pi]."""
-    matrix = np.asarray(matrix)
-    return np.arctan2(matrix[..., 1, 0], matrix[..., 0, 0])
-
-
-def world_from_agent(centroid: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """(..., 2) centroid, (...) yaw -> (..., 3, 3) mapping agent frame to world."""
-    yaw = np.asarray(yaw, dtype=np.float64)
-    centroid = np.asarray(centroid, dtype=np.float64)
-    lead = np.broadcast_shapes(yaw.shape, centroid.shape[:-1])
-    out = np.broadcast_to(yaw_as_rotation33(yaw), lead + (3, 3)).copy()
-    out[..., :2, 2] = centroid
-    return out
-
-
-def agent_from_world(centroid: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`world_from_agent`, in closed form (R^T, -R^T t)."""
-    m = world_from_agent(centroid, yaw)
-    rt = np.swapaxes(m[..., :2, :2], -1, -2)
-    out = np.zeros_like(m)
-    out[..., :2, :2] = rt
-    out[..., :2, 2] = -np.einsum("...ij,...j->...i", rt, m[..., :2, 2])
-    out[..., 2, 2] = 1.0
-    return out
-
-
-def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """Apply (..., 3, 3) homogeneous transforms to (..., N, 2) points."""
-    points = np.asarray(points, dtype=np.float64)
-    matrix = np.asarray(matrix, dtype=np.float64)
-    return points @ np.swapaxes(matrix[..., :2, :2], -1, -2) + matrix[..., None, :2, 2]
 
 
 def box_corners(centroid: np.ndarray, yaw: np.ndarray, extent: np.ndarray) -> np.ndarray:
@@ -210,6 +149,7 @@ def points_in_boxes(
     yaws: np.ndarray,
     sizes: np.ndarray,
     *,
+    margin: float = 0.0,
     return_mask: bool = True,
     cell: float | None = None,
 ) -> PointsInBoxes:
@@ -217,7 +157,8 @@ def points_in_boxes(
 
     points (N, 2|3); centers (B, 2|3); yaws (B,); sizes (B, 2|3) as
     (length, width[, height]).  The z test is applied only when points,
-    centers and sizes all carry z.  Boundaries count as inside.
+    centers and sizes all carry z.  Boundaries count as inside; ``margin``
+    (m) grows every box by that much on every side.
 
     Speed: a coarse occupancy grid of the boxes' axis-aligned bounds
     discards most points with O(N) work, then one small matrix product maps
@@ -233,7 +174,7 @@ def points_in_boxes(
     if b == 0 or n == 0:
         return PointsInBoxes(np.zeros(b, np.int64), np.zeros((n, b), bool) if return_mask else None)
 
-    half = 0.5 * size
+    half = 0.5 * size + margin
     c, s = np.cos(yaw), np.sin(yaw)
     # Axis-aligned half-extents of each rotated box.
     ex = np.abs(c) * half[:, 0] + np.abs(s) * half[:, 1]

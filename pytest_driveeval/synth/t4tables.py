@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..geometry.quaternions import quat_wxyz_from_yaw
+
 if TYPE_CHECKING:
     from .t4gen import Road
 
@@ -25,10 +27,6 @@ _VISIBILITY = [("none", "v0-40", 0, 40), ("partial", "v40-60", 40, 60),
                ("most", "v60-80", 60, 80), ("full", "v80-100", 80, 100)]
 _ATTRIBUTES = ("vehicle.moving", "vehicle.parked", "cycle.with_rider",
                "pedestrian.moving", "pedestrian.standing")
-
-
-def _quat_wxyz(yaw) -> list[float]:
-    return [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]
 
 
 def _r(v) -> list[float]:
@@ -55,7 +53,7 @@ def write_annotation(root: Path, seed: int, frames: list, stamps: list[int], *, 
         ex, ey, eyaw = fr["ego"]
         sd_tok = tk("sample_data", i)
         ego_poses.append(dict(token=sd_tok, timestamp=us[i], translation=_r([ex, ey, 0.0]),
-                              rotation=_quat_wxyz(eyaw)))
+                              rotation=quat_wxyz_from_yaw(eyaw)))
         fname = f"data/LIDAR_TOP/{i:05d}.pcd.bin"
         (root / fname).parent.mkdir(parents=True, exist_ok=True)
         (root / fname).write_bytes(fr["sweep"].tobytes())
@@ -74,7 +72,7 @@ def write_annotation(root: Path, seed: int, frames: list, stamps: list[int], *, 
                 instance_token=tokens[b], visibility_token=fr["vis"][b],
                 attribute_tokens=[tk("attribute", attrs[b])],
                 translation=_r(fr["centers"][b]), size=_r(sizes[b]),
-                rotation=_quat_wxyz(fr["yaws"][b]), num_lidar_pts=int(fr["npts"][b]),
+                rotation=quat_wxyz_from_yaw(fr["yaws"][b]), num_lidar_pts=int(fr["npts"][b]),
                 num_radar_pts=0, prev="", next="", category_name=cats[b]))
     anns, instances = [], []
     for b in sorted(per_inst):

@@ -4,7 +4,7 @@ A curved three-lane road (constant curvature, Frenet coordinates s along /
 d left of the centre line), the ego in the middle lane at 8-12 m/s, cars,
 a truck, a cyclist and pedestrians, parked vehicles on the shoulders,
 buildings and bushes off-road.  A 32-ring lidar is ray cast against all of
-it each frame (``sim.lidar``), so visibility, occlusion and point counts in
+it each frame (``synth.lidar``), so visibility, occlusion and point counts in
 the annotations come from the same geometry as the clouds.
 
 The bag's obstacle cloud is what Autoware's obstacle_segmentation would
@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.boxes import points_in_boxes
 from ..io.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, fields_dtype
 from ..io.rosbag import BagWriter, default_typestore, diagnostic_array, tf_message
 from .t4tables import token, write_annotation, write_lanelet2_map
-from .lidar import points_in_boxes, scan
+from .lidar import scan
 
 __all__ = ["T4Manifest", "generate_t4_dataset", "Road", "TARGET_TOKEN", "DIAG_NAME",
            "POINTCLOUD_TOPIC", "DEFECTS", "NON_DETECTION_AREA"]
@@ -240,15 +241,15 @@ def generate_t4_dataset(root, *, num_frames: int = 10, seed: int = 0, storage: s
         obs_ring = np.concatenate([ring[keep], rng.integers(0, 32, len(spur))])
 
         # counted on float32 coordinates, as anyone reading the cloud back will
-        inbox = points_in_boxes(obs_xyz.astype(np.float32).astype(np.float64), centers_bl,
-                                sizes, yaws_bl)
+        inbox = points_in_boxes(obs_xyz.astype(np.float32).astype(np.float64), centers_bl, yaws_bl,
+                                sizes[:, [1, 0, 2]]).mask
         npts = inbox.sum(0)
         vis = _visibility(sc.hits[:n_obj], sc.unoccluded[:n_obj], npts)
         annotated = np.hypot(*bl_xy.T) < ANNOTATION_RANGE
 
         if defect == "missed_object" and i in defect_frames:
-            gone = points_in_boxes(obs_xyz, centers_bl[target:target + 1], sizes[target:target + 1],
-                                   yaws_bl[target:target + 1], margin=0.15)[:, 0]
+            gone = points_in_boxes(obs_xyz, centers_bl[target:target + 1], yaws_bl[target:target + 1],
+                                   sizes[target:target + 1, [1, 0, 2]], margin=0.15).mask[:, 0]
             obs_xyz, obs_i, obs_ring = obs_xyz[~gone], obs_i[~gone], obs_ring[~gone]
         elif defect == "ghost_points" and i in defect_frames:
             g = _ghost_cluster(drng)

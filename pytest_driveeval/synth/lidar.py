@@ -11,8 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["RING_ELEVATIONS_DEG", "ray_directions", "cast_boxes", "cast_ground",
-           "points_in_boxes", "Scan", "scan"]
+__all__ = ["RING_ELEVATIONS_DEG", "ray_directions", "cast_boxes", "cast_ground", "Scan", "scan"]
 
 # 32 rings, denser near the horizon like a VLP-32C / Pandar: that is where the
 # distant objects are, and what makes far objects get a handful of points only.
@@ -82,18 +81,6 @@ def cast_boxes(origin: np.ndarray, dirs: np.ndarray, centers: np.ndarray,
     inside = (np.abs(ox) < half[:, 1]) & (np.abs(oy) < half[:, 0]) & (np.abs(rel[:, 2]) < half[:, 2])
     hit = (t_near <= t_far) & (t_near > 0) & ~inside[None, :]
     return np.where(hit, t_near, np.inf)
-
-
-def points_in_boxes(points: np.ndarray, centers: np.ndarray, sizes: np.ndarray,
-                    yaws: np.ndarray, margin: float = 0.0) -> np.ndarray:
-    """(N, B) bool: point n lies inside box b (grown by ``margin`` on every side)."""
-    rel = points[:, None, :3] - centers[None]             # (N, B, 3)
-    c, s = np.cos(yaws), np.sin(yaws)
-    lx = rel[..., 0] * c + rel[..., 1] * s
-    ly = -rel[..., 0] * s + rel[..., 1] * c
-    half = sizes / 2.0 + margin
-    return ((np.abs(lx) <= half[:, 1]) & (np.abs(ly) <= half[:, 0])
-            & (np.abs(rel[..., 2]) <= half[:, 2]))
 
 
 class Scan(NamedTuple):
