@@ -12,8 +12,8 @@ from typing import Iterable
 
 import pytest
 
-from .errors import DriveEvalError, ScenarioError, display_path
-from .outcome import ScenarioFailed, format_figure
+from .errors import ScenarioError
+from .failure import ScenarioFailed
 from .scenario import Scenario, load_scenario
 from .settings import get_settings
 from .usecase import Case
@@ -46,53 +46,6 @@ def _scenario_function(scenario: Scenario) -> object:
     if scenario.usecase.fixtures:
         scenario_test.pytestmark.append(pytest.mark.usefixtures(*scenario.usecase.fixtures).mark)
     return scenario_test
-
-
-def _source_line(path: Path, line: int | None) -> str:
-    if not line:
-        return ""
-    try:
-        text = path.read_text(encoding="utf-8").splitlines()[line - 1]
-    except (OSError, IndexError, UnicodeDecodeError):
-        return ""
-    return f"    {line:4d} | {text}"
-
-
-def render_failure(scenario: Scenario | None, case_name: str, exc: BaseException) -> str:
-    if isinstance(exc, ScenarioError) or scenario is None:
-        return str(exc)
-    head = f"scenario '{scenario.name}' ({case_name}) in {display_path(scenario.path)}"
-    lines = [head]
-    outcome = getattr(exc, "outcome", None)
-    if isinstance(exc, ScenarioFailed):
-        lines.append(f"  {outcome.verdict.upper()}: {outcome.summary}")
-    else:
-        lines.append(f"  {type(exc).__name__}: {exc}")
-    if outcome is not None:
-        for finding in outcome.findings:
-            where = ""
-            if finding.keypath:
-                line = scenario.source.line_of(finding.keypath)
-                where = f" ({scenario.path.name}:{line})" if line else ""
-            lines.append(f"  - {finding.message}{where}")
-            shown = _source_line(scenario.path, scenario.source.line_of(finding.keypath)) if finding.keypath else ""
-            if shown:
-                lines.append(shown)
-        if outcome.figures:
-            figures = ", ".join(f"{k}={format_figure(v)}" for k, v in outcome.figures.items())
-            lines.append(f"  figures: {figures}")
-        for name, path in outcome.artefacts.items():
-            lines.append(f"  artefact {name}: {path}")
-    return "\n".join(lines)
-
-
-def failure_message(item: pytest.Item, exc: BaseException) -> str:
-    """The text a summary shows for a failed item: the located scenario failure
-    for our errors, the exception's own line otherwise."""
-    if isinstance(exc, DriveEvalError):
-        scenario = getattr(item, "driveeval_scenario", None)
-        return render_failure(scenario, item.name, exc)
-    return f"{type(exc).__name__}: {exc}".strip()
 
 
 class ScenarioItem(pytest.Function):

@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import DriveEvalError
 
 PASSED = "passed"
 FAILED = "failed"
@@ -95,12 +94,3 @@ def format_figure(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"
     return str(value)
-
-
-class ScenarioFailed(DriveEvalError):
-    """Raised by a scenario item whose evaluation did not pass."""
-
-    def __init__(self, outcome: Outcome, where: str = ""):
-        self.outcome = outcome
-        self.where = where
-        super().__init__(outcome.summary)

@@ -1,31 +1,75 @@
-"""Per-item records, gathered from test reports on the controller, and the
-session summary written from them.
+"""Per-item records: made where the item ran, gathered on the controller.
 
 Workers never write the summary: each report carries its item's record as the
 ``driveeval`` attribute (xdist serialises report attributes), and only the
-process that is not an xdist worker writes ``summary.json``, atomically.
+process that is not an xdist worker writes ``summary.json``.  An item's
+outcome (and its html extras) travels once, with the report of the phase
+that produced it; the controller merges an item's records.
 """
 from __future__ import annotations
 
-import json
-import os
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from .outcome import format_figure
+from .collect import InvalidScenarioItem
+from .errors import DriveEvalError
+from .failure import Failure
+from .outcome import OUTCOME_ATTR, Outcome
+from .report.attachments import html_extras, html_wanted
+from .report.summary import SUMMARY_NAME, terminal_table, write_summary
 from .settings import get_settings, safe_name
 
-SUMMARY_NAME = "summary.json"
-MARKDOWN_NAME = "summary.md"
-STEP_SUMMARY_ENV = "GITHUB_STEP_SUMMARY"
-STATUS_MARK = {"passed": "✅", "failed": "❌", "error": "💥", "skipped": "⏭️", "xfailed": "✔️", "xpassed": "⚠️"}
 REPORT_ATTR = "driveeval"
 SCHEMA_VERSION = 1
+# Set on an item once its outcome went out with a report, so it goes out once.
+SENT_ATTR = "driveeval_outcome_sent"
+
+
+def item_record(item: pytest.Item, failure: Failure | None, with_outcome: bool) -> dict | None:
+    """The item's entry in summary.json (its outcome's fields only when
+    ``with_outcome``), or None for a test that is not ours."""
+    scenario = getattr(item, "driveeval_scenario", None)
+    outcome: Outcome | None = getattr(item, OUTCOME_ATTR, None)
+    if scenario is None and outcome is None and not isinstance(item, InvalidScenarioItem):
+        return None
+    root = item.config.rootpath
+    record: dict = {"file": Path(item.path).relative_to(root).as_posix() if Path(item.path).is_relative_to(root)
+                    else str(item.path)}
+    if scenario is not None:
+        case = getattr(item, "driveeval_case", None)
+        record.update(scenario=scenario.name, use_case=scenario.use_case,
+                      dataset=case.dataset.name if case is not None and case.dataset is not None else None)
+    if isinstance(item, InvalidScenarioItem):
+        record.update(scenario=None, use_case=None, message=str(item.error))
+    if outcome is not None and with_outcome:
+        record.update(outcome.to_json(relative_to=get_settings(item.config).output_dir))
+    if failure is not None:
+        record.update(failure.to_json())
+    return record
+
+
+def annotate_report(item: pytest.Item, call: pytest.CallInfo, report: pytest.TestReport) -> None:
+    """Give a phase's report what it carries for us: our errors as a located
+    failure (no traceback), the item's record, html extras."""
+    error = call.excinfo.value if call.excinfo is not None and report.failed else None
+    failure = Failure.of(item, error) if error is not None else None
+    if isinstance(error, DriveEvalError):
+        # Bad input, in any phase (a fixture that cannot open a dataset fails
+        # in setup, where repr_failure is not asked): the message, no traceback.
+        report.longrepr = failure
+    outcome = getattr(item, OUTCOME_ATTR, None)
+    fresh = outcome is not None and not getattr(item, SENT_ATTR, False)
+    if fresh:
+        setattr(item, SENT_ATTR, True)
+        if html_wanted(item.config):
+            report.extras = list(getattr(report, "extras", [])) + html_extras(outcome)
+    record = item_record(item, failure, with_outcome=fresh)
+    if record is not None:
+        setattr(report, REPORT_ATTR, record)
 
 
 def pytest_status(report: pytest.TestReport) -> str | None:
@@ -82,88 +126,10 @@ class ResultCollector:
         }
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Readers see the old file or the new one, never half of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
-
-
-def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
-    figures = record.get("figures") or {}
-    return ", ".join(f"{k}={format_figure(v)}" for k, v in list(figures.items())[:limit])
-
-
-def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
-    rows = [(r.get("status", "?"), r["nodeid"], _key_figures(r) or (r.get("summary") or "")) for r in records]
-    id_width = max(len("scenario"), *(len(r[1]) for r in rows))
-    header = f"{'verdict':<8}  {'scenario':<{id_width}}  key figures"
-    lines = [header if len(header) <= width else f"{'verdict':<8}  scenario / key figures"]
-    for status, nodeid, figures in rows:
-        line = f"{status:<8}  {nodeid:<{id_width}}  {figures}".rstrip()
-        if len(line) > width and figures:
-            # Narrow terminal: figures go on their own line rather than being cut.
-            lines.append(f"{status:<8}  {nodeid}")
-            line = f"{'':<8}  {figures}"
-        lines.append(line if len(line) <= width else line[: width - 3] + "...")
-    return lines
-
-
-def _cell(text: Any) -> str:
-    return str(text).replace("|", "\\|").replace("\n", " ").strip()
-
-
-def markdown_summary(summary: dict[str, Any]) -> str:
-    """The session as Markdown: counts, then one row per scenario item."""
-    counts = ", ".join(f"{n} {status}" for status, n in summary["counts"].items())
-    lines = [f"## pytest-driveeval: {counts}", "",
-             "| verdict | scenario | use case | summary | key figures |", "|---|---|---|---|---|"]
-    for r in summary["results"]:
-        status = r.get("status", "?")
-        text = r.get("summary") or (r.get("message") or "").splitlines()[0:1]
-        text = text if isinstance(text, str) else " ".join(text)
-        lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
-                     f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
-    return "\n".join(lines + policy_table(summary["results"])) + "\n"
-
-
-def policy_table(records: list[dict[str, Any]]) -> list[str]:
-    """Policies side by side on the same data: one row per (use case, dataset),
-    one column per policy, when an evaluation names its policy in details."""
-    cells: dict[tuple, dict[str, str]] = {}
-    for r in records:
-        policy = (r.get("details") or {}).get("policy")
-        if policy is None or r.get("dataset") is None:
-            continue
-        cell = f"{STATUS_MARK.get(r.get('status', ''), '')} {_cell(_key_figures(r, limit=4))}"
-        cells.setdefault((r.get("use_case"), r["dataset"]), {})[policy] = cell
-    if not any(len(by_policy) > 1 for by_policy in cells.values()):
-        return []
-    policies = sorted({p for by_policy in cells.values() for p in by_policy})
-    lines = ["", "### Policies by scenario", "",
-             "| use case | dataset | " + " | ".join(f"`{_cell(p)}`" for p in policies) + " |",
-             "|---|---|" + "---|" * len(policies)]
-    for (use_case, dataset), by_policy in sorted(cells.items()):
-        lines.append(f"| {_cell(use_case)} | {_cell(dataset)} | "
-                     + " | ".join(by_policy.get(p, "") for p in policies) + " |")
-    return lines
-
-
 class ResultsReporter:
     """Controller-side plugin: gathers records, writes the summary, prints the table."""
 
     def __init__(self, config: pytest.Config) -> None:
-
         self.settings = get_settings(config)
         self.collector = ResultCollector()
 
@@ -175,15 +141,7 @@ class ResultsReporter:
         # them replaces the summary and drops item folders it did not produce.
         if not self.collector.records:
             return
-        summary = self.collector.summary(exitstatus, self.settings.seed)
-        write_json_atomic(self.settings.output_dir / SUMMARY_NAME, summary)
-        markdown = markdown_summary(summary)
-        write_text_atomic(self.settings.output_dir / MARKDOWN_NAME, markdown)
-        step_summary = os.environ.get(STEP_SUMMARY_ENV)
-        if step_summary:
-            # CI systems show this file on the run's page; others may have written to it too.
-            with open(step_summary, "a", encoding="utf-8") as handle:
-                handle.write(markdown)
+        write_summary(self.settings.output_dir, self.collector.summary(exitstatus, self.settings.seed))
         items = self.settings.output_dir / "items"
         produced = {safe_name(nodeid) for nodeid in self.collector.records}
         for folder in items.iterdir() if items.is_dir() else ():

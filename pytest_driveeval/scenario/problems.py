@@ -8,8 +8,8 @@ from typing import Any, Sequence
 
 from pydantic import BaseModel, ValidationError
 
-from .errors import Problem
-from .yamlsource import SourceMap
+from ..errors import Problem
+from .source import SourceMap
 
 
 def did_you_mean(word: str, choices: Sequence[str]) -> str:

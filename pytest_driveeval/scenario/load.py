@@ -1,10 +1,7 @@
-"""Scenario files: driving_log_replayer's envelope, validated, with source lines.
+"""Loading a scenario file: YAML with lines, the envelope, then the use case's own part.
 
-The envelope is driving_log_replayer's (``ScenarioFormatVersion``,
-``ScenarioName``, ``Evaluation: {UseCaseName, UseCaseFormatVersion, Datasets,
-...}``) so their files load unchanged.  Harness keys in the same style
-(``Marks``, ``Skip``, ``XFail``) carry pytest marks.  The use case named by
-``UseCaseName`` validates the rest of ``Evaluation`` with its own model.
+Envelope and use-case part are validated in one pass, so a file with several
+mistakes lists them all at once, each at its line.
 """
 from __future__ import annotations
 
@@ -13,59 +10,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from typing import Annotated
+from pydantic import ValidationError
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
-
-from .errors import Problem, ScenarioError
-from .usecase import Case, UseCase, get_usecase, known_usecases
-from .validation import did_you_mean, problems_from_validation
-from .yamlsource import SourceMap, load_yaml_with_lines
+from ..errors import Problem, ScenarioError
+from ..usecase import Case, UseCase, get_usecase, known_usecases
+from .envelope import DatasetOptions, Envelope, EvaluationHead, XFailSpec
+from .problems import did_you_mean, problems_from_validation
+from .source import SourceMap, load_yaml_with_lines
 
 SUPPORTED_SCENARIO_FORMATS = ("2", "3")  # major versions of ScenarioFormatVersion
 COMMON_EVALUATION_KEYS = ("UseCaseName", "UseCaseFormatVersion", "Datasets")
-
-
-MarkName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
-
-
-class _Forbid(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class XFailSpec(_Forbid):
-    Reason: str
-    Strict: bool = False
-
-
-class DatasetOptions(BaseModel):
-    # driving_log_replayer puts launch options here (VehicleId, LaunchSensing, ...);
-    # we keep whatever is given and read only what we know.
-    model_config = ConfigDict(extra="allow")
-    path: str | None = Field(None, alias="Path")
-    VehicleId: str | None = None
-    LocalMapPath: str | None = None
-
-
-class EvaluationHead(BaseModel):
-    model_config = ConfigDict(extra="allow")
-    UseCaseName: str
-    UseCaseFormatVersion: str
-    Datasets: list[dict[str, DatasetOptions | None]] = []
-
-
-class Envelope(_Forbid):
-    ScenarioFormatVersion: str
-    ScenarioName: str
-    ScenarioDescription: str = ""
-    SensorModel: str | None = None
-    VehicleModel: str | None = None
-    VehicleId: str | None = None
-    LocalMapPath: str | None = None
-    Marks: list[MarkName] = []
-    Skip: str | None = None
-    XFail: str | XFailSpec | None = None
-    Evaluation: EvaluationHead
 
 
 @dataclass(frozen=True)

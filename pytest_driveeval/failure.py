@@ -1,0 +1,97 @@
+"""How a failed scenario item speaks: one object for the terminal and for summary.json.
+
+A scenario failure shows the scenario's own lines and the numbers that failed,
+not a Python traceback (tavern's and pytest's YAML example's way).  The same
+text is the ``message`` of the item's record, so a reader of ``summary.json``
+sees what the terminal showed.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from .errors import DriveEvalError, ScenarioError, display_path
+from .outcome import Outcome, format_figure
+from .scenario import Scenario
+
+
+class ScenarioFailed(DriveEvalError):
+    """Raised by a scenario item whose evaluation did not pass."""
+
+    def __init__(self, outcome: Outcome, where: str = ""):
+        self.outcome = outcome
+        self.where = where
+        super().__init__(outcome.summary)
+
+
+def source_line(path: Path, line: int | None) -> str:
+    """Line ``line`` of ``path`` as a listing shows it, or "" when it cannot be read."""
+    if not line:
+        return ""
+    try:
+        text = path.read_text(encoding="utf-8").splitlines()[line - 1]
+    except (OSError, IndexError, UnicodeDecodeError):
+        return ""
+    return f"    {line:4d} | {text}"
+
+
+class Failure:
+    """Why a scenario item failed, located in its scenario file: a report's
+    ``longrepr`` (pytest asks it ``toterminal``; xdist and JUnit take ``str``).
+
+    Our errors (:class:`~pytest_driveeval.errors.DriveEvalError`) render as
+    the scenario, the verdict or error, each finding with the YAML line that
+    set its limit, the figures and the artefacts; any other exception as its
+    one-line message.
+    """
+
+    def __init__(self, scenario: Scenario | None, case_name: str, exc: BaseException):
+        self.scenario = scenario
+        self.case_name = case_name
+        self.exc = exc
+
+    @classmethod
+    def of(cls, item: pytest.Item, exc: BaseException) -> "Failure":
+        return cls(getattr(item, "driveeval_scenario", None), item.name, exc)
+
+    def lines(self) -> list[str]:
+        exc, scenario = self.exc, self.scenario
+        if not isinstance(exc, DriveEvalError):
+            return [f"{type(exc).__name__}: {exc}".strip()]
+        if isinstance(exc, ScenarioError) or scenario is None:
+            return str(exc).splitlines() or [""]
+        lines = [f"scenario '{scenario.name}' ({self.case_name}) in {display_path(scenario.path)}"]
+        outcome = getattr(exc, "outcome", None)
+        if isinstance(exc, ScenarioFailed):
+            lines.append(f"  {outcome.verdict.upper()}: {outcome.summary}")
+        else:
+            lines.append(f"  {type(exc).__name__}: {exc}")
+        if outcome is not None:
+            lines += self._outcome_lines(outcome)
+        return lines
+
+    def _outcome_lines(self, outcome: Outcome) -> list[str]:
+        scenario = self.scenario
+        lines = []
+        for finding in outcome.findings:
+            line = scenario.source.line_of(finding.keypath) if finding.keypath else None
+            lines.append(f"  - {finding.message}" + (f" ({scenario.path.name}:{line})" if line else ""))
+            shown = source_line(scenario.path, line)
+            if shown:
+                lines.append(shown)
+        if outcome.figures:
+            lines.append("  figures: " + ", ".join(f"{k}={format_figure(v)}" for k, v in outcome.figures.items()))
+        lines += [f"  artefact {name}: {path}" for name, path in outcome.artefacts.items()]
+        return lines
+
+    def __str__(self) -> str:
+        return "\n".join(self.lines())
+
+    def toterminal(self, tw) -> None:
+        for line in self.lines():
+            tw.line(line)
+
+    def to_json(self) -> dict:
+        """The failure's part of the item's record in summary.json."""
+        return {"message": str(self)}
