@@ -8,7 +8,7 @@ of harness time (model time excluded) for
   ``generate_agent_sample_vectorized`` does (per-agent, per-frame track-id
   lookups), and l5kit's ``detect_collision`` (a shapely polygon test per
   agent in range, edge lengths with LineStrings);
-* :func:`pytest_driveeval.sim.engine.unroll` on the same scene, alone and as
+* :func:`pytest_driveeval.sim.logreplay.unroll` on the same scene, alone and as
   64 copies stepping together.
 
 Part 2, 64 generated scenes batched: share of harness time in the total with
@@ -31,8 +31,7 @@ from shapely.geometry import LineString, Polygon
 from pytest_driveeval.geometry import box_corners
 from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.batch import EGO_EXTENT, LogArrays, scenes_from_arrays, stack_scenes
-from pytest_driveeval.sim.engine import UnrollConfig, unroll
+from pytest_driveeval.sim.logreplay import EGO_EXTENT, LogArrays, UnrollConfig, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "l5kit" / "single_scene.zarr"

@@ -16,8 +16,7 @@ import numpy as np
 import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.batch import scenes_from_arrays, stack_scenes
-from pytest_driveeval.sim.engine import UnrollConfig, unroll
+from pytest_driveeval.sim.logreplay import UnrollConfig, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 

@@ -39,9 +39,9 @@ import torch
 
 from pytest_driveeval.io.l5kit_zarr import L5Dataset
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.batch import LogArrays, build_batch, scenes_from_arrays, stack_scenes
 from pytest_driveeval.policies.planning_model import PlanningModel
-from pytest_driveeval.sim.engine import UnrollConfig, UnrollResult, unroll
+from pytest_driveeval.sim.logreplay import (LogArrays, UnrollConfig, UnrollResult, build_batch, scenes_from_arrays,
+                                            stack_scenes, unroll)
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 ROOT = Path(__file__).resolve().parents[1]

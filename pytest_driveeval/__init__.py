@@ -4,12 +4,15 @@ from __future__ import annotations
 import pytest
 
 # Must precede the import below, or the helpers' asserts would not be rewritten.
-pytest.register_assert_rewrite("pytest_driveeval.assertions")
+pytest.register_assert_rewrite("pytest_driveeval.assertions",
+                               "pytest_driveeval.usecases.closed_loop.assertions",
+                               "pytest_driveeval.usecases.obstacle_segmentation.assertions")
 
 from .assertions import (  # noqa: E402
     assert_collision_free,
     assert_drift_within,
     assert_figure_within,
+    assert_pass_rate,
     assert_passed,
     assert_values_within,
 )
@@ -22,6 +25,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Case", "ConditionsModel", "DataError", "DriveEvalError", "FAILED", "Finding", "ModelError", "Outcome",
     "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_collision_free", "assert_drift_within",
-    "assert_figure_within", "assert_passed",
+    "assert_figure_within", "assert_pass_rate", "assert_passed",
     "assert_values_within", "load_scenario", "register_usecase",
 ]

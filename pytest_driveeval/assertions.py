@@ -13,6 +13,18 @@ import numpy as np
 from .outcome import Outcome, format_figure
 from .verdict import within
 
+# A use case's own helpers live with the use case, which knows its results;
+# they are re-exported here so that every helper is one import away.  One line
+# per use case (each module is also registered for rewriting in ``__init__``).
+from .usecases.closed_loop.assertions import assert_collision_free, assert_drift_within
+from .usecases.obstacle_segmentation.assertions import assert_pass_rate
+
+__all__ = [
+    "assert_figure_within", "assert_passed", "assert_values_within",
+    "assert_collision_free", "assert_drift_within",  # closed_loop
+    "assert_pass_rate",  # obstacle_segmentation
+]
+
 
 def _scenario_prefix(outcome_or_name: Outcome | str | None) -> str:
     name = outcome_or_name.scenario if isinstance(outcome_or_name, Outcome) else outcome_or_name
@@ -49,40 +61,3 @@ def assert_values_within(values: Sequence[float] | np.ndarray, *, figure: str, m
     finding = within(values, figure=figure, max=max, min=min, frames=frames, unit=unit, scene=scene)
     if finding is not None:
         raise AssertionError(_scenario_prefix(scenario) + finding.message)
-
-
-def assert_collision_free(unroll, kinds: Sequence[str] = ("front", "side", "rear"), *,
-                          at_fault_only: bool = False) -> None:
-    """No collision of the given kinds in any unrolled scene (optionally: none
-    that is the ego's fault).  The message names scene, frame, agent and kind."""
-    __tracebackhide__ = True
-    from .closed_loop import collision_events
-
-    lines = []
-    for row, scene in enumerate(unroll.scene_ids):
-        events = collision_events(unroll, row, kinds, at_fault_only)
-        if events:
-            first = events[0]
-            lines.append(f"scene {scene}: {len(events)} collision frame(s); first at frame {first['frame']}: "
-                         f"{first['kind']} with agent {first['track_id']}"
-                         f"{'' if first['at_fault'] else ' (not at fault)'}")
-    if lines:
-        what = ("at-fault " if at_fault_only else "") + "/".join(kinds)
-        raise AssertionError(f"{what} collisions in {len(lines)} scene(s):\n  " + "\n  ".join(lines))
-
-
-def assert_drift_within(unroll, meters: float, *, seconds: float = 0.0) -> None:
-    """The driven ego stays within ``meters`` of the logged one in every scene
-    (excursions up to ``seconds`` long are tolerated)."""
-    __tracebackhide__ = True
-    result = unroll.result
-    tolerated = int(round(seconds / unroll.step_time))
-    messages = []
-    for row, scene in enumerate(unroll.scene_ids):
-        frames = np.flatnonzero(result.valid[row])
-        finding = within(result.displacement_error[row][frames], figure="displacement", max=meters,
-                         frames=frames, unit=" m", scene=scene, tolerated_frames=tolerated)
-        if finding is not None:
-            messages.append(finding.message)
-    if messages:
-        raise AssertionError("\n".join(messages))

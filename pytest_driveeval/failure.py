@@ -8,6 +8,7 @@ sees what the terminal showed.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 
@@ -34,6 +35,14 @@ def source_line(path: Path, line: int | None) -> str:
     except (OSError, IndexError, UnicodeDecodeError):
         return ""
     return f"    {line:4d} | {text}"
+
+
+class Crash(NamedTuple):
+    """Where and what, as pytest's short summary and JUnit's failure message read it."""
+
+    path: str
+    lineno: int
+    message: str
 
 
 class Failure:
@@ -87,6 +96,13 @@ class Failure:
 
     def __str__(self) -> str:
         return "\n".join(self.lines())
+
+    @property
+    def reprcrash(self) -> Crash:
+        # The whole text, as pytest takes a plain-text longrepr: the short summary
+        # trims it to its first line, JUnit keeps it all.
+        path = str(self.scenario.path) if self.scenario is not None else ""
+        return Crash(path, 0, str(self))
 
     def toterminal(self, tw) -> None:
         for line in self.lines():

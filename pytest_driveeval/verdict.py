@@ -114,11 +114,13 @@ class PassRate:
         return required is None or self.rate >= required
 
     def finding(self, required: float | None, *, what: str, failing: Sequence[str], figure: str,
-                keypath: tuple = ()) -> Finding | None:
+                keypath: tuple = (), failing_total: int | None = None) -> Finding | None:
         """None if the rate meets ``required`` (or nothing was judged); else a finding
-        with the counts and the listing of ``failing`` (one text per failing frame)."""
+        with the counts and the listing of ``failing`` (one text per failing frame).
+
+        ``failing_total``: how many frames failed, when ``failing`` describes only the first few."""
         if required is None or not self.total or self.meets(required):
             return None
         return Finding(f"{what}: {self.passed} / {self.total} frame(s) passed ({self.rate:.2f}%), "
-                       f"{required:g}% required; {listing(list(failing), sep='; ')}",
+                       f"{required:g}% required; {listing(list(failing), sep='; ', total=failing_total)}",
                        figure=figure, value=self.rate, limit=required, keypath=keypath)

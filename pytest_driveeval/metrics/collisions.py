@@ -140,8 +140,8 @@ def detect_collisions(
 
     # 1. Coarse range test on every pair, against the largest possible
     # reach: the fewest passes over the (frames x agents) table.
-    agent_diag = float(np.hypot(_max_or_zero(a_ext[:, 0]), _max_or_zero(a_ext[:, 1])))
-    max_reach = 0.5 * (_max_or_zero(norm2d(e_ext)) + agent_diag)
+    agent_diag = float(np.hypot(max_or_zero(a_ext[:, 0]), max_or_zero(a_ext[:, 1])))
+    max_reach = 0.5 * (max_or_zero(norm2d(e_ext)) + agent_diag)
     a_xy3 = a_xy.reshape(frames, num_agents, 2)
     dx = a_xy3[..., 0] - e_xy[:, None, 0]
     dy = a_xy3[..., 1] - e_xy[:, None, 1]
@@ -302,7 +302,8 @@ def _contact_side(e_xy, e_cos, e_sin, e_ext, b_xy, b_yaw, b_ext) -> np.ndarray:
     return np.argmax(hi, axis=0)  # first maximum wins, as np.argmax in l5kit
 
 
-def _max_or_zero(x: np.ndarray) -> float:
+def max_or_zero(x: np.ndarray) -> float:
+    """The largest value of ``x`` ignoring NaN; 0 when it is empty or all NaN."""
     # Padding slots may hold nan; the plain max is much faster, so only fall
     # back to nanmax when it is poisoned.
     if x.size == 0:

@@ -1,7 +1,7 @@
 """Reference policies: constant velocity and log replay.
 
 Both are ``torch.nn.Module`` taking the batch of
-:mod:`pytest_driveeval.policies.batch` and returning l5kit's planning output,
+:mod:`pytest_driveeval.sim.logreplay.inputs` and returning l5kit's planning output,
 ``{"positions": (B, F, 2), "yaws": (B, F, 1)}`` in the ego frame, and both
 compile with ``torch.jit.script``.
 """

@@ -55,17 +55,3 @@ def render_frame_png(path: str | Path, points_xy: np.ndarray, footprints: np.nda
     plt.close(fig)
     return path
 
-
-def plot_frame(folder: Path, name: str, stamp_ns: int, points, boxes, status, target, uuids, area, area_points,
-               det_verdict, nd_verdict) -> Path:
-    """The PNG of one failing obstacle_segmentation frame."""
-    from ..metrics.pointcloud import xyz_columns
-
-    x, y, _ = xyz_columns(points)
-    verdicts = [str(s) if t else "Other" for s, t in zip(status, target)]
-    labels = [str(u)[:6] for u in uuids]
-    areas = [] if area is None else [area.polygon] + list(area.clips or [])
-    title = f"frame {name} @ {stamp_ns / 1e9:.6f}s  Detection: {det_verdict}  NonDetection: {nd_verdict}"
-    return render_frame_png(folder / f"frame_{name}_{stamp_ns}.png", np.stack([x, y], axis=1),
-                            boxes.footprints(), verdicts, labels, areas,
-                            None if area_points is None else np.asarray(area_points)[:, :2], title)

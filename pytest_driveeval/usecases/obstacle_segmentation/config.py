@@ -38,8 +38,8 @@ import numpy as np
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeInt, PositiveFloat, ValidationInfo, field_validator,
                       model_validator)
 
-from ..geometry.polygons import polygon_self_intersects, polygon_signed_area
-from ..usecase import ConditionsModel
+from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
+from ...usecase import ConditionsModel
 
 V3 = "0.3.0"
 LEGACY = ("0.1.0", "0.2.0")

@@ -2,10 +2,11 @@
 
 Semantics are l5kit's closed loop (``ClosedLoopSimulator`` and the seed
 notebook): the policy fully controls the ego, other agents replay the log.
-At each frame t every active scene gets the inputs of
-:mod:`pytest_driveeval.policies.batch` built from its *driven* ego history,
-all of them go through ONE ``policy(batch)`` call, and the ego of each scene
-moves to the first predicted pose, taken from the ego frame to the world.
+At each frame t every active scene gets the inputs of :mod:`.inputs` built
+from its *driven* ego history, all of them go through ONE ``policy(batch)``
+call, and the ego of each scene moves to the first predicted pose, taken from
+the ego frame to the world, through a :mod:`~pytest_driveeval.sim.dynamics`
+model (the pose as is, or the nearest a unicycle can reach).
 
 Scenes of different lengths step together; a scene leaves the batch at its
 end or at its first error.  Errors are recorded per scene, never raised, so a
@@ -26,18 +27,21 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
 
 from pytest_driveeval.geometry import norm2d, oriented_boxes_overlap
 from pytest_driveeval.io.l5kit_zarr import L5Scene
-from pytest_driveeval.metrics.collisions import _max_or_zero, detect_collisions
+from pytest_driveeval.metrics.collisions import detect_collisions, max_or_zero
 from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
-from pytest_driveeval.policies.batch import (EGO_EXTENT, STEP_TIME, LogArrays, _log_cells, build_batch, stack_scenes,
-                                             window_columns)
-from pytest_driveeval.sim.kinematics import KinematicLimits, feasible_step
+from pytest_driveeval.sim.dynamics import KinematicLimits, PoseTarget, Unicycle
+from pytest_driveeval.sim.logreplay.agents import LogCells
+from pytest_driveeval.sim.logreplay.inputs import build_batch
+from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
+from pytest_driveeval.sim.logreplay.outputs import BadPolicyOutput, first_pose, format_scenes
+from pytest_driveeval.sim.state import AgentState
 
 __all__ = ["UnrollConfig", "UnrollResult", "unroll"]
 
@@ -52,8 +56,9 @@ class UnrollConfig:
     asks for is farther than that from the logged one, the ego is put back on
     the log for that frame and ``reset`` is flagged (the seed notebook's
     rule).  ``freeze_on_collision``: in a frame where the ego overlaps an
-    agent, the ego holds its pose for the next frame.  ``kinematic``: pass the
-    requested pose through :func:`feasible_step` with ``limits``.
+    agent, the ego holds its pose for the next frame.  ``kinematic``: move the
+    ego as a :class:`~pytest_driveeval.sim.dynamics.Unicycle` with ``limits``
+    instead of onto the requested pose (:class:`~pytest_driveeval.sim.dynamics.PoseTarget`).
     """
 
     start_frame: int = 0
@@ -122,43 +127,13 @@ _PER_FRAME = ("driven_xy", "driven_yaw", "logged_xy", "logged_yaw", "collision_k
               "frozen")
 
 
-def format_scenes(ids: np.ndarray) -> str:
-    ids = [int(i) for i in ids]
-    return str(ids) if len(ids) <= 20 else f"[{', '.join(map(str, ids[:20]))}, ... ({len(ids)} scenes)]"
-
-
-class _BadOutput(Exception):
-    pass
-
-
-def _first_pose(out: object, rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """First predicted pose (B, 2), (B,) from a model output, or _BadOutput saying why not."""
-    if not isinstance(out, Mapping):
-        raise _BadOutput(f"expected a dict with 'positions' (B={rows}, T, 2) and 'yaws' (B={rows}, T, 1) "
-                         f"float tensors, found {type(out).__name__}")
-    got = {}
-    for key, last in (("positions", 2), ("yaws", 1)):
-        value = out.get(key)
-        want = f"'{key}' as a float tensor of shape (B={rows}, T, {last})"
-        if value is None:
-            raise _BadOutput(f"expected {want}, found no '{key}' key (keys: {sorted(map(str, out))})")
-        if not torch.is_tensor(value) or not value.is_floating_point():
-            kind = f"a {value.dtype} tensor" if torch.is_tensor(value) else type(value).__name__
-            raise _BadOutput(f"expected {want}, found {kind}")
-        shape = tuple(value.shape)
-        if len(shape) != 3 or shape[0] != rows or shape[1] < 1 or shape[2] != last:
-            raise _BadOutput(f"expected {want}, found shape {shape}")
-        got[key] = value[:, 0].detach().to("cpu", torch.float64).numpy()
-    return got["positions"], got["yaws"][:, 0]
-
-
 def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
     """Square of a range no ego-agent pair of the log exceeds (detect_collisions'
     reach with the largest agent extents), widened a little so that rounding
     cannot make it smaller than a pair's own reach."""
     if log.agent_extent.size == 0:
         return 0.0
-    longest = [_max_or_zero(log.agent_extent[..., i]) for i in (0, 1)]
+    longest = [max_or_zero(log.agent_extent[..., i]) for i in (0, 1)]
     reach = 0.5 * (float(norm2d(extent[:2])) + float(np.hypot(longest[0], longest[1])))
     reach *= 1.0 + 1e-9
     return reach * reach
@@ -229,8 +204,9 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     model_time, forwards, scene_steps = 0.0, 0, 0
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=window_columns(log, cfg.history_frames), cells=_log_cells(log))
+                   candidates=window_columns(log, cfg.history_frames), cells=LogCells(log))
     coarse2 = _coarse_reach_squared(log, ext) if cfg.freeze_on_collision else None
+    dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 
     with torch.no_grad():
         for t in range(start, int(end.max(initial=start))):
@@ -246,9 +222,9 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             tic = time.perf_counter()
             try:
                 out = policy(batch)
-                pos, dyaw = _first_pose(out, rows.size)
+                pos, dyaw = first_pose(out, rows.size)
             except Exception as exc:  # a broken model must not take the harness down
-                what = str(exc) if isinstance(exc, _BadOutput) else f"policy raised {type(exc).__name__}: {exc}"
+                what = str(exc) if isinstance(exc, BadPolicyOutput) else f"policy raised {type(exc).__name__}: {exc}"
                 msg = f"model output at frame {t} for scenes {format_scenes(log.scene_ids[rows])}: {what}"
                 for s in rows:
                     errors[s] = msg
@@ -265,10 +241,9 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
 
             xy, yaw = driven_xy[rows, t], driven_yaw[rows, t]
             c, s_ = np.cos(yaw), np.sin(yaw)
-            nxt = xy + np.stack([c * pos[:, 0] - s_ * pos[:, 1], s_ * pos[:, 0] + c * pos[:, 1]], -1)
-            nyaw = yaw + dyaw
-            if cfg.kinematic:
-                nxt, nyaw, speed[rows] = feasible_step(xy, yaw, speed[rows], nxt, nyaw, cfg.limits)
+            target = xy + np.stack([c * pos[:, 0] - s_ * pos[:, 1], s_ * pos[:, 0] + c * pos[:, 1]], -1), yaw + dyaw
+            moved = dynamics.step(AgentState(xy, yaw, speed[rows]), target)
+            nxt, nyaw, speed[rows] = moved.xy, moved.yaw, moved.speed
             proposed[rows, t + 1] = norm2d(nxt - log.ego_xy[rows, t + 1])
             if cfg.drift_threshold is not None:
                 back = proposed[rows, t + 1] > cfg.drift_threshold

@@ -18,6 +18,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ...geometry.quaternions import matrix_to_quat, matrix_to_rpy, quat_to_matrix
+from .result import FrameVerdict, ObstacleResult
+
 __all__ = ["JsonlWriter", "read_jsonl", "key_structure"]
 
 
@@ -107,48 +110,13 @@ def merge_structures(structures: Iterable[Any]) -> Any:
 
 # -- obstacle_segmentation records ------------------------------------------------------
 # driving_log_replayer's own strings, so that their parsers and eyes read ours.
-def new_counters() -> dict:
-    return {"detection": {"total": 0, "passed": 0, "warn": 0}, "non_detection": {"total": 0, "passed": 0}}
-
-
-def count(counter: dict, verdict: str) -> None:
-    counter["total"] += 1
-    counter["passed"] += verdict == "Success"
-    if "warn" in counter:
-        counter["warn"] += verdict == "Warn"
-
-
-def rate(counter: dict) -> float:
-    return 100.0 * counter["passed"] / counter["total"] if counter["total"] else 0.0
-
-
-def part_success(counters: dict, detection_rate: float | None, non_detection_rate: float | None) -> bool:
-    return all(bound is None or rate(counters[part]) >= bound
-               for part, bound in (("detection", detection_rate), ("non_detection", non_detection_rate)))
-
-
-def summary(counters: dict, detection, non_detection) -> str:
-    parts = []
-    for name, cond, key in (("Detection", detection, "detection"), ("NonDetection", non_detection, "non_detection")):
-        if cond is None:
-            parts.append("Invalid")
-            continue
-        c = counters[key]
-        ok = "Success" if rate(c) >= cond.PassRate else "Fail"
-        text = f"{name} ({ok}): {c['passed']} / {c['total']} -> {rate(c):.2f}%"
-        parts.append(text + (f" (Warn: {c['warn']})" if key == "detection" else ""))
-    ok = all(p == "Invalid" or "(Success)" in p for p in parts)
-    return f"{'Passed' if ok else 'Failed'}: {', '.join(parts)}"
-
-
 def _stamp(stamp_ns: int) -> dict:
     return {"sec": int(stamp_ns // 1_000_000_000), "nanosec": int(stamp_ns % 1_000_000_000)}
 
 
-def _ego(stamp_ns: int, ego) -> dict:
-    from ..geometry.quaternions import matrix_to_rpy, quat_to_matrix
-
-    t, q = ego
+def _ego(stamp_ns: int, map_T_base: np.ndarray) -> dict:
+    # Euler angles from the quaternion written beside them, so the two fields always agree.
+    t, q = map_T_base[:3, 3], matrix_to_quat(map_T_base[:3, :3])
     roll, pitch, yaw = matrix_to_rpy(quat_to_matrix(q))
     return {"TransformStamped": {
         "header": {"stamp": _stamp(stamp_ns), "frame_id": "map"}, "child_frame_id": "base_link",
@@ -167,29 +135,31 @@ def _object_info(gt, counts, i: int, stamp_ns: int) -> dict:
                            "Stamp": _stamp(stamp_ns)}}
 
 
-def frame_record(name, skipped, topic_rate, stamp_ns, gt, counts, status, target, det_verdict, nd_verdict, result,
-                 ego, error) -> dict:
-    frame: dict = {}
-    if ego is not None:
-        frame["Ego"] = _ego(stamp_ns, ego)
-    frame.update(FrameName=name, FrameSkip=skipped, StopReasons=[],
-                 TopicRate="Unknown" if topic_rate is None else str(bool(topic_rate)))
-    det_ok = "Success" if rate(result.counters["detection"]) >= (result.detection_pass_rate or 0) else "Fail"
-    nd_ok = "Success" if rate(result.counters["non_detection"]) >= (result.non_detection_pass_rate or 0) else "Fail"
-    if det_verdict is None:
-        frame["Detection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
+def frame_record(frame: FrameVerdict, result: ObstacleResult) -> dict:
+    """The ``Frame`` of one judged frame; ``result`` holds the frames so far, this one included."""
+    gt, counts, status, stamp_ns = frame.gt, frame.counts, frame.status, frame.stamp_ns
+    record: dict = {}
+    if frame.map_T_base is not None:
+        record["Ego"] = _ego(stamp_ns, frame.map_T_base)
+    record.update(FrameName=frame.name, FrameSkip=result.skipped, StopReasons=[],
+                  TopicRate="Unknown" if frame.topic_rate is None else str(bool(frame.topic_rate)))
+    det_ok = "Success" if result.rate("detection") >= (result.detection_pass_rate or 0) else "Fail"
+    nd_ok = "Success" if result.rate("non_detection") >= (result.non_detection_pass_rate or 0) else "Fail"
+    if frame.detection is None:
+        record["Detection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
     else:
         info: dict = {}
         objects = []
-        for i in np.flatnonzero(target):
+        for i in np.flatnonzero(frame.target):
             key = {"Success": "DetectionSuccess", "Fail": "DetectionFail", "Warn": "DetectionWarn"}[str(status[i])]
             entry = _object_info(gt, counts, i, stamp_ns)
             # DLR keeps one object per kind (the last); the full list follows in Objects.
             info[key] = entry
             objects.append({"Result": str(status[i]), **entry})
-        frame["Detection"] = {"Result": {"Total": det_ok, "Frame": det_verdict}, "Info": info, "Objects": objects}
-    if nd_verdict is None:
-        frame["NonDetection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
+        record["Detection"] = {"Result": {"Total": det_ok, "Frame": frame.detection}, "Info": info,
+                               "Objects": objects}
+    if frame.non_detection is None:
+        record["NonDetection"] = {"Result": {"Total": "Success", "Frame": "Invalid"}, "Info": {}}
     else:
         info = {}
         if len(counts.area_points):
@@ -197,13 +167,13 @@ def frame_record(name, skipped, topic_rate, stamp_ns, gt, counts, status, target
             bins = np.bincount(np.floor(dist[dist < 100]).astype(np.int64), minlength=100)
             info = {"PointCloud": {"NumPoints": int(len(dist)),
                                    "Distance": {f"{i}-{i + 1}": int(bins[i]) for i in range(100)}}}
-        frame["NonDetection"] = {"Result": {"Total": nd_ok, "Frame": nd_verdict}, "Info": info}
-    if error is not None:
-        frame["Error"] = error
-    return frame
+        record["NonDetection"] = {"Result": {"Total": nd_ok, "Frame": frame.non_detection}, "Info": info}
+    if frame.error is not None:
+        record["Error"] = frame.error
+    return record
 
 
-def final_record(result) -> dict:
+def final_record(result: ObstacleResult) -> dict:
     """DLR rewrites its last line with graph data; ours: points per target box against distance."""
     objs = result.objects
     count_plot = {"x": {str(i): o["distance"] for i, o in enumerate(objs)},
@@ -213,20 +183,3 @@ def final_record(result) -> dict:
     stamp = result.stamps_ns[-1] / 1e9
     return {"Result": {"Success": bool(result.success), "Summary": result.summary},
             "Stamp": {"System": stamp, "ROS": stamp}, "Frame": {"GraphData": {"PointcloudCount": count_plot}}}
-
-
-def describe_frame(result, i: int, part: str) -> str:
-    name, stamp = result.frame_names[i], result.stamps_ns[i] / 1e9
-    verdict = (result.detection if part == "detection" else result.non_detection)[i]
-    why = []
-    if result.errors[i]:
-        why.append(result.errors[i])
-    if result.topic_rate[i] is False:
-        why.append("topic rate in ERROR")
-    if part == "detection":
-        why += [f"UUID {o['uuid']} {o['status']} ({o['points']} point(s))"
-                for o in result.objects if o["frame"] == name and o["stamp_ns"] == result.stamps_ns[i]
-                and o["status"] != "Success"]
-    elif result.area_points[i]:
-        why.append(f"{result.area_points[i]} point(s) in the non-detection area")
-    return f"frame {name} @ {stamp:.6f}s {verdict}" + (f" ({', '.join(why)})" if why else "")

@@ -51,19 +51,26 @@ Where we differ from driving_log_replayer (deliberately):
 - jsonl: Stamp.System equals Stamp.ROS (the cloud stamp) so output is
   deterministic; Detection carries ``Objects`` (every target; DLR's ``Info``
   keeps one per kind); the final line's GraphData has PointcloudCount only.
+
+This package: ``config`` (the scenario's YAML), ``sources`` (point-cloud
+streams), ``evaluate`` (the per-frame judgement; it writes nothing), ``result``
+(verdicts and pass rates), ``artefacts`` and ``jsonl`` (result.jsonl and PNGs,
+fed frame by frame), ``assertions`` (``assert_pass_rate`` for Python tests).
 """
 from __future__ import annotations
 
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from ..errors import DataError, Problem, ScenarioError
-from ..io.t4dataset import T4Dataset
-from ..obstacle import (FilteredPointClouds, ObstacleResult, UnknownUUIDError, dataset_pointclouds,
-                        evaluate_obstacle_segmentation)
-from ..outcome import FAILED, PASSED, Finding, Outcome
-from ..report.jsonl import describe_frame
-from ..usecase import RunContext, UseCase, register_usecase
-from .obstacle_segmentation_config import LEGACY, V3, ObstacleSegmentationConfig
+from ...errors import DataError, Problem, ScenarioError
+from ...outcome import FAILED, PASSED, Finding, Outcome
+from ...usecase import RunContext, UseCase, register_usecase
+from .config import LEGACY, V3, ObstacleSegmentationConfig
+
+if TYPE_CHECKING:
+    from ...io.t4dataset import T4Dataset
+    from .evaluate import UnknownUUIDError
+    from .result import ObstacleResult
 
 
 @register_usecase
@@ -73,45 +80,55 @@ class ObstacleSegmentation(UseCase):
     config_model = ObstacleSegmentationConfig
     fixtures = ("driveeval_dataset", "driveeval_pointclouds")
 
+    # The evaluation (numpy kernels, bag reader, plots) is imported when a scenario
+    # runs, so that registering the use case stays cheap.
     def load_dataset(self, ctx: RunContext) -> T4Dataset:
+        from ...io.t4dataset import T4Dataset
+
         return T4Dataset(super().load_dataset(ctx))
 
     def load_pointclouds(self, ctx: RunContext) -> Any:
+        from .sources import dataset_pointclouds
+
         return dataset_pointclouds(ctx.fixtures["driveeval_dataset"], ctx.scenario.config.PointCloud.Topic)
 
     def run(self, config: ObstacleSegmentationConfig, ctx: RunContext) -> Outcome:
+        from .artefacts import ObstacleArtefacts
+        from .evaluate import ObstacleEvaluation, UnknownUUIDError
+        from .sources import FilteredPointClouds, dataset_pointclouds
+
         dataset: T4Dataset = ctx.fixtures["driveeval_dataset"]
         clouds = ctx.fixtures["driveeval_pointclouds"]
         if callable(clouds) and not hasattr(clouds, "__iter__"):
             clouds = FilteredPointClouds(dataset_pointclouds(dataset, config.PointCloud.RawTopic), clouds)
+        jsonl = ctx.artefact("result.jsonl")
         try:
-            result = evaluate_obstacle_segmentation(
-                dataset, clouds, config, jsonl=ctx.artefact("result.jsonl"), plots_dir=ctx.output_dir,
-                max_plots=config.Artefacts.FailingFramePlots)
+            evaluation = ObstacleEvaluation.load(dataset, config)
         except UnknownUUIDError as exc:
             raise ScenarioError(ctx.scenario.path, _uuid_problems(ctx, config, exc)) from None
+        # Opened only once the inputs load: a scenario with a bad UUID, bag or map leaves no result.jsonl.
+        artefacts = ObstacleArtefacts(jsonl, config.condition_record(), ctx.output_dir,
+                                      config.Artefacts.FailingFramePlots)
+        try:
+            with artefacts:
+                result = evaluation.run(clouds, on_frame=artefacts)
         except DataError as exc:
             partial = getattr(exc, "partial_result", None)
             if partial is not None and partial.frames:
-                exc.outcome = self._outcome(partial, config, ctx, error=str(exc))
+                exc.outcome = self._outcome(partial, config, artefacts.files, error=str(exc))
             raise
-        return self._outcome(result, config, ctx)
+        return self._outcome(result, config, artefacts.files)
 
-    def _outcome(self, result: ObstacleResult, config, ctx: RunContext, error: str | None = None) -> Outcome:
+    def _outcome(self, result: ObstacleResult, config, files: dict[str, Path], error: str | None = None) -> Outcome:
         cond = config.Conditions
         findings: list[Finding] = []
-        for part, bound, key in (("detection", result.detection_pass_rate, cond.detection_key),
-                                 ("non_detection", result.non_detection_pass_rate, "NonDetection")):
-            c = result.counters[part]
-            if bound is None or not c["total"] or result.rate(part) >= bound:
-                continue
-            bad = result.failing_frames(part)
-            listed = "; ".join(describe_frame(result, i, part) for i in bad[:5])
-            more = f"; ... {len(bad) - 5} more" if len(bad) > 5 else ""
-            findings.append(Finding(
-                f"{key}: {c['passed']} / {c['total']} frame(s) passed ({result.rate(part):.2f}%), {bound:g}% "
-                f"required; {listed}{more}", figure=f"{part}_rate", value=result.rate(part), limit=bound,
-                keypath=("Evaluation", "Conditions", key, "PassRate")))
+        for part, key in (("detection", cond.detection_key), ("non_detection", "NonDetection")):
+            texts, failing = result.failing_texts(part)
+            finding = result.counters[part].finding(
+                result.required(part), what=key, failing=texts, failing_total=failing, figure=f"{part}_rate",
+                keypath=("Evaluation", "Conditions", key, "PassRate"))
+            if finding is not None:
+                findings.append(finding)
         errors = [e for e in result.errors if e]
         if errors:
             findings.append(Finding(f"{len(errors)} frame(s) could not be evaluated: {errors[0]}",
@@ -122,7 +139,7 @@ class ObstacleSegmentation(UseCase):
         unknown_rate = result.frames and all(t is None for t in result.topic_rate)
         figures = {"frames": result.frames, "frames_skipped": result.skipped, "frame_errors": len(errors)}
         if result.detection_pass_rate is not None:
-            figures.update(detection_rate=result.rate("detection"), detection_warn=result.counters["detection"]["warn"])
+            figures.update(detection_rate=result.rate("detection"), detection_warn=result.counters["detection"].warned)
         if result.non_detection_pass_rate is not None:
             figures.update(non_detection_rate=result.rate("non_detection"),
                            max_area_points=max(result.area_points, default=0))
@@ -130,15 +147,13 @@ class ObstacleSegmentation(UseCase):
             "; topic rate unknown (no diagnostics status)" if unknown_rate else "")
         if error:
             summary += f"; stopped early: {error}"
-        artefacts = {"result": result.jsonl} if result.jsonl is not None else {}
-        artefacts.update({p.stem: p for p in result.plots})
         details = {"frames": [{"frame": n, "stamp_ns": s, "detection": d, "non_detection": nd, "topic_rate": t,
                                "area_points": a, "error": e} for n, s, d, nd, t, a, e in
                               zip(result.frame_names, result.stamps_ns, result.detection, result.non_detection,
                                   result.topic_rate, result.area_points, result.errors)]}
         ok = result.success and not errors and error is None
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
-                       artefacts=artefacts, details=details)
+                       artefacts=dict(files), details=details)
 
 
 def _uuid_problems(ctx: RunContext, config, exc: UnknownUUIDError) -> list[Problem]:

@@ -27,7 +27,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveInt, model_validator
 
-from ..usecase import ConditionsModel
+from pytest_driveeval.usecase import ConditionsModel
 
 
 class _Strict(BaseModel):

@@ -1,7 +1,7 @@
 """Logged scenes as dense padded arrays, the replay side of a closed-loop unroll.
 
 Built once per unroll from L5 scenes; the per-step policy inputs
-(:mod:`pytest_driveeval.policies.batch`) and the engine read from it.
+(:mod:`.inputs`) and the engine read from it.
 """
 from __future__ import annotations
 

@@ -1,24 +1,32 @@
 """Use case ``closed_loop``: a planning policy drives the ego through logged
-L5 scenes (seed 000), judged on collisions, drift and resets per scene."""
+L5 scenes (seed 000), judged on collisions, drift and resets per scene.
+
+:mod:`.evaluate` is the Python API behind it (unroll, judge), :mod:`.config`
+the YAML it reads, :mod:`.assertions` the helpers for tests written in Python,
+:mod:`.artefacts` what it leaves next to the summary.  Importing the package
+registers the use case; it stays light (no torch, no zarr reader) because
+``import pytest_driveeval`` imports its assertions.
+"""
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+from pytest_driveeval.errors import ModelError
+from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
+from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
+from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
+from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
+from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, judge_scene, select_scenes, unroll_scenes
 
-from ..closed_loop import KINDS, judge_scene, select_scenes, unroll_scenes
-from ..errors import ModelError
-from ..io.l5kit_zarr import L5Dataset
-from ..outcome import FAILED, PASSED, Finding, Outcome
-from ..usecase import RunContext, UseCase, register_usecase
-from .closed_loop_config import ClosedLoopConfig
+if TYPE_CHECKING:
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
 
 BASELINES = ("constant_velocity", "log_replay")
 
 
 def baseline(name: str):
-    from ..policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
+    from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
 
     return {"constant_velocity": ConstantVelocityPolicy, "log_replay": ReplayLogPolicy}[name]().eval()
 
@@ -31,10 +39,12 @@ class ClosedLoop(UseCase):
     fixtures = ("driveeval_dataset", "driveeval_model")
 
     def load_dataset(self, ctx: RunContext) -> L5Dataset:
+        from pytest_driveeval.io.l5kit_zarr import L5Dataset
+
         return L5Dataset.open(super().load_dataset(ctx))
 
     def load_model(self, ctx: RunContext, spec: str | None):
-        from ..policies.loading import load_model
+        from pytest_driveeval.policies.loading import load_model
 
         from_option = spec is not None
         spec = spec or ctx.scenario.config.Model
@@ -75,46 +85,8 @@ class ClosedLoop(UseCase):
         summary = (f"{passed}/{len(verdicts)} scenes passed; collisions front {figures['front']}, side "
                    f"{figures['side']}, rear {figures['rear']} ({figures['at_fault']} at fault); "
                    f"{figures['displacement_error']} drift reset(s)")
-        artefacts = _artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
+        artefacts = write_artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
                                "error": unroll.result.errors[row]} for row, v in enumerate(verdicts)]}
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
-
-
-def _artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll, verdicts, figures) -> dict[str, Path]:
-    from ..closed_loop import collision_events
-
-    out: dict[str, Path] = {}
-    events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
-    result_path = ctx.artefact("closed_loop.json")
-    result_path.write_text(json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
-                                                   "collisions": events[v.scene],
-                                                   "findings": [f.to_json() for f in v.findings]}
-                                                  for v in verdicts]}, indent=1))
-    out["result"] = result_path
-    if config.Artefacts.Charts:
-        from ..report.plots import bar_chart
-
-        counts = {k: figures[k] for k in KINDS} | {"displacement error": figures["displacement_error"]}
-        out["chart"] = bar_chart(ctx.artefact("collisions.png"), counts, f"{ctx.scenario.name}: errors by kind")
-    wanted = config.Artefacts.Animations
-    if wanted != "none":
-        from ..policies.batch import EGO_EXTENT
-        from ..report.birdseye import render_unroll_gif
-
-        r, log = unroll.result, unroll.log
-        ego_extent = np.asarray(EGO_EXTENT[:2], dtype=float)
-        for row, verdict in enumerate(verdicts):
-            if wanted == "failing" and verdict.passed:
-                continue
-            keep = r.valid[row]
-            if not keep.any():
-                continue
-            out[f"scene_{verdict.scene}_gif"] = render_unroll_gif(
-                ctx.artefact(f"scene_{verdict.scene}.gif"), r.driven_xy[row][keep], r.driven_yaw[row][keep],
-                ego_extent, r.logged_xy[row][keep],
-                log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
-                log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {verdict.scene}")
-    return out
-

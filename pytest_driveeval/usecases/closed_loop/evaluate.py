@@ -1,0 +1,140 @@
+"""Closed-loop evaluation as a Python API: unroll, then judge per scene.
+
+The ``closed_loop`` use case (YAML scenarios) and Python tests both use these:
+
+    unroll = unroll_scenes(driveeval_dataset, driveeval_model, scenes=[0], steps=100)
+    assert_collision_free(unroll, kinds=("front", "side"), at_fault_only=True)
+    assert_drift_within(unroll, meters=4.0)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import numpy as np
+
+from pytest_driveeval.errors import DataError
+from pytest_driveeval.outcome import Finding
+from pytest_driveeval.verdict import violations, within
+
+if TYPE_CHECKING:  # the reader imports numcodecs; a dataset arrives already open
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+
+KINDS = ("front", "side", "rear")
+KIND_CODE = {"front": 1, "side": 2, "rear": 3}
+
+
+@dataclass
+class Unroll:
+    """An unroll with what is needed to judge and draw it."""
+
+    result: Any          # sim.logreplay.UnrollResult
+    log: Any             # sim.logreplay.LogArrays (the replayed agents)
+    drift_threshold: float | None
+    step_time: float
+
+    @property
+    def scene_ids(self) -> list[int]:
+        return [int(s) for s in self.result.scene_ids]
+
+
+def select_scenes(num_scenes: int, scenes: Sequence[int] | None = None, stride: int | None = None
+                  ) -> tuple[list[int], list[int]]:
+    """(valid scene indices, out-of-range ones).  ``stride``: every Nth, as the seed does."""
+    if scenes is None:
+        wanted = list(range(0, num_scenes, stride or 1))
+    else:
+        wanted = list(dict.fromkeys(int(s) for s in scenes))
+    return [s for s in wanted if 0 <= s < num_scenes], [s for s in wanted if not 0 <= s < num_scenes]
+
+
+def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | None = None, *,
+                  start_frame: int = 0, steps: int | None = None, drift_threshold: float | None = 10.0,
+                  freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
+                  future_frames: int = 12, max_agents: int = 30) -> Unroll:
+    """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch."""
+    from pytest_driveeval.sim.logreplay import UnrollConfig, stack_scenes, unroll
+
+    ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
+    if out_of_range:
+        raise DataError(f"{dataset.path}: scene index {out_of_range[0]} out of range; "
+                        f"the dataset has scenes 0..{dataset.num_scenes - 1}")
+    log = stack_scenes([dataset.scene(i) for i in ids], scene_ids=ids)
+    config = UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
+                          freeze_on_collision=freeze_on_collision, kinematic=kinematic,
+                          history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
+    return Unroll(unroll(log, model, config), log, drift_threshold, config.step_time)
+
+
+@dataclass
+class SceneVerdict:
+    scene: int
+    passed: bool
+    figures: dict[str, float | int]
+    findings: list[Finding] = field(default_factory=list)
+
+
+def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_fault_only: bool = False
+                     ) -> list[dict]:
+    """One entry per frame with a collision of the given kinds in scene ``row``."""
+    r = unroll.result
+    codes = [KIND_CODE[k] for k in kinds]
+    hit = r.valid[row] & np.isin(r.collision_kind[row], codes)
+    if at_fault_only:
+        hit &= r.collision_at_fault[row]
+    names = {v: k for k, v in KIND_CODE.items()}
+    return [{"frame": int(t), "kind": names[int(r.collision_kind[row, t])],
+             "track_id": int(r.collision_track_id[row, t]), "at_fault": bool(r.collision_at_fault[row, t])}
+            for t in np.flatnonzero(hit)]
+
+
+def scene_figures(unroll: Unroll, row: int) -> dict[str, float | int]:
+    r = unroll.result
+    valid = r.valid[row]
+    kinds = r.collision_kind[row][valid]
+    at_fault = r.collision_at_fault[row][valid]
+    disp = r.displacement_error[row][valid]
+    ref = r.distance_to_reference[row][valid]
+    figures: dict[str, float | int] = {f: int((kinds == KIND_CODE[f]).sum()) for f in KINDS}
+    figures["at_fault"] = int((at_fault & (kinds > 0)).sum())
+    figures["displacement_error"] = int(r.reset[row][valid].sum()) if unroll.drift_threshold is not None else 0
+    figures["steps"] = int(valid.sum())
+    figures["max_displacement"] = float(np.nanmax(disp)) if disp.size else 0.0
+    figures["mean_displacement"] = float(np.nanmean(disp)) if disp.size else 0.0
+    figures["mean_distance_to_reference"] = float(np.nanmean(ref)) if ref.size else 0.0
+    return figures
+
+
+def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
+    """Per-scene verdict against ``ClosedLoopConditions`` (see usecases.closed_loop.config)."""
+    r = unroll.result
+    scene = int(r.scene_ids[row])
+    figures = scene_figures(unroll, row)
+    findings: list[Finding | None] = []  # a rule that holds adds None
+    if r.errors[row]:  # the engine's messages already name the scene(s) and frame
+        findings.append(Finding(r.errors[row], scene=scene))
+    limits = conditions.Collisions
+    for kind in KINDS:
+        events = collision_events(unroll, row, (kind,), limits.AtFaultOnly)
+        detail = "" if not events else (f" with agent {events[0]['track_id']}"
+                                        + ("" if events[0]["at_fault"] else " (not at fault)"))
+        blame = "at-fault " if limits.AtFaultOnly else ""
+        findings.append(violations([e["frame"] for e in events], getattr(limits, kind.capitalize()),
+                                   what=f"{blame}{kind} collision frame(s)", figure=kind, scene=scene,
+                                   keypath=("Evaluation", "Conditions", "Collisions", kind.capitalize()),
+                                   first_detail=detail))
+    frames = np.flatnonzero(r.valid[row])
+    for key, array, unit in (("Displacement", r.displacement_error, " m"),
+                             ("DistanceToReference", r.distance_to_reference, " m"),
+                             ("SpeedDifference", r.speed_difference, " m/s")):
+        limit = getattr(conditions, key)
+        if limit is None:
+            continue
+        findings.append(within(np.abs(array[row][frames]), figure=key, max=limit.Max, frames=frames, unit=unit,
+                               scene=scene, keypath=("Evaluation", "Conditions", key),
+                               tolerated_frames=int(round(limit.Duration / unroll.step_time))))
+    if conditions.MaxResets is not None:
+        findings.append(violations(np.flatnonzero(r.reset[row]), conditions.MaxResets, what="reset(s) on drift",
+                                   figure="resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
+    found = [f for f in findings if f is not None]
+    return SceneVerdict(scene, not found, figures, found)
