@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,13 +23,15 @@ from pytest_driveeval.metrics.drift import (
     yaw_error,
 )
 
+from conftest import REPO_ROOT
+
 EGO = np.array([4.0, 2.0])
 
 
 @pytest.fixture(scope="module")
 def bench():
     pytest.importorskip("shapely")
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_metrics.py"
+    path = REPO_ROOT / "benchmarks" / "bench_metrics.py"
     spec = importlib.util.spec_from_file_location("bench_metrics", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

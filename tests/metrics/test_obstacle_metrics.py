@@ -9,7 +9,7 @@ from pytest_driveeval.io.lanelet2 import Lanelet2Error, load_lanelet_map
 from pytest_driveeval.metrics import cloud_jit
 from pytest_driveeval.geometry import points_in_polygon, polygon_edges, polygon_self_intersects, polygon_signed_area
 from pytest_driveeval.metrics.pointcloud import Area, BoxSet, box_corners_3d, box_scale, crop_reference, evaluate_cloud
-from pytest_driveeval.usecases.obstacle_segmentation_config import polygon_problem
+from pytest_driveeval.usecases.obstacle_segmentation.config import polygon_problem
 
 DLR_AREA = np.array([[10.0, 1.5], [10.0, -1.5], [0.0, -1.5], [0.0, 1.5]])
 KERNELS = ["numpy", pytest.param("numba", marks=pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba absent"))]

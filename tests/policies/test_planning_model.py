@@ -2,21 +2,20 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.batch import build_batch, scenes_from_arrays, stack_scenes
 from pytest_driveeval.policies.planning_model import PlanningModel
-from pytest_driveeval.sim.engine import UnrollConfig, unroll
+from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
 
-ROOT = Path(__file__).resolve().parents[1]
-MODEL = ROOT / "fixtures" / "models" / "planning_model.pt"
-TRAIN_SCRIPT = ROOT / "examples" / "train_planning_model.py"
+from conftest import REPO_ROOT
+
+MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt"
+TRAIN_SCRIPT = REPO_ROOT / "examples" / "train_planning_model.py"
 # A validation scene of the training run (seed 2, never trained on) where
 # constant velocity drives into a queue at the red light.
 HELD_OUT_SEED, HELD_OUT_SCENE = 2, 0

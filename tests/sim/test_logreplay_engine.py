@@ -11,9 +11,8 @@ from shapely.geometry import Polygon
 from pytest_driveeval.io.l5kit_zarr import L5Dataset
 from pytest_driveeval.metrics.collisions import FRONT
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
-from pytest_driveeval.policies.batch import EGO_EXTENT, scenes_from_arrays, stack_scenes
-from pytest_driveeval.sim.engine import UnrollConfig, unroll
-from pytest_driveeval.sim.kinematics import KinematicLimits, feasible_step
+from pytest_driveeval.sim.logreplay import (EGO_EXTENT, UnrollConfig, build_batch, scenes_from_arrays, stack_scenes,
+                                            unroll)
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 STOP_SCENE = 2  # of red_light_log(): CV runs into a car stopped at the red light
@@ -192,7 +191,6 @@ def test_num_steps_and_timing(mixed_log):
 
 
 def test_baselines_torchscript_round_trip(mixed_log):
-    from pytest_driveeval.policies.batch import build_batch
     batch = build_batch(mixed_log, np.arange(4), np.full(4, 10), mixed_log.ego_xy, mixed_log.ego_yaw)
     for module in (ConstantVelocityPolicy(), ReplayLogPolicy()):
         buf = io.BytesIO()
@@ -203,17 +201,3 @@ def test_baselines_torchscript_round_trip(mixed_log):
         for key in ("positions", "yaws"):
             torch.testing.assert_close(eager[key], scripted[key])
         assert eager["positions"].shape == (4, 12, 2) and eager["yaws"].shape == (4, 12, 1)
-
-
-def test_kinematic_step_respects_limits():
-    lim = KinematicLimits()
-    xy, yaw, speed = np.zeros((3, 2)), np.zeros(3), np.array([10.0, 10.0, 0.0])
-    target = np.array([[5.0, 0.0], [0.9, 0.5], [0.0, 3.0]])  # too fast, too sharp, sideways from standstill
-    nxy, nyaw, v = feasible_step(xy, yaw, speed, target, np.array([0.0, 1.0, 1.5]), lim)
-    assert v[0] == pytest.approx(10.0 + lim.max_accel * lim.dt)
-    assert abs(nyaw[1]) <= lim.max_yaw_rate * lim.dt + 1e-12
-    # From standstill: no sliding sideways, and only as much turn as the short arc allows.
-    assert abs(nyaw[2]) <= lim.max_curvature * 0.5 * v[2] * lim.dt + 1e-12
-    assert abs(nxy[2, 1]) < 1e-3 and nxy[2, 0] <= 0.5 * lim.max_accel * lim.dt ** 2 + 1e-12
-    same = feasible_step(xy[:1], yaw[:1], speed[:1], np.array([[1.0, 0.0]]), np.zeros(1), lim)
-    assert np.allclose(same[0], [[1.0, 0.0]])

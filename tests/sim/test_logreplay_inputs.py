@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.io.l5kit_zarr import L5Dataset
-from pytest_driveeval.policies.batch import build_batch, collate_training_samples, scenes_from_arrays, stack_scenes
+from pytest_driveeval.sim.logreplay import build_batch, collate_training_samples, scenes_from_arrays, stack_scenes
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 H, F, N = 10, 12, 30

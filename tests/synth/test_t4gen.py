@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,9 @@ from pytest_driveeval.io.t4dataset import T4Dataset
 from pytest_driveeval.geometry import points_in_boxes
 from pytest_driveeval.synth.t4gen import DIAG_NAME, TARGET_TOKEN, generate_t4_dataset
 
+from conftest import REPO_ROOT as REPO
+
 N_FRAMES, RAYS = 6, 8000
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _gen(tmp_path_factory, name, **kw):

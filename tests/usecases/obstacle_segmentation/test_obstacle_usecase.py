@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from pytest_driveeval.report.jsonl import key_structure, merge_structures, read_jsonl
+from pytest_driveeval.usecases.obstacle_segmentation.jsonl import key_structure, merge_structures, read_jsonl
 
 t4gen = pytest.importorskip("pytest_driveeval.synth.t4gen")
 

@@ -1,0 +1,210 @@
+"""The package layout's rules, read from the source with ``ast`` so they stay true.
+
+* No module imports an underscore name from another module: a private name is
+  a promise to its own module only.
+* No import cycles between packages (each root module counts as a package of
+  its own), lazy imports inside functions included: data flows down.
+* Each part of the package imports only the parts below it (``ALLOWED``).
+
+Imports under ``if TYPE_CHECKING:`` are annotations, not dependencies.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO_ROOT
+
+PACKAGE = "pytest_driveeval"
+ROOT = REPO_ROOT / PACKAGE
+
+# What each part of the package may import (besides itself).  A part is a
+# subpackage (its top level) or a root module; the pytest side (plugin,
+# collect, fixtures, results, failure, assertions, __init__) may import anything.
+FOUNDATION = {"errors", "outcome", "geometry"}
+ALLOWED = {
+    "errors": set(),
+    "outcome": set(),
+    "geometry": set(),
+    "verdict": {"outcome"},
+    "settings": set(),
+    "io": {"errors", "geometry"},
+    "metrics": {"errors", "geometry"},
+    "policies": {"errors"},
+    "sim": FOUNDATION | {"io", "metrics"},
+    "synth": FOUNDATION | {"io"},
+    "report": FOUNDATION,
+    "usecase": {"errors", "outcome"},
+    "scenario": {"errors", "usecase"},
+    "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario"},
+    # Stable import paths of the Python API, onto their use case's package.
+    "closed_loop": {"usecases"},
+    "obstacle": {"usecases"},
+}
+PYTEST_SIDE = {"plugin", "collect", "fixtures", "results", "failure", "assertions", "__init__"}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(REPO_ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def is_package(name: str) -> bool:
+    return (REPO_ROOT / name.replace(".", "/") / "__init__.py").is_file()
+
+
+def exists(name: str) -> bool:
+    base = REPO_ROOT / name.replace(".", "/")
+    return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
+
+
+def _type_checking_lines(tree: ast.AST) -> set[int]:
+    lines: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for child in node.body:
+                lines.update(range(child.lineno, (child.end_lineno or child.lineno) + 1))
+    return lines
+
+
+def imports(path: Path) -> list[tuple[str, str | None, int]]:
+    """(imported module, imported name or None, line) of every import in ``path``
+    that reaches into our package, with relative imports resolved."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _type_checking_lines(tree)
+    here = module_name(path)
+    base = here if path.name == "__init__.py" else here.rpartition(".")[0]
+    out = []
+    for node in ast.walk(tree):
+        if getattr(node, "lineno", None) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            out += [(a.name, None, node.lineno) for a in node.names if a.name.split(".")[0] == PACKAGE]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = base.split(".")
+                target = ".".join(parts[:len(parts) - node.level + 1] + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != PACKAGE:
+                continue
+            for alias in node.names:
+                sub = f"{target}.{alias.name}"
+                # ``from pkg import submodule`` imports the submodule, not a name.
+                out.append((sub, None, node.lineno) if exists(sub) else (target, alias.name, node.lineno))
+    return out
+
+
+def part(name: str) -> str:
+    """The part of the package a module belongs to (its top-level subpackage or root module)."""
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def node(name: str) -> str:
+    """A module's package for the cycle rule: its own package, or itself at the root."""
+    if is_package(name) or name.count(".") == 1:
+        return name
+    return name.rpartition(".")[0]
+
+
+SOURCES = sorted(ROOT.rglob("*.py"))
+
+
+def test_the_rules_see_the_whole_package():
+    # A rule that reads nothing passes vacuously: make sure it reads what is there.
+    names = {module_name(p) for p in SOURCES}
+    assert {"pytest_driveeval.plugin", "pytest_driveeval.geometry", "pytest_driveeval.sim.logreplay.engine",
+            "pytest_driveeval.usecases.closed_loop", "pytest_driveeval.usecases.obstacle_segmentation"} <= names
+    edges = [(module_name(p), t) for p in SOURCES for t, _, _ in imports(p)]
+    assert ("pytest_driveeval.sim.logreplay.engine", "pytest_driveeval.geometry") in {
+        (a, node(b)) for a, b in edges}
+
+
+def test_no_module_imports_another_modules_private_names():
+    offences = [f"{p.relative_to(REPO_ROOT)}:{line}: {target}.{name}"
+                for p in SOURCES for target, name, line in imports(p)
+                if name is not None and name.startswith("_") and not name.startswith("__")]
+    assert not offences, "private names imported from another module:\n" + "\n".join(offences)
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    stack: list[str] = []
+
+    def visit(v: str) -> list[str] | None:
+        state[v] = 1
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if state.get(w) == 1:
+                return stack[stack.index(w):] + [w]
+            if w not in state:
+                found = visit(w)
+                if found:
+                    return found
+        stack.pop()
+        state[v] = 2
+        return None
+
+    for v in sorted(graph):
+        if v not in state:
+            found = visit(v)
+            if found:
+                return found
+    return None
+
+
+def package_graph() -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for p in SOURCES:
+        source = node(module_name(p))
+        for target, _, _ in imports(p):
+            if node(target) != source:
+                graph.setdefault(source, set()).add(node(target))
+    return graph
+
+
+def test_no_import_cycles_between_packages():
+    cycle = find_cycle(package_graph())
+    assert cycle is None, "import cycle between packages: " + " -> ".join(cycle)
+
+
+def test_find_cycle_finds_one():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": set()}) is None
+
+
+@pytest.mark.parametrize("source_part", sorted(ALLOWED))
+def test_each_part_imports_only_what_lies_below_it(source_part):
+    offences = []
+    for p in SOURCES:
+        name = module_name(p)
+        if part(name) != source_part:
+            continue
+        for target, _, line in imports(p):
+            to = part(target)
+            if to != source_part and to not in ALLOWED[source_part]:
+                offences.append(f"{p.relative_to(REPO_ROOT)}:{line}: imports {target}")
+    assert not offences, f"{source_part} may import only {sorted(ALLOWED[source_part])}:\n" + "\n".join(offences)
+
+
+def test_every_part_has_a_rule():
+    parts = {part(module_name(p)) for p in SOURCES}
+    assert parts - set(ALLOWED) - PYTEST_SIDE == set()
+
+
+def test_tests_mirror_the_package():
+    """Every subpackage has its tests in a folder of the same name, and no test file
+    sits loose at the top of tests/."""
+    tests = REPO_ROOT / "tests"
+    assert not [p.name for p in tests.glob("test_*.py")]
+    for sub in sorted(p.parent for p in ROOT.glob("*/__init__.py")):
+        if sub.name == "usecases":
+            continue
+        assert (tests / sub.name).is_dir() and any((tests / sub.name).rglob("test_*.py")), sub.name
+    for case in sorted(p.parent for p in (ROOT / "usecases").glob("*/__init__.py")):
+        assert any((tests / "usecases" / case.name).glob("test_*.py")), case.name
