@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from pytest_driveeval.usecases.closed_loop.evaluate import Unroll, collision_events
+from pytest_driveeval.usecases.closed_loop.evaluate import Unroll, collision_detail, collision_events
 from pytest_driveeval.verdict import within
 
 __all__ = ["assert_collision_free", "assert_drift_within"]
@@ -28,8 +28,7 @@ def assert_collision_free(unroll: Unroll, kinds: Sequence[str] = ("front", "side
         if events:
             first = events[0]
             lines.append(f"scene {scene}: {len(events)} collision frame(s); first at frame {first['frame']}: "
-                         f"{first['kind']} with agent {first['track_id']}"
-                         f"{'' if first['at_fault'] else ' (not at fault)'}")
+                         f"{first['kind']}{collision_detail(first)}")
     if lines:
         what = ("at-fault " if at_fault_only else "") + "/".join(kinds)
         raise AssertionError(f"{what} collisions in {len(lines)} scene(s):\n  " + "\n  ".join(lines))

@@ -88,6 +88,11 @@ def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_
             for t in np.flatnonzero(hit)]
 
 
+def collision_detail(event: dict) -> str:
+    """Who the ego hit, as failures say it: " with agent N", and whether it was not the ego's fault."""
+    return f" with agent {event['track_id']}" + ("" if event["at_fault"] else " (not at fault)")
+
+
 def scene_figures(unroll: Unroll, row: int) -> dict[str, float | int]:
     r = unroll.result
     valid = r.valid[row]
@@ -116,8 +121,7 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
     limits = conditions.Collisions
     for kind in KINDS:
         events = collision_events(unroll, row, (kind,), limits.AtFaultOnly)
-        detail = "" if not events else (f" with agent {events[0]['track_id']}"
-                                        + ("" if events[0]["at_fault"] else " (not at fault)"))
+        detail = collision_detail(events[0]) if events else ""
         blame = "at-fault " if limits.AtFaultOnly else ""
         findings.append(violations([e["frame"] for e in events], getattr(limits, kind.capitalize()),
                                    what=f"{blame}{kind} collision frame(s)", figure=kind, scene=scene,
