@@ -54,6 +54,18 @@ MALFORMED = {
         speed_scenario("de").replace("    - slow.csv: {}", "    - {a: {}, b: {}}"),
         ["*dataset_entry.scenario.yaml:8: Evaluation.Datasets[[]0[]]: each dataset entry is a mapping with one key*"],
     ),
+    "alias_bomb": (
+        # "Billion laughs": 300 bytes that expand to 10**9 values.
+        "a: &a [" + ", ".join(["lol"] * 9) + "]\n"
+        + "".join(f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]\n" for p, k in zip("abcdefgh", "bcdefghi")),
+        ["*alias_bomb.scenario.yaml:6: this value expands to 597,871 values through anchors and aliases*"
+         "at most 100,000"],
+    ),
+    "recursive_alias": ("a: &a [1, *a]\n", ["*recursive_alias.scenario.yaml:1: an alias refers to a value that "
+                                             "contains it*"]),
+    "nested_brackets": ("[" * 20_000, ["*nested_brackets.scenario.yaml:1: values nested too deeply*"]),
+    "nested_mappings": ("a:\n" + "".join("  " * i + f"k{i}:\n" for i in range(1, 80)),
+                        ["*nested_mappings.scenario.yaml:17: from here down, values are nested more than 64 levels deep*"]),
 }
 
 
