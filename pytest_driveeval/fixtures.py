@@ -71,7 +71,8 @@ def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenar
                       driveeval_output_dir: Path, driveeval_seed: int) -> RunContext:
     _, case = _binding(request)
     return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
-                      output_dir=driveeval_output_dir, seed=driveeval_seed)
+                      output_dir=driveeval_output_dir, seed=driveeval_seed,
+                      allow_code=get_settings(request.config).allow_scenario_code)
 
 
 @pytest.fixture

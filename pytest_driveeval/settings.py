@@ -20,6 +20,7 @@ class Settings:
     model: str | None
     seed: int
     patterns: tuple[str, ...]
+    allow_scenario_code: bool = False
 
     def item_dir(self, nodeid: str) -> Path:
         return self.output_dir / "items" / safe_name(nodeid)
@@ -48,10 +49,15 @@ def add_options(parser: pytest.Parser) -> None:
                          "'weights.pt=module:factory', or 'module:factory' (ini: driveeval_model)")
     group.addoption("--driveeval-seed", metavar="N", type=int, default=None,
                     help="base seed; every item derives its own from it and its id (ini: driveeval_seed; default 0)")
+    group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
+                    help="let scenario files name code to run: 'Model: pickle:file' or 'module:factory' "
+                         "(ini: driveeval_allow_scenario_code; off by default: scenario files travel with data)")
     parser.addini("driveeval_output", "where results and artefacts go", default="driveeval-results")
     parser.addini("driveeval_data_root", "folder holding the datasets scenarios name", default="")
     parser.addini("driveeval_model", "model evaluated instead of each scenario's own", default="")
     parser.addini("driveeval_seed", "base seed", default="0")
+    parser.addini("driveeval_allow_scenario_code", "let scenario files name code to run (pickle:, module:factory)",
+                  type="bool", default=False)
     parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
                   default=DEFAULT_PATTERNS)
 
@@ -83,6 +89,8 @@ def settings_from_config(config: pytest.Config) -> Settings:
         model=model,
         seed=seed_value,
         patterns=tuple(config.getini("driveeval_patterns") or DEFAULT_PATTERNS),
+        allow_scenario_code=bool(config.getoption("driveeval_allow_scenario_code")
+                                 or config.getini("driveeval_allow_scenario_code")),
     )
 
 

@@ -100,6 +100,8 @@ class RunContext:
     fixtures: dict[str, Any] = field(default_factory=dict)
     #: what a default fixture learnt that run() reports (e.g. which model was loaded)
     notes: dict[str, Any] = field(default_factory=dict)
+    #: the person running pytest lets scenario files name code to run (pickle, module:factory)
+    allow_code: bool = False
 
     def artefact(self, filename: str) -> Path:
         self.output_dir.mkdir(parents=True, exist_ok=True)

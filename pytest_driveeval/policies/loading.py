@@ -18,6 +18,29 @@ from typing import Any, Callable
 from ..errors import ModelError
 
 PICKLE_PREFIX = "pickle:"
+ALLOW_CODE_OPTION = "--driveeval-allow-scenario-code"
+ALLOW_CODE_INI = "driveeval_allow_scenario_code"
+
+
+def runs_code(spec: str) -> bool:
+    """Whether loading ``spec`` imports and calls Python named by the spec, or
+    unpickles (which can call anything).  TorchScript and exported programs
+    run only their own graph, and baseline names are ours."""
+    spec = spec.strip()
+    if spec.startswith(PICKLE_PREFIX) or "=" in spec:
+        return True
+    return ":" in spec and not Path(spec).suffix
+
+
+def refuse_code_from_data(spec: str, where: str) -> None:
+    """Scenario files travel with datasets; what they name must not run code
+    unless the person running pytest said so."""
+    raise ModelError(
+        f"{where}: Model '{spec}' would run Python code named by the scenario file "
+        f"({'unpickling' if spec.strip().startswith(PICKLE_PREFIX) else 'importing and calling a factory'}). "
+        f"If you trust this file, run with {ALLOW_CODE_OPTION} (ini: {ALLOW_CODE_INI} = true); "
+        "or give the model with --driveeval-model or a driveeval_model fixture in conftest.py, "
+        "or save it as TorchScript (torch.jit.save), which loads without running Python")
 
 
 def import_object(target: str) -> Any:
@@ -49,9 +72,27 @@ def _resolve(path: str, base: Path | None) -> Path:
     candidate = Path(path).expanduser()
     if not candidate.is_absolute() and base is not None:
         candidate = base / candidate
-    if not candidate.exists():
-        raise ModelError(f"model file not found: {candidate}")
+    try:
+        if candidate.is_dir():
+            raise ModelError(f"model {candidate} is a folder; give the model file inside it")
+        if not candidate.is_file():
+            raise ModelError(f"model file not found: {candidate}")
+    except OSError as exc:  # a symlink loop, a name too long
+        raise ModelError(f"cannot open model {candidate}: {exc.strerror or exc}") from None
     return candidate
+
+
+def _call_factory(target: str) -> Any:
+    factory = import_object(target)
+    if not callable(factory):
+        raise ModelError(f"'{target}' is a {type(factory).__name__}, not a factory to call")
+    try:
+        model = factory()
+    except TypeError as exc:
+        raise ModelError(f"cannot call {target}() without arguments to build the model: {exc}") from None
+    if not callable(model):
+        raise ModelError(f"{target}() returned a {type(model).__name__}, not a model (a torch module or callable)")
+    return model
 
 
 def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
@@ -69,7 +110,7 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
     weights, sep, factory = spec.partition("=")
     if sep:
         path = _resolve(weights, base)
-        module = import_object(factory)()
+        module = _call_factory(factory)
         try:
             state = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:  # noqa: BLE001
@@ -82,7 +123,7 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
             raise ModelError(f"weights {path} do not fit {factory}(): {exc}") from None
         return _eval(module)
     if ":" in spec and not Path(spec).suffix:
-        return _eval(import_object(spec)())
+        return _eval(_call_factory(spec))
     path = _resolve(spec, base)
     if path.suffix == ".pt2":
         try:

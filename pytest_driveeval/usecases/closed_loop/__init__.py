@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pytest_driveeval.errors import ModelError
+from pytest_driveeval.errors import ModelError, display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
@@ -44,7 +44,7 @@ class ClosedLoop(UseCase):
         return L5Dataset.open(super().load_dataset(ctx))
 
     def load_model(self, ctx: RunContext, spec: str | None):
-        from pytest_driveeval.policies.loading import load_model
+        from pytest_driveeval.policies.loading import load_model, refuse_code_from_data, runs_code
 
         from_option = spec is not None
         spec = spec or ctx.scenario.config.Model
@@ -54,6 +54,9 @@ class ClosedLoop(UseCase):
         ctx.notes["policy"] = Path(spec).name if spec not in BASELINES and ":" not in spec else spec
         if spec in BASELINES:
             return baseline(spec)
+        if not from_option and not ctx.allow_code and runs_code(spec):
+            where = f"{display_path(ctx.scenario.path)}:{ctx.scenario.line_of('Evaluation', 'Model')}"
+            refuse_code_from_data(spec, where)
         return load_model(spec, base=None if from_option else ctx.scenario.folder)
 
     def run(self, config: ClosedLoopConfig, ctx: RunContext) -> Outcome:
