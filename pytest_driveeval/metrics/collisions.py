@@ -7,11 +7,13 @@ frame with shapely polygons:
 1. agents are pre-filtered by ``|ego - agent| < (|ego_extent[:2]| +
    |agent_extent[:2]|) / 2`` (half-diagonals; the test cannot reject a real
    overlap, only corner-to-corner touching exactly on the diagonal);
-2. the *first* agent in array order whose box intersects the ego box
-   (touching counts) is the collision partner; others in the same frame are
-   ignored.  We keep that rule so counts match l5kit: ``agent_index`` is the
-   lowest colliding available index.  ``overlap`` still lists every
-   intersecting agent;
+2. the *first* agent in the frame's agent rows whose box intersects the ego
+   box (touching counts) is the collision partner; others in the same frame
+   are ignored.  We keep that rule so kinds and partners match l5kit.  The
+   agent axis here need not be in row order (the log replay packs tracks
+   into columns), so ``agent_order`` gives each agent's row position and the
+   partner is the intersecting agent with the lowest one; without it, the
+   lowest index.  ``overlap`` still lists every intersecting agent;
 3. the kind is the ego edge (front, rear, left, right, in that order) with the
    longest length inside the agent box; ties go to the earlier edge, so an
    agent wholly inside the ego (all lengths 0) is "front", as in l5kit.
@@ -84,6 +86,7 @@ def detect_collisions(
     ego_velocity: np.ndarray | None = None,
     track_ids: np.ndarray | None = None,
     *,
+    agent_order: np.ndarray | None = None,
     ego_speed: np.ndarray | None = None,
     speed_tol: float = 0.1,
 ) -> CollisionResult:
@@ -96,7 +99,9 @@ def detect_collisions(
     bool (padding slots False); agent_velocity (..., A, 2) world frame;
     ego_velocity (..., 2) world frame, or instead ego_speed (...) signed speed
     along the heading (l5kit's ego state); track_ids (..., A) ints (default:
-    the agent index).  ``speed_tol`` in m/s.
+    the agent index); agent_order (..., A) ints, the agent's position among
+    its frame's rows, which picks the partner (default: the agent index).
+    ``speed_tol`` in m/s.
 
     The arithmetic of every decision (range, separating axes, edge lengths,
     blame) is that of :func:`~pytest_driveeval.geometry.oriented_boxes_overlap`,
@@ -170,9 +175,14 @@ def detect_collisions(
     overlap = np.zeros(frames * num_agents, dtype=bool)
     overlap[hit_pair] = True
 
-    # 3. l5kit's partner: first colliding agent in array order.  The pairs are
-    # row-major, so the first hit per frame is the lowest agent index.
+    # 3. l5kit's partner: the first colliding agent in the frame's rows.  The
+    # pairs are row-major, so without an order the first hit per frame is the
+    # lowest agent index; with one, a stable sort by (frame, order) puts the
+    # partner first.
     hf = f_idx[hit]
+    if agent_order is not None and hit_pair.size:
+        by_row = np.lexsort((np.take(per_pair(agent_order, (), np.int64), hit_pair), hf))
+        hit_pair, hf = hit_pair[by_row], hf[by_row]
     first = np.ones(hf.shape, dtype=bool)
     first[1:] = hf[1:] != hf[:-1]
     cp = hit_pair[first]

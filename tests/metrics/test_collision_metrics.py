@@ -111,6 +111,22 @@ def test_partner_is_lowest_available_index_and_track_id():
     assert (r.kind, r.agent_index, r.track_id) == (REAR, 2, 9)
 
 
+def test_partner_is_first_overlapping_row_when_rows_are_not_in_index_order():
+    # Index order: a front hit (track 4) before a rear hit (track 9); the
+    # frame's rows list track 9 first, so l5kit's first overlapping agent is 9.
+    agents = np.array([[3.6, 0.1], [-3.6, 0.0], [30.0, 0.0]])
+    kw = {"agent_yaw": np.zeros(3), "agent_extent": np.tile(EGO, (3, 1)), "track_ids": np.array([4, 9, 2])}
+    by_index = detect_collisions(np.zeros(2), 0.0, EGO, agents, **kw)
+    assert (by_index.kind, by_index.track_id) == (FRONT, 4)
+    by_row = detect_collisions(np.zeros(2), 0.0, EGO, agents, agent_order=np.array([1, 0, 2]), **kw)
+    assert (by_row.kind, by_row.agent_index, by_row.track_id) == (REAR, 1, 9)
+    assert by_row.overlap.tolist() == by_index.overlap.tolist() == [True, True, False]
+    # Batched: each frame follows its own row order.
+    frames = detect_collisions(np.zeros((2, 2)), np.zeros(2), EGO, np.stack([agents, agents]),
+                               agent_order=np.array([[1, 0, 2], [0, 2, 1]]), **{**kw, "agent_yaw": np.zeros((2, 3))})
+    assert frames.track_id.tolist() == [9, 4] and frames.kind.tolist() == [REAR, FRONT]
+
+
 def test_shapes_batching_and_counts():
     rng = np.random.default_rng(5)
     s, t, a = 3, 7, 5

@@ -275,7 +275,7 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
         (log.ego_xy[:, start:start + 1] - log.ego_xy[:, start - 1:start])
     col = detect_collisions(driven_xy, driven_yaw, ext, log.agent_xy, log.agent_yaw, log.agent_extent,
                             log.available & valid[..., None], log.agent_velocity, step / dt,
-                            track_ids=log.track_id)
+                            track_ids=log.track_id, agent_order=log.frame_row)
     disp = np.where(reset, proposed, displacement_error(driven_xy, log.ego_xy))
     frame_ok = np.arange(log.ego_yaw.shape[1]) < log.num_frames[:, None]
     to_ref = distance_to_reference(driven_xy, log.ego_xy, frame_ok)

@@ -49,6 +49,7 @@ class LogArrays:
     track_id: np.ndarray  # (S, T, C) int64, -1 in empty cells
     label: np.ndarray  # (S, T, C) int16 index into PERCEPTION_LABELS (the track's most frequent)
     relevant: np.ndarray  # (S, T, C) bool: available and of a class l5kit feeds to models
+    frame_row: np.ndarray  # (S, T, C) int32: the cell's position among its frame's agent rows, -1 in empty cells
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -113,7 +114,7 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
         agent_xy=np.zeros(shape + (2,)), agent_yaw=np.zeros(shape, np.float32),
         agent_extent=np.zeros(shape + (3,), np.float32), agent_velocity=np.zeros(shape + (2,), np.float32),
         available=np.zeros(shape, bool), track_id=np.full(shape, -1, np.int64), label=np.zeros(shape, np.int16),
-        relevant=np.zeros(shape, bool),
+        relevant=np.zeros(shape, bool), frame_row=np.full(shape, -1, np.int32),
     )
     for i, (scene, at, (column, _)) in enumerate(zip(scenes, tensors, columns)):
         t = scene.num_frames
@@ -126,7 +127,22 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
         log.available[i, f, c] = True
         log.track_id[i, f, c], log.label[i, f, c] = at.track_id[a].astype(np.int64), at.label[a]
         log.relevant[i, f, c] = _KEEP_LABEL[at.label[a]]
+        log.frame_row[i, f, c] = _frame_rows(scene, at.track_id)[f, a]
     return log
+
+
+def _frame_rows(scene: L5Scene, track_ids: np.ndarray) -> np.ndarray:
+    """(T, A) position of each track's row among its frame's agent rows (A:
+    ``track_ids``, sorted): the order l5kit looks at a frame's agents in, which
+    the columns, sorted by track id, do not keep."""
+    intervals = scene.frames["agent_index_interval"].astype(np.int64)
+    counts = intervals[:, 1] - intervals[:, 0]
+    frame = np.repeat(np.arange(counts.size), counts)
+    rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    track = np.searchsorted(track_ids, scene.agents["track_id"][intervals[frame, 0] + rank])
+    out = np.full((counts.size, track_ids.size), -1, np.int32)
+    out[frame, track] = rank
+    return out
 
 
 def window_columns(log: LogArrays, history_frames: int) -> tuple[np.ndarray, np.ndarray]:
