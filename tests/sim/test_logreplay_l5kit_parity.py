@@ -49,3 +49,10 @@ def test_partner_is_the_first_overlapping_agent_in_the_frames_row_order():
     r = unroll(log, ReplayLogPolicy(), UnrollConfig())
     assert r.collision_kind[0].tolist() == [0, REAR, FRONT]
     assert r.collision_track_id[0].tolist() == [-1, 9, 4]
+
+
+def test_a_start_past_the_end_is_each_scenes_error_not_an_exception():
+    log = stack_scenes([tiny_scene([[FRONT_4]] * 3)])
+    r = unroll(log, ReplayLogPolicy(), UnrollConfig(start_frame=100_000))
+    assert not r.valid.any()
+    assert r.errors == ["scene 0: start_frame 100000 is not before its end (3 frames, num_steps None)"]

@@ -175,7 +175,7 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
     step = np.zeros_like(xy)
     step[:, 1:] = xy[:, 1:] - xy[:, :-1]
     step[:, 0] = logged[:, min(1, xy.shape[1] - 1)] - logged[:, 0]
-    if start > 0:
+    if 0 < start < xy.shape[1]:  # past the end no frame is valid: nothing to fix
         step[:, start] = logged[:, start] - logged[:, start - 1]
     return norm2d(step) / dt
 
@@ -271,8 +271,9 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
     # Velocity for blame: the step into the frame, along the motion.
     step = np.zeros_like(driven_xy)
     step[:, 1:] = driven_xy[:, 1:] - driven_xy[:, :-1]
-    step[:, : start + 1] = (log.ego_xy[:, 1:2] - log.ego_xy[:, 0:1]) if start == 0 else \
-        (log.ego_xy[:, start:start + 1] - log.ego_xy[:, start - 1:start])
+    first = min(start, driven_xy.shape[1] - 1)  # a start past every scene's end has no valid frame
+    step[:, : first + 1] = (log.ego_xy[:, 1:2] - log.ego_xy[:, 0:1]) if first == 0 else \
+        (log.ego_xy[:, first:first + 1] - log.ego_xy[:, first - 1:first])
     col = detect_collisions(driven_xy, driven_yaw, ext, log.agent_xy, log.agent_yaw, log.agent_extent,
                             log.available & valid[..., None], log.agent_velocity, step / dt,
                             track_ids=log.track_id, agent_order=log.frame_row)

@@ -17,7 +17,8 @@ from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
-from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, judge_scene, select_scenes, unroll_scenes
+from pytest_driveeval.usecases.closed_loop.evaluate import (KINDS, judge_scene, select_scenes, starts_past_end,
+                                                             unroll_scenes)
 
 if TYPE_CHECKING:
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
@@ -65,6 +66,11 @@ class ClosedLoop(UseCase):
         ids, out_of_range = select_scenes(dataset.num_scenes, spec.Scenes, spec.SceneStride)
         findings = [Finding(f"scene {s} is out of range: {dataset.path} has scenes 0..{dataset.num_scenes - 1}",
                             scene=s, keypath=("Evaluation", "Unroll", "Scenes")) for s in out_of_range]
+        past_end = starts_past_end(dataset, ids, spec.StartFrame)
+        findings += [Finding(f"StartFrame {spec.StartFrame} is past the end of scene {s} of {dataset.path} "
+                             f"({n} frames, 0..{n - 1})", scene=s, keypath=("Evaluation", "Unroll", "StartFrame"))
+                     for s, n in past_end]
+        ids = [s for s in ids if s not in {s for s, _ in past_end}]
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, start_frame=spec.StartFrame,
                                steps=spec.Steps, drift_threshold=spec.DriftThreshold,
                                freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
@@ -79,8 +85,10 @@ class ClosedLoop(UseCase):
         figures.update(scenes=len(verdicts), scenes_passed=passed, steps=sum(v.figures["steps"] for v in verdicts))
         if verdicts:
             figures["max_displacement"] = max(v.figures["max_displacement"] for v in verdicts)
-        ok = bool(verdicts) and not out_of_range and rate >= config.Conditions.ScenePassRate
-        if not ok and rate < config.Conditions.ScenePassRate:
+        ok = bool(verdicts) and not out_of_range and not past_end and rate >= config.Conditions.ScenePassRate
+        if not verdicts and not findings:
+            findings.append(Finding(f"{dataset.path} has no scene to unroll", keypath=("Evaluation", "Datasets")))
+        if verdicts and rate < config.Conditions.ScenePassRate:  # with none unrolled the reason is said above
             findings.insert(0, Finding(
                 f"{passed} of {len(verdicts)} scene(s) passed ({rate:.1f}%), {config.Conditions.ScenePassRate:g}% "
                 "required", figure="scene_pass_rate", value=rate, limit=config.Conditions.ScenePassRate,

@@ -48,6 +48,13 @@ def select_scenes(num_scenes: int, scenes: Sequence[int] | None = None, stride: 
     return [s for s in wanted if 0 <= s < num_scenes], [s for s in wanted if not 0 <= s < num_scenes]
 
 
+def starts_past_end(dataset: L5Dataset, ids: Sequence[int], start_frame: int) -> list[tuple[int, int]]:
+    """(scene, number of frames) of the scenes in ``ids`` that have no frame ``start_frame``."""
+    interval = dataset.scenes["frame_index_interval"]
+    lengths = [int(interval[s, 1] - interval[s, 0]) for s in ids]
+    return [(s, n) for s, n in zip(ids, lengths) if start_frame >= n]
+
+
 def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | None = None, *,
                   start_frame: int = 0, steps: int | None = None, drift_threshold: float | None = 10.0,
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
@@ -59,6 +66,9 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     if out_of_range:
         raise DataError(f"{dataset.path}: scene index {out_of_range[0]} out of range; "
                         f"the dataset has scenes 0..{dataset.num_scenes - 1}")
+    for scene, length in starts_past_end(dataset, ids, start_frame):
+        raise DataError(f"{dataset.path}: start_frame {start_frame} is past the end of scene {scene} "
+                        f"({length} frames, 0..{length - 1})")
     log = stack_scenes([dataset.scene(i) for i in ids], scene_ids=ids)
     config = UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
                           freeze_on_collision=freeze_on_collision, kinematic=kinematic,

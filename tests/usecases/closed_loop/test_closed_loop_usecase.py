@@ -99,6 +99,29 @@ def test_out_of_range_scene_is_named_and_other_scenes_are_kept(cl):
     assert [s["scene"] for s in record["details"]["scenes"]] == [1]
 
 
+def test_start_frame_past_the_end_is_located_and_names_the_scene_and_its_length(cl):
+    cl.makefile(".scenario.yaml", late=scenario(unroll="    StartFrame: 100000"),
+                two=scenario(data="gen.zarr", unroll="    Scenes: [0, 1]\n    StartFrame: 150\n    Steps: 5"))
+    result = cl.runpytest("-q")
+    result.assert_outcomes(failed=2)
+    located = "*StartFrame 100000 is past the end of scene 0 of *real.zarr (248 frames, 0..247) (late.scenario.yaml:11)"
+    result.stdout.fnmatch_lines([located, "*11 |     StartFrame: 100000"])
+    result.stdout.fnmatch_lines(["*StartFrame 150 is past the end of scene 0 of *gen.zarr (150 frames, 0..149)*",
+                                 "*StartFrame 150 is past the end of scene 1 of *gen.zarr (150 frames, 0..149)*"])
+    assert "Traceback" not in result.stdout.str() and "IndexError" not in result.stdout.str()
+    assert "0 of 0 scene(s)" not in result.stdout.str()
+
+
+def test_start_frame_past_the_end_in_python_is_a_data_error():
+    from pytest_driveeval.errors import DataError
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.policies.baselines import ReplayLogPolicy
+    from pytest_driveeval.usecases.closed_loop.evaluate import unroll_scenes
+
+    with pytest.raises(DataError, match=r"start_frame 248 is past the end of scene 0 \(248 frames, 0..247\)"):
+        unroll_scenes(L5Dataset.open(REAL), ReplayLogPolicy(), scenes=[0], start_frame=248)
+
+
 BAD_MODELS = {
     "nan_first_row": ("import torch\nfrom pytest_driveeval.policies.baselines import ReplayLogPolicy\n"
                       "class M(ReplayLogPolicy):\n"
