@@ -181,28 +181,38 @@ def read_pcd(path: str | os.PathLike, *, with_header: bool = False):
     if header.data == "binary":
         arr = _decode_binary(path, header, payload)
     elif header.data == "ascii":
-        arr = _decode_ascii(path, header, bytes(payload))
+        arr = _decode_ascii(path, header, bytes(payload), raw.count(b"\n", 0, header.data_offset) + 1)
     else:
         arr = _decode_compressed(path, header, payload)
     return (header, arr) if with_header else arr
 
 
+def _as_points(nbytes: int, itemsize: int) -> str:
+    whole, rest = divmod(nbytes, itemsize)
+    return f"{nbytes} bytes ({whole} points" + (f" and {rest} bytes" if rest else "") + f" of {itemsize} bytes)"
+
+
 def _decode_binary(path, header: PCDHeader, payload) -> np.ndarray:
     dtype = header.dtype()
     need = dtype.itemsize * header.points
-    if len(payload) < need:
-        raise PCDError(f"{path}: truncated binary data: {len(payload)} bytes for "
-                       f"{header.points} points x {dtype.itemsize} bytes = {need}")
+    if len(payload) != need:
+        raise PCDError(f"{path}: {'truncated ' if len(payload) < need else ''}binary data: "
+                       f"{_as_points(len(payload), dtype.itemsize)}, but POINTS {header.points} needs {need} bytes")
     # Copy so the array owns its memory and is writeable, not a view of `raw`.
     return np.frombuffer(payload, dtype=dtype, count=header.points).copy()
 
 
-def _decode_ascii(path, header: PCDHeader, payload: bytes) -> np.ndarray:
+def _decode_ascii(path, header: PCDHeader, payload: bytes, first_line: int = 1) -> np.ndarray:
     ncols = sum(header.counts)
+    # Row by row, since a short row followed by a long one would still give the right total.
+    rows = [(first_line + i, len(line.split())) for i, line in enumerate(payload.split(b"\n")) if line.strip()]
+    if len(rows) != header.points:
+        raise PCDError(f"{path}: {'truncated ' if len(rows) < header.points else ''}ascii data: "
+                       f"{len(rows)} rows, but POINTS is {header.points}")
+    lineno, found = next(((ln, k) for ln, k in rows if k != ncols), (0, ncols))
+    if found != ncols:
+        raise PCDError(f"{path}:{lineno}: ascii row has {found} values, FIELDS/COUNT need {ncols}")
     tokens = payload.split()
-    if len(tokens) < ncols * header.points:
-        raise PCDError(f"{path}: truncated ascii data: {len(tokens)} values for "
-                       f"{header.points} points x {ncols} columns")
     table = np.array(tokens[: ncols * header.points]).reshape(header.points, ncols)
     out = np.zeros(header.points, dtype=header.dtype())
     col = 0
@@ -226,17 +236,17 @@ def _decode_compressed(path, header: PCDHeader, payload) -> np.ndarray:
     if len(payload) < 8:
         raise PCDError(f"{path}: truncated binary_compressed data: missing size words")
     csize, usize = np.frombuffer(payload[:8], dtype="<u4")
-    if len(payload) < 8 + csize:
-        raise PCDError(f"{path}: truncated binary_compressed data: {len(payload) - 8} "
-                       f"bytes for compressed size {csize}")
+    if len(payload) != 8 + csize:
+        raise PCDError(f"{path}: {'truncated ' if len(payload) < 8 + csize else ''}binary_compressed data: "
+                       f"the size words announce {csize} compressed bytes, {len(payload) - 8} follow them")
     try:
         buf = lzf_decompress(bytes(payload[8:8 + csize]), int(usize))
     except ValueError as exc:
         raise PCDError(f"{path}: corrupt binary_compressed data: {exc}") from None
     dtype = header.dtype()
     if len(buf) != dtype.itemsize * header.points:
-        raise PCDError(f"{path}: binary_compressed data holds {len(buf)} bytes, expected "
-                       f"{header.points} points x {dtype.itemsize}")
+        raise PCDError(f"{path}: binary_compressed data decompresses to {_as_points(len(buf), dtype.itemsize)}, "
+                       f"but POINTS {header.points} needs {dtype.itemsize * header.points} bytes")
     # The compressed payload is stored field by field (structure of arrays).
     out = np.zeros(header.points, dtype=dtype)
     pos = 0

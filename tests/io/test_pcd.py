@@ -138,3 +138,56 @@ def test_xyz_plain_and_errors():
     assert xyz(np.ones((4, 5))).shape == (4, 3)
     with pytest.raises(ValueError, match="no field"):
         xyz(np.zeros(3, [("x", "f4"), ("y", "f4")]))
+
+
+# --- a header that says fewer points than the data holds (issue 11) --------
+def _fewer_points(raw: bytes, points: int, fewer: int) -> bytes:
+    """The same file with WIDTH and POINTS lowered by ``fewer``: consistent with each other, not with the data."""
+    for key in (b"WIDTH", b"POINTS"):
+        raw = raw.replace(b"\n%s %d\n" % (key, points), b"\n%s %d\n" % (key, points - fewer), 1)
+    return raw
+
+
+def test_binary_data_longer_than_points_is_refused_with_the_numbers(tmp_path, shared_data):
+    raw = _fewer_points((shared_data / VLP16).read_bytes(), 14831, 31)
+    (tmp_path / "v.pcd").write_bytes(raw)
+    with pytest.raises(PCDError, match=r"v\.pcd: binary data: 474592 bytes \(14831 points of 32 bytes\), "
+                                       r"but POINTS 14800 needs 473600 bytes$"):
+        read_pcd(tmp_path / "v.pcd")
+
+
+@pytest.mark.parametrize("kind", ["binary", "ascii", "binary_compressed"])
+def test_points_smaller_than_the_data_is_refused_in_every_encoding(tmp_path, kind):
+    write_pcd(tmp_path / "m.pcd", mixed_cloud(50), data=kind)
+    (tmp_path / "m.pcd").write_bytes(_fewer_points((tmp_path / "m.pcd").read_bytes(), 50, 2))
+    expected = {"binary": r"binary data: \d+ bytes \(50 points of \d+ bytes\), but POINTS 48 needs",
+                "ascii": r"ascii data: 50 rows, but POINTS is 48",
+                "binary_compressed": r"binary_compressed data decompresses to \d+ bytes \(50 points of \d+ bytes\), "
+                                     r"but POINTS 48 needs"}[kind]
+    with pytest.raises(PCDError, match=r"m\.pcd: " + expected):
+        read_pcd(tmp_path / "m.pcd")
+
+
+def test_binary_data_with_a_partial_extra_point(tmp_path):
+    write_pcd(tmp_path / "b.pcd", mixed_cloud(5), data="binary")
+    (tmp_path / "b.pcd").write_bytes((tmp_path / "b.pcd").read_bytes() + b"\x00" * 7)
+    with pytest.raises(PCDError, match=r"b\.pcd: binary data: \d+ bytes \(5 points and 7 bytes of \d+ bytes\)"):
+        read_pcd(tmp_path / "b.pcd")
+
+
+def test_ascii_row_with_a_value_missing_names_its_line(tmp_path):
+    head = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n"
+    (tmp_path / "a.pcd").write_text(head + "1 2 3\n4 5\n7 8 9 10\n")
+    with pytest.raises(PCDError, match=r"a\.pcd:11: ascii row has 2 values, FIELDS/COUNT need 3"):
+        read_pcd(tmp_path / "a.pcd")
+    (tmp_path / "a.pcd").write_text(head + "1 2 3\n4 5 6\n")
+    with pytest.raises(PCDError, match=r"a\.pcd: truncated ascii data: 2 rows, but POINTS is 3"):
+        read_pcd(tmp_path / "a.pcd")
+
+
+def test_bytes_after_the_compressed_block_are_refused(tmp_path):
+    write_pcd(tmp_path / "c.pcd", mixed_cloud(10), data="binary_compressed")
+    (tmp_path / "c.pcd").write_bytes((tmp_path / "c.pcd").read_bytes() + b"\n")
+    with pytest.raises(PCDError, match=r"c\.pcd: binary_compressed data: the size words announce (\d+) "
+                                       r"compressed bytes, (\d+) follow them"):
+        read_pcd(tmp_path / "c.pcd")
