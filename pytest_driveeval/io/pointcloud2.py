@@ -91,17 +91,23 @@ def decode_pointcloud2(msg: Any, where: str = "PointCloud2") -> np.ndarray:
     buf = data if isinstance(data, np.ndarray) else np.frombuffer(data, dtype=np.uint8)
     buf = buf.reshape(-1).view(np.uint8)
     n = height * width
+    if n and point_step <= 0:
+        raise PointCloud2Error(f"{where}: point_step {point_step} must be positive")
+    if n and row_step < width * point_step:
+        raise PointCloud2Error(f"{where}: row_step {row_step} < width {width} x point_step {point_step} "
+                               f"= {width * point_step}: a row's points do not fit in a row")
+    # Extra bytes are refused as firmly as missing ones: they mean height, width or
+    # row_step is wrong, so the points read would not be the points sent.
+    expected = height * row_step
+    if buf.size != expected:
+        found = f"data has {buf.size} bytes, the layout needs {expected} (height {height} x row_step {row_step})"
+        if buf.size > expected and row_step and (buf.size - expected) % row_step == 0:
+            found += f": {(buf.size - expected) // row_step} row(s) more than height {height}"
+        else:
+            found += f": {abs(buf.size - expected)} bytes {'too many' if buf.size > expected else 'missing'}"
+        raise PointCloud2Error(f"{where}: {found}")
     if n == 0:
         return np.empty(0, dtype=dtype)
-    if point_step <= 0:
-        raise PointCloud2Error(f"{where}: point_step {point_step} must be positive")
-    if row_step < width * point_step:
-        raise PointCloud2Error(f"{where}: row_step {row_step} < width {width} x "
-                               f"point_step {point_step}")
-    need = (height - 1) * row_step + width * point_step
-    if buf.size < need:
-        raise PointCloud2Error(f"{where}: data has {buf.size} bytes, layout needs {need} "
-                               f"({height}x{width} points, row_step {row_step})")
     if row_step == width * point_step or height == 1:
         return buf[: n * point_step].view(dtype)
     rows = np.ndarray((height, width), dtype=dtype, buffer=buf,
