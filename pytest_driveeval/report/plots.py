@@ -6,7 +6,7 @@ from typing import Mapping
 
 
 def bar_chart(path: Path, counts: Mapping[str, float], title: str, ylabel: str = "frames") -> Path:
-    """The seed's closed-loop chart: one bar per error kind (front, side, rear, displacement)."""
+    """A bar per named count, e.g. closed loop's collision frames by kind and drift resets."""
     import matplotlib
 
     matplotlib.use("Agg")

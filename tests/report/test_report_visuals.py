@@ -37,7 +37,7 @@ def test_gif_is_subsampled_small_and_marks_collisions(tmp_path):
 
 
 def test_bar_chart_is_a_png(tmp_path):
-    path = bar_chart(tmp_path / "c.png", {"front": 2, "side": 0, "rear": 1, "displacement error": 4}, "scene 0")
+    path = bar_chart(tmp_path / "c.png", {"front": 2, "side": 0, "rear": 1, "drift resets": 4}, "scene 0")
     image = PIL.open(path)
     assert image.format == "PNG" and image.size == (480, 320)
     assert len(np.unique(np.asarray(image.convert("RGB")).reshape(-1, 3), axis=0)) > 10

@@ -81,7 +81,7 @@ class ClosedLoop(UseCase):
             findings.extend(verdict.findings)
         passed = sum(v.passed for v in verdicts)
         rate = 100.0 * passed / len(verdicts) if verdicts else 0.0
-        figures = {k: sum(v.figures[k] for v in verdicts) for k in (*KINDS, "at_fault", "displacement_error")}
+        figures = {k: sum(v.figures[k] for v in verdicts) for k in (*KINDS, "at_fault", "drift_resets")}
         figures.update(scenes=len(verdicts), scenes_passed=passed, steps=sum(v.figures["steps"] for v in verdicts))
         if verdicts:
             figures["max_displacement"] = max(v.figures["max_displacement"] for v in verdicts)
@@ -95,7 +95,7 @@ class ClosedLoop(UseCase):
                 keypath=("Evaluation", "Conditions", "ScenePassRate")))
         summary = (f"{passed}/{len(verdicts)} scenes passed; collisions front {figures['front']}, side "
                    f"{figures['side']}, rear {figures['rear']} ({figures['at_fault']} at fault); "
-                   f"{figures['displacement_error']} drift reset(s)")
+                   f"{figures['drift_resets']} drift reset(s)")
         artefacts = write_artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
                                "error": unroll.result.errors[row]} for row, v in enumerate(verdicts)]}

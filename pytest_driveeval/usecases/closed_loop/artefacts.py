@@ -1,7 +1,7 @@
 """What a ``closed_loop`` item leaves next to the summary: closed_loop.json
-(every scene's figures, collisions and findings), a bar chart of errors by
-kind, and bird's-eye GIFs of the scenes.  Plotting libraries load only when a
-chart or an animation is wanted.
+(every scene's figures, collisions and findings), a bar chart of collision
+frames by kind and drift resets, and bird's-eye GIFs of the scenes.  Plotting
+libraries load only when a chart or an animation is wanted.
 """
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ from pytest_driveeval.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
 
-__all__ = ["write_artefacts"]
+__all__ = ["chart_counts", "write_artefacts"]
 
 
 def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, verdicts: list[SceneVerdict],
                     figures: dict) -> dict[str, Path]:
-    """closed_loop.json, the chart of errors by kind and the scenes' GIFs, as the
+    """closed_loop.json, the chart of collisions and resets and the scenes' GIFs, as the
     scenario's ``Artefacts`` asks; returns them by artefact name."""
     out: dict[str, Path] = {}
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
@@ -32,8 +32,8 @@ def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, v
     if config.Artefacts.Charts:
         from pytest_driveeval.report.plots import bar_chart
 
-        counts = {k: figures[k] for k in KINDS} | {"displacement error": figures["displacement_error"]}
-        out["chart"] = bar_chart(ctx.artefact("collisions.png"), counts, f"{ctx.scenario.name}: errors by kind")
+        out["chart"] = bar_chart(ctx.artefact("collisions.png"), chart_counts(figures),
+                                 f"{ctx.scenario.name}: collisions and drift resets")
     wanted = config.Artefacts.Animations
     if wanted != "none":
         from pytest_driveeval.report.birdseye import render_unroll_gif
@@ -53,4 +53,9 @@ def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, v
                 log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
                 log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {verdict.scene}")
     return out
+
+
+def chart_counts(figures: dict) -> dict[str, int]:
+    """The chart's bars: collision frames of each kind, then frames put back on the log."""
+    return {k: figures[k] for k in KINDS} | {"drift resets": figures["drift_resets"]}
 

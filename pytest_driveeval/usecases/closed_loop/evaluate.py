@@ -112,7 +112,7 @@ def scene_figures(unroll: Unroll, row: int) -> dict[str, float | int]:
     ref = r.distance_to_reference[row][valid]
     figures: dict[str, float | int] = {f: int((kinds == KIND_CODE[f]).sum()) for f in KINDS}
     figures["at_fault"] = int((at_fault & (kinds > 0)).sum())
-    figures["displacement_error"] = int(r.reset[row][valid].sum()) if unroll.drift_threshold is not None else 0
+    figures["drift_resets"] = int(r.reset[row][valid].sum()) if unroll.drift_threshold is not None else 0
     figures["steps"] = int(valid.sum())
     figures["max_displacement"] = float(np.nanmax(disp)) if disp.size else 0.0
     figures["mean_displacement"] = float(np.nanmean(disp)) if disp.size else 0.0
@@ -149,6 +149,6 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
                                tolerated_frames=int(round(limit.Duration / unroll.step_time))))
     if conditions.MaxResets is not None:
         findings.append(violations(np.flatnonzero(r.reset[row]), conditions.MaxResets, what="reset(s) on drift",
-                                   figure="resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
+                                   figure="drift_resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
     found = [f for f in findings if f is not None]
     return SceneVerdict(scene, not found, figures, found)

@@ -8,6 +8,7 @@ import pytest
 
 import pytest_driveeval.usecases.closed_loop.assertions as cl_assertions
 from pytest_driveeval import assert_collision_free, assert_drift_within
+from pytest_driveeval.usecases.closed_loop.artefacts import chart_counts
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
 from pytest_driveeval.usecases.closed_loop.evaluate import Unroll, judge_scene
 
@@ -67,12 +68,14 @@ def test_judge_scene_counts_collisions_and_resets_against_what_is_allowed():
         "scene 7: 2 reset(s) on drift, 1 allowed; first at frame 4",
     ]
     resets = verdict.findings[-1]
-    assert (resets.figure, resets.value, resets.limit, resets.frame, resets.scene) == ("resets", 2, 1, 4, 7)
+    assert (resets.figure, resets.value, resets.limit, resets.frame, resets.scene) == ("drift_resets", 2, 1, 4, 7)
     assert resets.keypath == ("Evaluation", "Conditions", "MaxResets")
     front = verdict.findings[0]
     assert (front.figure, front.value, front.limit, front.frame) == ("front", 2, 1, 3)
     assert front.keypath == ("Evaluation", "Conditions", "Collisions", "Front")
     assert verdict.figures["front"] == 2 and verdict.figures["at_fault"] == 1
+    assert verdict.figures["drift_resets"] == 2 and "displacement_error" not in verdict.figures
+    assert chart_counts(verdict.figures) == {"front": 2, "side": 1, "rear": 0, "drift resets": 2}
 
 
 def test_judge_scene_passes_within_the_limits():

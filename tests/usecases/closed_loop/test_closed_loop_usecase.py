@@ -68,6 +68,8 @@ def test_constant_velocity_fails_naming_scene_frame_agent_with_artefacts(cl):
                                  "with agent 1 (cv.scenario.yaml:14)"])
     (record,) = summary(cl).values()
     assert record["status"] == "failed" and record["figures"]["at_fault"] >= 1
+    assert record["figures"]["drift_resets"] == 3 and "displacement_error" not in record["figures"]
+    assert "3 drift reset(s)" in record["summary"]
     out = cl.path / "driveeval-results"
     for name in ("result", "chart", "scene_0_gif"):
         assert (out / record["artefacts"][name]).stat().st_size > 1000
