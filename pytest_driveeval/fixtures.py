@@ -19,6 +19,7 @@ from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
+from .runs import start_run
 from .settings import get_settings, item_seed
 from .usecase import Case, RunContext
 
@@ -55,7 +56,9 @@ def driveeval_scenario(request: pytest.FixtureRequest) -> Scenario:
 @pytest.fixture
 def driveeval_output_dir(request: pytest.FixtureRequest) -> Path:
     """This item's own artefact folder under the output directory."""
-    path = get_settings(request.config).item_dir(request.node.nodeid)
+    settings = get_settings(request.config)
+    start_run(settings.output_dir, settings.run)
+    path = settings.item_dir(request.node.nodeid)
     path.mkdir(parents=True, exist_ok=True)
     return path
 

@@ -7,7 +7,7 @@ import pytest
 
 from .collect import ScenarioFile, is_scenario_file
 from .results import ResultsReporter, annotate_report
-from .settings import add_options, get_settings
+from .settings import add_options, check_output_dir, get_settings
 
 pytest_plugins = ["pytest_driveeval.fixtures"]
 
@@ -22,8 +22,9 @@ def pytest_configure(config: pytest.Config) -> None:
         "driveeval_scenario(path, dataset=None): bind a Python test to a scenario file, "
         "so it gets that scenario's driveeval_* fixtures",
     )
-    get_settings(config)  # fail early on a bad option value
+    settings = get_settings(config)  # fail early on a bad option value
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
+        check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
 
 

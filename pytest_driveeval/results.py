@@ -8,7 +8,6 @@ that produced it; the controller merges an item's records.
 """
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -20,11 +19,12 @@ from .errors import DriveEvalError
 from .failure import Failure
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import html_extras, html_wanted
-from .report.summary import SUMMARY_NAME, terminal_table, write_summary
-from .settings import get_settings, safe_name
+from .report.summary import SUMMARY_NAME, terminal_table
+from .runs import finish_run
+from .settings import RUN_KEY, get_settings
 
 REPORT_ATTR = "driveeval"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: run identity; artefacts under runs/<run id>/
 # Set on an item once its outcome went out with a report, so it goes out once.
 SENT_ATTR = "driveeval_outcome_sent"
 
@@ -115,9 +115,10 @@ class ResultCollector:
             counts[record.get("status", "unknown")] = counts.get(record.get("status", "unknown"), 0) + 1
         return dict(sorted(counts.items()))
 
-    def summary(self, exitstatus: int, seed: int) -> dict[str, Any]:
+    def summary(self, exitstatus: int, seed: int, run: dict[str, Any] | None = None) -> dict[str, Any]:
         return {
             "schema": SCHEMA_VERSION,
+            "run": run,
             "seed": seed,
             "exit_status": int(exitstatus),
             "counts": self.counts(),
@@ -136,17 +137,18 @@ class ResultsReporter:
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.collector.add(report)
 
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_configure_node(self, node) -> None:
+        """xdist: every worker writes into this session's run folder."""
+        node.workerinput[RUN_KEY] = self.settings.run.to_json()
+
     def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
-        # A run without scenario items leaves the last results alone; one with
-        # them replaces the summary and drops item folders it did not produce.
+        # A run without scenario items leaves the results alone: no run folder.
         if not self.collector.records:
             return
-        write_summary(self.settings.output_dir, self.collector.summary(exitstatus, self.settings.seed))
-        items = self.settings.output_dir / "items"
-        produced = {safe_name(nodeid) for nodeid in self.collector.records}
-        for folder in items.iterdir() if items.is_dir() else ():
-            if folder.name not in produced:
-                shutil.rmtree(folder, ignore_errors=True)
+        run = self.settings.run
+        finish_run(self.settings.output_dir, run,
+                   self.collector.summary(exitstatus, self.settings.seed, run.to_json()), self.settings.keep_runs)
 
     def pytest_terminal_summary(self, terminalreporter, exitstatus: int, config: pytest.Config) -> None:
         records = self.collector.sorted_records()
@@ -156,4 +158,4 @@ class ResultsReporter:
         tr.write_sep("-", f"driveeval: {len(records)} scenario item(s)")
         for line in terminal_table(records, tr._tw.fullwidth):
             tr.write_line(line)
-        tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME}")
+        tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME} (run {self.settings.run.id})")

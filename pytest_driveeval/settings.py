@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from .runs import DEFAULT_KEEP_RUNS, RunIdentity, new_identity, run_dir
+
 DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario.yaml", "scenario.yml"]
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
 
@@ -21,14 +23,31 @@ class Settings:
     seed: int
     patterns: tuple[str, ...]
     allow_scenario_code: bool = False
+    run: RunIdentity | None = None
+    keep_runs: int = DEFAULT_KEEP_RUNS
+
+    @property
+    def run_dir(self) -> Path:
+        assert self.run is not None
+        return run_dir(self.output_dir, self.run.id)
 
     def item_dir(self, nodeid: str) -> Path:
-        return self.output_dir / "items" / safe_name(nodeid)
+        return self.run_dir / "items" / safe_name(nodeid)
+
+
+# File systems cap a name at 255 bytes; a scenario deep in folders has a
+# longer node id.
+MAX_NAME = 120
 
 
 def safe_name(nodeid: str) -> str:
-    """A readable folder name for a node id (``a/b.yaml::c[d]`` -> ``a_b.yaml__c_d``)."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", nodeid).strip("_") or "item"
+    """A readable folder name for a node id (``a/b.yaml::c[d]`` -> ``a_b.yaml__c_d``);
+    a long one keeps its end (the file and item) and a hash of the whole."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", nodeid).strip("_") or "item"
+    if len(name) <= MAX_NAME:
+        return name
+    digest = hashlib.sha256(nodeid.encode()).hexdigest()[:12]
+    return f"{digest}_{name[-(MAX_NAME - len(digest) - 1):].lstrip('_.')}"
 
 
 def item_seed(base_seed: int, nodeid: str) -> int:
@@ -58,6 +77,8 @@ def add_options(parser: pytest.Parser) -> None:
     parser.addini("driveeval_seed", "base seed", default="0")
     parser.addini("driveeval_allow_scenario_code", "let scenario files name code to run (pickle:, module:factory)",
                   type="bool", default=False)
+    parser.addini("driveeval_keep_runs", "finished runs kept under the output folder's runs/ (0: all)",
+                  default=str(DEFAULT_KEEP_RUNS))
     parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
                   default=DEFAULT_PATTERNS)
 
@@ -83,6 +104,12 @@ def settings_from_config(config: pytest.Config) -> Settings:
         seed_value = int(seed or 0)
     except ValueError:
         raise pytest.UsageError(f"driveeval seed must be an integer, got {seed!r}") from None
+    keep = config.getini("driveeval_keep_runs")
+    if not str(keep).isdigit():
+        raise pytest.UsageError(f"driveeval_keep_runs must be a whole number (0: keep all), got {keep!r}")
+    # Workers take the controller's run, so one session writes one run folder.
+    shared = getattr(config, "workerinput", {}).get(RUN_KEY)
+    run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
     return Settings(
         output_dir=(base / (output or "driveeval-results")).resolve(),
         data_root=(data_base / data_root).resolve() if data_root else None,
@@ -91,7 +118,27 @@ def settings_from_config(config: pytest.Config) -> Settings:
         patterns=tuple(config.getini("driveeval_patterns") or DEFAULT_PATTERNS),
         allow_scenario_code=bool(config.getoption("driveeval_allow_scenario_code")
                                  or config.getini("driveeval_allow_scenario_code")),
+        run=run,
+        keep_runs=int(keep),
     )
+
+
+RUN_KEY = "driveeval_run"
+
+
+def check_output_dir(path: Path) -> None:
+    """Fail at the start, not after an hour of evaluation, when results cannot be written."""
+    existing = path
+    while not existing.exists():
+        if existing.is_symlink():  # a dangling link: mkdir would fail later
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        what = "is not a folder" if existing == path else f"cannot be created: {existing} is not a folder"
+        raise pytest.UsageError(f"driveeval output {path} {what} (set --driveeval-output or driveeval_output)")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise pytest.UsageError(f"driveeval output {path}: {existing} is not writable "
+                                "(set --driveeval-output or driveeval_output)")
 
 
 SETTINGS_KEY = pytest.StashKey[Settings]()

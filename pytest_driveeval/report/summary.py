@@ -7,35 +7,17 @@ new one, never half of one.
 """
 from __future__ import annotations
 
-import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
+from ..atomic import write_json_atomic, write_text_atomic
 from ..outcome import format_figure
 
 SUMMARY_NAME = "summary.json"
 MARKDOWN_NAME = "summary.md"
 STEP_SUMMARY_ENV = "GITHUB_STEP_SUMMARY"
 STATUS_MARK = {"passed": "✅", "failed": "❌", "error": "💥", "skipped": "⏭️", "xfailed": "✔️", "xpassed": "⚠️"}
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Readers see the old file or the new one, never half of one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_json_atomic(path: Path, data: Any) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
@@ -65,7 +47,10 @@ def _cell(text: Any) -> str:
 def markdown_summary(summary: dict[str, Any]) -> str:
     """The session as Markdown: counts, then one row per scenario item."""
     counts = ", ".join(f"{n} {status}" for status, n in summary["counts"].items())
-    lines = [f"## pytest-driveeval: {counts}", "",
+    run = summary.get("run") or {}
+    where = f" (run `{run['id']}`" + (f", commit `{run['commit'][:12]}`" if run.get("commit") else "") + ")" \
+        if run.get("id") else ""
+    lines = [f"## pytest-driveeval: {counts}{where}", "",
              "| verdict | scenario | use case | summary | key figures |", "|---|---|---|---|---|"]
     for r in summary["results"]:
         status = r.get("status", "?")
@@ -98,13 +83,14 @@ def policy_table(records: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def write_summary(output_dir: Path, summary: dict[str, Any]) -> None:
-    """summary.json and summary.md in ``output_dir``; the Markdown also goes to the CI step summary."""
+def write_summary(output_dir: Path, summary: dict[str, Any], step_summary: bool = True) -> None:
+    """summary.json and summary.md in ``output_dir``; the Markdown also goes to
+    the CI step summary when ``step_summary``."""
     write_json_atomic(output_dir / SUMMARY_NAME, summary)
     markdown = markdown_summary(summary)
     write_text_atomic(output_dir / MARKDOWN_NAME, markdown)
-    step_summary = os.environ.get(STEP_SUMMARY_ENV)
-    if step_summary:
+    step_file = os.environ.get(STEP_SUMMARY_ENV)
+    if step_summary and step_file:
         # CI systems show this file on the run's page; others may have written to it too.
-        with open(step_summary, "a", encoding="utf-8") as handle:
+        with open(step_file, "a", encoding="utf-8") as handle:
             handle.write(markdown)

@@ -151,33 +151,6 @@ def test_dataset_names_resolve_under_the_data_root(project, monkeypatch, how):
     project.runpytest(*args).assert_outcomes(passed=1)
 
 
-def test_output_dir_option_item_folders_and_artefacts(gain):
-    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
-    gain.runpytest("-q", "--driveeval-output", "out").assert_outcomes(passed=1)
-    (record,) = summary(gain, "out")["results"]
-    assert record["artefacts"] == {"output": "items/a.scenario.yaml_gain/output.json"}
-    assert (gain.path / "out" / record["artefacts"]["output"]).read_text() == "6.0"
-
-
-def test_stale_item_folders_are_cleared_by_the_next_run(gain):
-    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
-    stale = gain.path / "driveeval-results" / "items" / "gone_item"
-    stale.mkdir(parents=True)
-    gain.runpytest("-q").assert_outcomes(passed=1)
-    assert not stale.exists()
-
-
-def test_a_run_without_scenarios_leaves_the_last_results_alone(gain):
-    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
-    gain.runpytest("-q").assert_outcomes(passed=1)
-    before = summary(gain)
-    (gain.path / "a.scenario.yaml").unlink()
-    gain.makepyfile(test_plain="def test_x():\n    pass\n")
-    gain.runpytest("-q").assert_outcomes(passed=1)
-    assert summary(gain) == before
-    assert (gain.path / "driveeval-results" / "items" / "a.scenario.yaml_gain" / "output.json").exists()
-
-
 def test_item_seeds_are_stable_distinct_and_follow_the_seed_option(gain):
     gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
 

@@ -23,13 +23,15 @@ ROOT = REPO_ROOT / PACKAGE
 # What each part of the package may import (besides itself).  A part is a
 # subpackage (its top level) or a root module; the pytest side (plugin,
 # collect, fixtures, results, failure, assertions, __init__) may import anything.
-FOUNDATION = {"errors", "outcome", "geometry"}
+FOUNDATION = {"errors", "outcome", "geometry", "atomic"}
 ALLOWED = {
     "errors": set(),
+    "atomic": set(),
     "outcome": set(),
     "geometry": set(),
     "verdict": {"outcome"},
-    "settings": set(),
+    "settings": {"runs"},
+    "runs": {"atomic", "report"},
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
     "policies": {"errors"},

@@ -98,7 +98,7 @@ def test_markdown_summary_and_ci_step_summary(two, monkeypatch):
         "Steps: 20", "Steps: 140").replace("Rear: 0}", "Rear: 0}\n    MaxResets: 0"))
     two.runpytest("-q", "-n", "2")
     markdown = (two.path / "driveeval-results" / "summary.md").read_text()
-    assert markdown.startswith("## pytest-driveeval: 1 failed, 2 passed\n")
+    assert markdown.startswith("## pytest-driveeval: 1 failed, 2 passed (run `")
     assert "| ✅ passed | `a.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
     assert "| ❌ failed | `c.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
     assert step.read_text() == "earlier step\n" + markdown
