@@ -5,7 +5,10 @@ memory stays flat however long the bag is: a decoded point cloud is a view
 over its own serialized message and is released with it.
 
 Every failure surfaces as :class:`BagError` naming the bag path and, where it
-applies, the topic and message index.
+applies, the topic and message index.  What is opened, and the checks before
+(no metadata.yaml, ROS 1, MCAP chunks against their index), are in
+``bag_files``.  A topic that yields fewer messages than the bag lists is an
+error too, not a shorter evaluation.
 """
 from __future__ import annotations
 
@@ -16,8 +19,7 @@ from typing import Any, Iterable, Iterator, NamedTuple
 
 import numpy as np
 
-from ..errors import DataError
-
+from .bag_files import BagError, storage_files, storage_for
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2
 from .tf import TFBuffer, TransformError
 
@@ -42,10 +44,6 @@ DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 _DIAG_TOPICS = ("/diagnostics", "/diagnostics_agg")
 
 
-class BagError(DataError, ValueError):
-    """Bag missing, corrupt, or lacking the requested topic/type."""
-
-
 _TYPESTORE = None
 
 
@@ -60,6 +58,14 @@ def default_typestore():
 
 def _stamp_ns(stamp) -> int:
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _secs(ns: int | None) -> str:
+    """A stamp as seconds.nanoseconds, exact (a float would round the nanoseconds)."""
+    if ns is None:
+        return "?"
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return f"{sec}.{nsec:09d}"
 
 
 class PointCloudFrame(NamedTuple):
@@ -77,20 +83,14 @@ class Bag:
         self.path = Path(path)
         self.typestore = typestore or default_typestore()
         self._registered: set[str] = set()
+        storage = storage_for(self.path)
+        self._has_metadata = storage.is_dir()
         try:
-            self._reader = Reader(self.path)
+            self._reader = Reader(storage)
             self._reader.open()
-        except FileNotFoundError as exc:
-            raise BagError(f"{self.path}: no such bag ({exc})") from exc
         except Exception as exc:  # rosbags/apsw/yaml all raise their own types
-            raise BagError(f"{self.path}: cannot open bag ({self._files()}): "
+            raise BagError(f"{self.path}: cannot open bag ({storage_files(self.path)}): "
                            f"{type(exc).__name__}: {exc}") from exc
-
-    def _files(self) -> str:
-        if self.path.is_dir():
-            files = sorted(p.name for p in self.path.iterdir() if p.suffix in (".db3", ".mcap"))
-            return "storage files " + (", ".join(files) or "none")
-        return f"storage file {self.path.name}"
 
     # -- context management ------------------------------------------------
     def close(self) -> None:
@@ -159,21 +159,41 @@ class Bag:
     def raw_messages(self, topic: str, msgtype: str | None = None,
                      start_ns: int | None = None, stop_ns: int | None = None
                      ) -> Iterator[tuple[int, Any, int, bytes]]:
-        """(index, connection, log_time_ns, cdr bytes), streamed in log-time order."""
+        """(index, connection, log_time_ns, cdr bytes), streamed in log-time order.
+
+        Reading the whole topic, fewer messages than the bag lists is a BagError:
+        rows deleted from a .db3, or a chunk lost from a file, would otherwise
+        just make a shorter evaluation."""
         conns = self._connections(topic, msgtype)
-        index = -1
+        expected = sum(c.msgcount for c in conns)
+        index, log_ns, gap = -1, None, (-1, -1, 0, 0)  # (length, index before, log times around)
         it = self._reader.messages(conns, start=start_ns, stop=stop_ns)
         while True:
+            last_ns = log_ns
             try:
                 conn, log_ns, raw = next(it)
             except StopIteration:
+                if start_ns is None and stop_ns is None and index + 1 < expected:
+                    raise BagError(self._shortfall(topic, index + 1, expected, gap)) from None
                 return
             except Exception as exc:
-                raise BagError(f"{self.path}: topic {topic!r}: corrupt or truncated bag after "
-                               f"message #{index} ({self._files()}): "
-                               f"{type(exc).__name__}: {exc}") from exc
+                after = f"message #{index} (log time {_secs(last_ns)})" if index >= 0 else "its first message"
+                raise BagError(f"{self.path}: topic {topic!r}: corrupt or truncated bag after {after} "
+                               f"({storage_files(self.path)}): {type(exc).__name__}: {exc}") from exc
             index += 1
+            if last_ns is not None and log_ns - last_ns > gap[0]:
+                gap = (log_ns - last_ns, index - 1, last_ns, log_ns)
             yield index, conn, log_ns, raw
+
+    def _shortfall(self, topic: str, found: int, expected: int, gap: tuple) -> str:
+        source = "metadata.yaml" if self._has_metadata else "the storage file's own index"
+        text = (f"{self.path}: topic {topic!r}: {source} lists {expected} messages, but only {found} can "
+                f"be read ({storage_files(self.path)}): {expected - found} are missing (deleted, or lost with "
+                f"a damaged part of the file)")
+        if gap[1] >= 0:
+            text += (f"; the longest gap, {gap[0] / 1e9:.3f} s, is between message #{gap[1]} (log time "
+                     f"{_secs(gap[2])}) and #{gap[1] + 1} (log time {_secs(gap[3])})")
+        return text
 
     def messages(self, topic: str, msgtype: str | None = None, **window) -> Iterator[tuple[int, Any]]:
         """(log_time_ns, deserialized message) for each message of ``topic``."""
@@ -188,14 +208,31 @@ class Bag:
                            f"{conn.msgtype}: {type(exc).__name__}: {exc}") from exc
 
     def pointclouds(self, topic: str, **window) -> Iterator[PointCloudFrame]:
-        """Stream PointCloud2 frames; each ``points`` array views its own message buffer."""
+        """Stream PointCloud2 frames; each ``points`` array views its own message buffer.
+
+        A topic without a single message is a BagError: there is nothing to evaluate."""
+        count = 0
         for index, conn, _, raw in self.raw_messages(topic, POINTCLOUD2, **window):
             msg = self._deserialize(raw, conn, index)
+            stamp_ns, frame_id = _stamp_ns(msg.header.stamp), msg.header.frame_id
+            where = f"{self.path}: {topic} message #{index} (stamp {_secs(stamp_ns)}, frame {frame_id!r})"
             try:
-                points = decode_pointcloud2(msg, where=f"{self.path}: {topic} message #{index}")
+                points = decode_pointcloud2(msg, where=where)
             except PointCloud2Error as exc:
                 raise BagError(str(exc)) from exc
-            yield PointCloudFrame(_stamp_ns(msg.header.stamp), msg.header.frame_id, points)
+            count += 1
+            yield PointCloudFrame(stamp_ns, frame_id, points)
+        if not count:
+            raise BagError(self._no_messages(topic, window))
+
+    def _no_messages(self, topic: str, window: dict) -> str:
+        start, stop = window.get("start_ns"), window.get("stop_ns")
+        when = "" if start is None and stop is None else \
+            f" with log time in [{_secs(start) if start is not None else '-inf'}, " \
+            f"{_secs(stop) if stop is not None else 'inf'})"
+        counts = ", ".join(f"{c.topic} [{c.msgtype}] x{c.msgcount}"
+                           for c in sorted(self._reader.connections, key=lambda c: c.topic))
+        return f"{self.path}: topic {topic!r} has no messages{when}; the bag holds: {counts}"
 
     def read_tf(self, topics: Iterable[str] = ("/tf", "/tf_static"),
                 buffer: TFBuffer | None = None) -> TFBuffer:

@@ -1,12 +1,21 @@
 """ROS 2 bag reading/writing: PointCloud2 streaming, TF, diagnostics, error paths."""
 from __future__ import annotations
 
+import re
+import shlex
+import shutil
+import sqlite3
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from pytest_driveeval.io.pointcloud2 import (XYZI_FIELDS, XYZIRC_FIELDS, Field, PointCloud2Error,
                                             decode_pointcloud2, encode_pointcloud2, make_cloud)
-from pytest_driveeval.io.rosbag import (Bag, BagError, BagWriter, DiagnosticsLog,
+from pytest_driveeval.io.rosbag import (POINTCLOUD2, Bag, BagError, BagWriter, DiagnosticsLog,
                                        default_typestore, diagnostic_array, iter_pointclouds,
                                        read_diagnostics, read_tf, tf_message)
 
@@ -173,3 +182,148 @@ def test_encode_uses_typestore_message():
     back = default_typestore().deserialize_cdr(raw, "sensor_msgs/msg/PointCloud2")
     assert back.header.stamp.nanosec == 123 and [f.name for f in back.fields] == \
         ["x", "y", "z", "intensity", "return_type", "channel"]
+
+
+# --- issue 11: every bad bag is a BagError that says which bag, what is wrong and how to fix it ------
+def _ros1_bag(path, stamp_ns=T0):
+    """A one-cloud ROS 1 bag, as rosbag record in ROS 1 writes it."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    cloud = make_cloud(10)
+    ros2 = encode_pointcloud2(cloud, "base_link", stamp_ns)
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    msg = T["sensor_msgs/msg/PointCloud2"](
+        header=T["std_msgs/msg/Header"](seq=0, stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec),
+                                        frame_id="base_link"),
+        height=1, width=cloud.size, is_bigendian=False, point_step=ros2.point_step, row_step=ros2.row_step,
+        data=ros2.data, is_dense=True,
+        fields=[T["sensor_msgs/msg/PointField"](name=f.name, offset=f.offset, datatype=f.datatype, count=f.count)
+                for f in ros2.fields])
+    with Writer(path) as w:
+        conn = w.add_connection("/points", "sensor_msgs/msg/PointCloud2", typestore=ts)
+        w.write(conn, stamp_ns, ts.serialize_ros1(msg, "sensor_msgs/msg/PointCloud2"))
+    return cloud
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_a_folder_without_metadata_yaml_is_read_through_its_storage_file(tmp_path, storage):
+    clouds = write_demo_bag(tmp_path / "input_bag", storage)
+    (tmp_path / "input_bag/metadata.yaml").unlink()
+    frames = list(iter_pointclouds(tmp_path / "input_bag", "/points"))
+    assert [f.stamp_ns for f in frames] == [T0 + i * 100_000_000 for i in range(5)]
+    assert all(np.array_equal(f.points, c) for f, c in zip(frames, clouds))
+    assert read_tf(tmp_path / "input_bag").lookup("map", "lidar", T0)[0, 3] == 1.0
+
+
+def writable_copy(src, dst):
+    """A copy of shared (read-only) data that a test may damage."""
+    shutil.copytree(src, dst)
+    for p in [dst, *dst.rglob("*")]:
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    return dst
+
+
+def test_the_real_tf_bag_without_metadata_yaml(shared_data, tmp_path):
+    writable_copy(shared_data / "rosbag/tf_example", tmp_path / "bag")
+    (tmp_path / "bag/metadata.yaml").unlink()
+    with Bag(tmp_path / "bag") as bag:
+        assert bag.message_count("/tf") == 517 and set(bag.topics) == {"/tf", "/tf_static"}
+        assert bag.read_tf().frames == {"odom", "base_footprint", "base_link"}
+
+
+def test_a_folder_without_metadata_yaml_and_several_or_no_storage_files(tmp_path):
+    write_demo_bag(tmp_path / "bag", "sqlite3", frames=1)
+    (tmp_path / "bag/metadata.yaml").unlink()
+    shutil.copy(tmp_path / "bag/bag.db3", tmp_path / "bag/bag_1.db3")
+    with pytest.raises(BagError, match=r"bag: no metadata.yaml, and 2 storage files \(bag.db3, bag_1.db3\); a bag "
+                                       r"split over several files is read through its metadata.yaml: recreate it "
+                                       r"with `ros2 bag reindex .*bag`$"):
+        Bag(tmp_path / "bag")
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty/notes.txt").write_text("")
+    with pytest.raises(BagError, match=r"empty: not a ROS 2 bag: no metadata.yaml and no .db3 or .mcap file "
+                                       r"\(found: notes.txt\)"):
+        Bag(tmp_path / "empty")
+
+
+def test_a_ros1_bag_says_how_to_convert_it_and_the_advice_works(tmp_path):
+    cloud = _ros1_bag(tmp_path / "run.bag")
+    with pytest.raises(BagError) as exc:
+        Bag(tmp_path / "run.bag")
+    assert str(exc.value) == (f"{tmp_path}/run.bag: a ROS 1 bag, and only ROS 2 bags (.db3 or .mcap storage) can "
+                              f"be read; convert it with `rosbags-convert --src {tmp_path}/run.bag --dst "
+                              f"{tmp_path}/run` (from the rosbags package) and read that folder instead")
+    (tmp_path / "input_bag").mkdir()
+    shutil.move(tmp_path / "run.bag", tmp_path / "input_bag/run.bag")
+    with pytest.raises(BagError, match=rf"input_bag: holds a ROS 1 bag \(run.bag\), .* `rosbags-convert --src "
+                                       rf"{tmp_path}/input_bag/run.bag --dst {tmp_path}/input_bag_ros2` .* and put "
+                                       rf"that folder in place of {tmp_path}/input_bag$") as exc:
+        Bag(tmp_path / "input_bag")
+    command = shlex.split(re.search(r"`(rosbags-convert [^`]+)`", str(exc.value)).group(1))
+    convert = shutil.which("rosbags-convert") or str(Path(sys.executable).parent / "rosbags-convert")
+    subprocess.run([convert, *command[1:]], check=True, capture_output=True)
+    (frame,) = iter_pointclouds(tmp_path / "input_bag_ros2", "/points")
+    assert frame.stamp_ns == T0 and np.array_equal(frame.points, cloud)
+
+
+def test_a_pointcloud_topic_without_messages_names_it_and_lists_the_bag(tmp_path):
+    from rosbags.rosbag2 import Writer
+    with Writer(tmp_path / "bag", version=8) as w:
+        w.add_connection("/points", POINTCLOUD2, typestore=default_typestore())
+        conn = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=default_typestore())
+        w.write(conn, T0, default_typestore().serialize_cdr(
+            tf_message([("map", "base_link", T0, (0, 0, 0), (0, 0, 0, 1))]), "tf2_msgs/msg/TFMessage"))
+    with pytest.raises(BagError) as exc:
+        list(iter_pointclouds(tmp_path / "bag", "/points"))
+    assert str(exc.value) == (f"{tmp_path}/bag: topic '/points' has no messages; the bag holds: "
+                              "/points [sensor_msgs/msg/PointCloud2] x0, /tf [tf2_msgs/msg/TFMessage] x1")
+    write_demo_bag(tmp_path / "demo", "mcap", frames=2)
+    with pytest.raises(BagError, match=r"demo: topic '/points' has no messages with log time in "
+                                       r"\[1700000001.000000000, inf\); the bag holds: /diagnostics "):
+        list(iter_pointclouds(tmp_path / "demo", "/points", start_ns=T0 + 10**9))
+
+
+def test_a_cloud_longer_than_its_layout_names_bag_message_stamp_and_frame(tmp_path):
+    cloud = make_cloud(20)
+    good, bad = encode_pointcloud2(cloud, "lidar", T0), encode_pointcloud2(cloud, "lidar", T0 + 10**8)
+    bad = replace(bad, height=3, width=5, row_step=bad.point_step * 5)  # 4 rows of 5 points are there
+    with BagWriter(tmp_path / "bag", "mcap") as w:
+        w.write("/points", good)
+        w.write("/points", bad)
+    frames = iter_pointclouds(tmp_path / "bag", "/points")
+    assert next(frames).points.size == 20
+    with pytest.raises(BagError) as exc:
+        next(frames)
+    assert str(exc.value) == (f"{tmp_path}/bag: /points message #1 (stamp 1700000000.100000000, frame 'lidar'): "
+                              "data has 320 bytes, the layout needs 240 (height 3 x row_step 80): "
+                              "1 row(s) more than height 3")
+
+
+def test_messages_deleted_from_a_bag_are_missing_not_a_shorter_run(tmp_path):
+    write_demo_bag(tmp_path / "bag", "sqlite3", frames=10, n=10)
+    db = tmp_path / "bag/bag.db3"
+    with sqlite3.connect(db) as con:
+        con.execute("DELETE FROM messages WHERE topic_id = (SELECT id FROM topics WHERE name = '/points') "
+                    "AND timestamp BETWEEN ? AND ?", (T0 + 300_000_000, T0 + 600_000_000))
+    con.close()
+    with pytest.raises(BagError) as exc:
+        list(iter_pointclouds(tmp_path / "bag", "/points"))
+    assert str(exc.value) == (
+        f"{tmp_path}/bag: topic '/points': metadata.yaml lists 10 messages, but only 7 can be read (storage files "
+        "bag.db3): 3 are missing (deleted, or lost with a damaged part of the file); the longest gap, 0.400 s, is "
+        "between message #2 (log time 1700000000.205000000) and #3 (log time 1700000000.605000000)")
+
+
+def test_rows_deleted_from_the_real_tf_bag(shared_data, tmp_path):
+    writable_copy(shared_data / "rosbag/tf_example", tmp_path / "bag")
+    (db,) = (tmp_path / "bag").glob("*.db3")
+    with sqlite3.connect(db) as con:
+        (first,) = con.execute("SELECT MIN(timestamp) FROM messages").fetchone()
+        con.execute("DELETE FROM messages WHERE timestamp BETWEEN ? AND ?", (first + 10**10, first + 2 * 10**10))
+    con.close()
+    with pytest.raises(BagError, match=r"topic '/tf': metadata.yaml lists 517 messages, but only \d+ can be read "
+                                       r".*the longest gap, 10\.\d+ s, is between message #\d+ "):
+        read_tf(tmp_path / "bag")
