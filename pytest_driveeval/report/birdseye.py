@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..geometry import box_corners
 
 BACKGROUND = (250, 250, 250)
@@ -72,6 +73,7 @@ def render_unroll_gif(
         draw.text((4, 4), label, fill=COLLISION if collision[t] else TEXT)
         images.append(image.quantize(colors=16, method=Image.Quantize.MEDIANCUT))
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=frame_ms, loop=0, optimize=True)
+    with atomic_path(path) as tmp:  # a killed session leaves no truncated GIF
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0,
+                       optimize=True)
     return path

@@ -4,6 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
+from ..atomic import atomic_path
+
 
 def bar_chart(path: Path, counts: Mapping[str, float], title: str, ylabel: str = "frames") -> Path:
     """A bar per named count, e.g. closed loop's collision frames by kind and drift resets."""
@@ -22,7 +24,7 @@ def bar_chart(path: Path, counts: Mapping[str, float], title: str, ylabel: str =
     ax.bar_label(bars, fmt="%g")
     ax.set_ylim(0, max(1, max(values, default=0)) * 1.2)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     plt.close(fig)
     return path

@@ -6,6 +6,8 @@ from typing import Sequence
 
 import numpy as np
 
+from ..atomic import atomic_path
+
 COLOURS = {"Success": "tab:green", "Fail": "tab:red", "Warn": "tab:orange", "Other": "0.6"}
 MAX_POINTS = 60_000  # enough to read the scene; keeps the PNG quick to draw
 
@@ -50,8 +52,8 @@ def render_frame_png(path: str | Path, points_xy: np.ndarray, footprints: np.nda
         unique = dict(zip(names, handles))
         ax.legend(unique.values(), unique.keys(), loc="lower right", fontsize=7)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
 

@@ -5,62 +5,7 @@ import json
 
 import pytest
 
-from conftest import speed_scenario
-
-GAIN_USECASE = '''
-import importlib
-from pytest_driveeval import ConditionsModel, Outcome, UseCase, register_usecase
-from pydantic import BaseModel
-
-
-class GainConditions(BaseModel, extra="forbid"):
-    Input: float
-    MaxOutput: float
-
-
-class GainConfig(ConditionsModel):
-    Conditions: GainConditions
-
-
-@register_usecase
-class Gain(UseCase):
-    """The model is a function of one number; the scenario bounds its output."""
-    name = "gain"
-    config_model = GainConfig
-    fixtures = ("driveeval_model",)
-
-    def load_model(self, ctx, spec):
-        if spec:
-            module, attr = spec.split(":")
-            return getattr(importlib.import_module(module), attr)
-        return lambda x: 2 * x
-
-    def run(self, config, ctx):
-        out = ctx.fixtures["driveeval_model"](config.Conditions.Input)
-        path = ctx.artefact("output.json")
-        path.write_text(str(out))
-        verdict = "passed" if out <= config.Conditions.MaxOutput else "failed"
-        return Outcome(self.name, verdict, f"output {out}", figures={"output": out, "seed": ctx.seed},
-                       artefacts={"output": path})
-'''
-
-GAIN_SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: gain
-  UseCaseFormatVersion: 0.1.0
-  Conditions:
-    Input: 3.0
-    MaxOutput: 10.0
-"""
-
-
-@pytest.fixture
-def gain(pytester):
-    pytester.makepyfile(gain_usecase=GAIN_USECASE, mymodels="def triple(x):\n    return 3 * x\n")
-    pytester.makeconftest("import gain_usecase\n")
-    return pytester
+from conftest import GAIN_SCENARIO, speed_scenario
 
 
 def summary(pytester, folder="driveeval-results") -> dict:

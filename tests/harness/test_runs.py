@@ -10,7 +10,8 @@ import time
 
 import pytest
 
-from test_fixtures import GAIN_SCENARIO, gain, summary  # noqa: F401 - gain is a fixture
+from conftest import GAIN_SCENARIO
+from test_fixtures import summary
 
 SLOW_MODEL = "import os, time\n\ndef double(x):\n    time.sleep(float(os.environ['DELAY']))\n    return 2 * x\n"
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pytest_driveeval.atomic import write_text_atomic
 from pytest_driveeval.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
@@ -24,7 +25,7 @@ def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, v
     out: dict[str, Path] = {}
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
     result_path = ctx.artefact("closed_loop.json")
-    result_path.write_text(json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
+    write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
                                                    "collisions": events[v.scene],
                                                    "findings": [f.to_json() for f in v.findings]}
                                                   for v in verdicts]}, indent=1))

@@ -18,6 +18,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ...atomic import atomic_path
 from ...geometry.quaternions import matrix_to_quat, matrix_to_rpy, quat_to_matrix
 from .result import FrameVerdict, ObstacleResult
 
@@ -42,8 +43,10 @@ class JsonlWriter:
 
     def __init__(self, path: str | Path, condition: dict, first_stamp: float = 0.0):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = self.path.open("w", encoding="utf-8")
+        # Written under a temporary name and renamed when closed: a reader
+        # never takes a file still being written (or cut by a kill) for a result.
+        self._atomic = atomic_path(self.path)
+        self._file = self._atomic.__enter__().open("w", encoding="utf-8")
         self.write({"Condition": condition})
         self.write({"Result": {"Success": False, "Summary": "NoData"}, "Stamp": {"System": first_stamp}, "Frame": {}})
 
@@ -57,6 +60,7 @@ class JsonlWriter:
     def close(self) -> None:
         if not self._file.closed:
             self._file.close()
+            self._atomic.__exit__(None, None, None)
 
     def __enter__(self) -> "JsonlWriter":
         return self
