@@ -166,7 +166,7 @@ class Bag:
         just make a shorter evaluation."""
         conns = self._connections(topic, msgtype)
         expected = sum(c.msgcount for c in conns)
-        index, log_ns, gap = -1, None, (-1, -1, 0, 0)  # (length, index before, log times around)
+        index, first_ns, log_ns, gap = -1, None, None, (-1, -1, 0, 0)  # gap: length, index before, log times
         it = self._reader.messages(conns, start=start_ns, stop=stop_ns)
         while True:
             last_ns = log_ns
@@ -174,26 +174,37 @@ class Bag:
                 conn, log_ns, raw = next(it)
             except StopIteration:
                 if start_ns is None and stop_ns is None and index + 1 < expected:
-                    raise BagError(self._shortfall(topic, index + 1, expected, gap)) from None
+                    raise BagError(self._shortfall(topic, index + 1, expected, first_ns, last_ns, gap)) from None
                 return
             except Exception as exc:
                 after = f"message #{index} (log time {_secs(last_ns)})" if index >= 0 else "its first message"
                 raise BagError(f"{self.path}: topic {topic!r}: corrupt or truncated bag after {after} "
                                f"({storage_files(self.path)}): {type(exc).__name__}: {exc}") from exc
             index += 1
-            if last_ns is not None and log_ns - last_ns > gap[0]:
+            if last_ns is None:
+                first_ns = log_ns
+            elif log_ns - last_ns > gap[0]:
                 gap = (log_ns - last_ns, index - 1, last_ns, log_ns)
             yield index, conn, log_ns, raw
 
-    def _shortfall(self, topic: str, found: int, expected: int, gap: tuple) -> str:
+    def _shortfall(self, topic: str, found: int, expected: int, first_ns, last_ns, gap: tuple) -> str:
         source = "metadata.yaml" if self._has_metadata else "the storage file's own index"
         text = (f"{self.path}: topic {topic!r}: {source} lists {expected} messages, but only {found} can "
                 f"be read ({storage_files(self.path)}): {expected - found} are missing (deleted, or lost with "
                 f"a damaged part of the file)")
-        if gap[1] >= 0:
-            text += (f"; the longest gap, {gap[0] / 1e9:.3f} s, is between message #{gap[1]} (log time "
-                     f"{_secs(gap[2])}) and #{gap[1] + 1} (log time {_secs(gap[3])})")
-        return text
+        if not found:
+            return text
+        # Where they went missing: the longest stretch without a message, the bag's ends included.
+        begin, end = self.start_time_ns, self.end_time_ns - 1
+        head, tail = first_ns - begin, end - last_ns
+        if tail >= max(head, gap[0]):
+            return text + (f"; the messages stop at #{found - 1} (log time {_secs(last_ns)}), "
+                           f"{tail / 1e9:.3f} s before the bag ends (log time {_secs(end)})")
+        if head >= gap[0]:
+            return text + (f"; the messages start at log time {_secs(first_ns)}, {head / 1e9:.3f} s after the "
+                           f"bag begins (log time {_secs(begin)})")
+        return text + (f"; the longest gap, {gap[0] / 1e9:.3f} s, is between message #{gap[1]} (log time "
+                       f"{_secs(gap[2])}) and #{gap[1] + 1} (log time {_secs(gap[3])})")
 
     def messages(self, topic: str, msgtype: str | None = None, **window) -> Iterator[tuple[int, Any]]:
         """(log_time_ns, deserialized message) for each message of ``topic``."""

@@ -327,3 +327,15 @@ def test_rows_deleted_from_the_real_tf_bag(shared_data, tmp_path):
     with pytest.raises(BagError, match=r"topic '/tf': metadata.yaml lists 517 messages, but only \d+ can be read "
                                        r".*the longest gap, 10\.\d+ s, is between message #\d+ "):
         read_tf(tmp_path / "bag")
+
+
+def test_messages_deleted_at_the_end_say_where_they_stop(tmp_path):
+    write_demo_bag(tmp_path / "bag", "sqlite3", frames=10, n=10)
+    with sqlite3.connect(tmp_path / "bag/bag.db3") as con:
+        con.execute("DELETE FROM messages WHERE topic_id = (SELECT id FROM topics WHERE name = '/points') "
+                    "AND timestamp > ?", (T0 + 650_000_000,))
+    con.close()
+    with pytest.raises(BagError, match=r"only 7 can be read .*: 3 are missing .*; the messages stop at #6 \(log time "
+                                       r"1700000000.605000000\), 0.300 s before the bag ends \(log time "
+                                       r"1700000000.905000000\)$"):
+        list(iter_pointclouds(tmp_path / "bag", "/points"))
