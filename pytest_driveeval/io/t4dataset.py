@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import DataError
 from ..geometry.quaternions import matrix_to_quat_wxyz, quat_wxyz_to_matrix, yaw_from_quat_wxyz
 
-from .pcd import read_pcd_bin
+from .pcd import PCDError, read_pcd_bin
 
 __all__ = ["T4DatasetError", "T4Dataset", "GroundTruth"]
 
@@ -31,7 +31,10 @@ REQUIRED_TABLES = ("sample", "sample_data", "sample_annotation", "instance", "ca
 
 
 class T4DatasetError(DataError, ValueError):
-    """Missing/invalid table or a token that points nowhere."""
+    """Missing/invalid table, a token that points nowhere, or a missing sweep file.
+
+    The message starts with the dataset folder: a session often reads several
+    datasets, whose annotation/*.json files all have the same names."""
 
 
 @dataclass(frozen=True)
@@ -76,27 +79,31 @@ class T4Dataset:
         self.root = Path(root)
         self.annotation_dir = self.root / "annotation"
         if not self.annotation_dir.is_dir():
-            raise T4DatasetError(f"{self.root}: no annotation/ folder (not a t4_dataset)")
+            raise self.error("no annotation/ folder (not a t4_dataset)")
         missing = [t for t in REQUIRED_TABLES if not (self.annotation_dir / f"{t}.json").is_file()]
         if missing:
-            raise T4DatasetError(f"{self.annotation_dir}: missing table(s) "
-                                 f"{', '.join(t + '.json' for t in missing)}")
+            raise self.error(f"annotation/ lacks table(s) {', '.join(t + '.json' for t in missing)}")
         self.lidar_channel = lidar_channel
         self._tables: dict[str, list[dict]] = {}
         self._index: dict[str, dict[str, dict]] = {}
+
+    def error(self, message: str, table: str | None = None) -> T4DatasetError:
+        """An error located in this dataset (and in one of its tables)."""
+        where = f"t4_dataset {self.root}" + (f": annotation/{table}.json" if table else "")
+        return T4DatasetError(f"{where}: {message}")
 
     # -- tables ------------------------------------------------------------
     def table(self, name: str) -> list[dict]:
         if name not in self._tables:
             path = self.annotation_dir / f"{name}.json"
             if not path.is_file():
-                raise T4DatasetError(f"{path}: table {name!r} missing")
+                raise self.error("table missing", name)
             try:
                 rows = json.loads(path.read_text(encoding="utf-8"))
             except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise T4DatasetError(f"{path}: invalid JSON: {exc}") from exc
+                raise self.error(f"invalid JSON: {exc}", name) from exc
             if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
-                raise T4DatasetError(f"{path}: expected a JSON list of records")
+                raise self.error("expected a JSON list of records", name)
             self._tables[name] = rows
         return self._tables[name]
 
@@ -107,44 +114,42 @@ class T4Dataset:
             try:
                 self._index[name] = {r["token"]: r for r in rows}
             except KeyError:
-                raise T4DatasetError(f"{self.annotation_dir / (name + '.json')}: record without "
-                                     f"'token'") from None
+                raise self.error("record without 'token'", name) from None
         rec = self._index[name].get(token)
         if rec is None:
             via = f" (referenced by {referrer})" if referrer else ""
-            raise T4DatasetError(f"{self.annotation_dir / (name + '.json')}: no record with token "
-                                 f"{token!r}{via}")
+            raise self.error(f"no record with token {token!r}{via}", name)
         return rec
 
-    @staticmethod
-    def _field(rec: dict, key: str, table: str):
+    def _field(self, rec: dict, key: str, table: str):
         try:
             return rec[key]
         except KeyError:
-            raise T4DatasetError(f"{table}.json record {rec.get('token')!r} lacks {key!r}") from None
+            raise self.error(f"record {rec.get('token')!r} lacks {key!r}", table) from None
 
-    @classmethod
-    def _vectors(cls, anns: list[dict], key: str, n: int) -> np.ndarray:
+    def _vectors(self, anns: list[dict], key: str, n: int) -> np.ndarray:
         """(len(anns), n) float64 of each annotation's ``key``; one of another length, or
         not finite, is an error naming its annotation."""
         out = np.empty((len(anns), n))
         for row, ann in zip(out, anns):
-            value = cls._field(ann, key, "sample_annotation")
+            value = self._field(ann, key, "sample_annotation")
             try:
                 row[:] = np.asarray(value, dtype=np.float64)
                 ok = bool(np.isfinite(row).all())
             except (TypeError, ValueError):
                 ok = False
             if not ok:
-                raise T4DatasetError(f"sample_annotation.json record {ann.get('token')!r}: {key} should be "
-                                     f"{n} finite numbers, found {value!r}")
+                raise self.error(f"record {ann.get('token')!r}: {key} should be {n} finite numbers, "
+                                 f"found {value!r}", "sample_annotation")
         return out
 
     # -- paths -------------------------------------------------------------
     @property
     def input_bag(self) -> Path | None:
+        """The input_bag/ folder if there is one, readable or not: one that cannot be read is
+        an error when it is opened, never a silent fall-back to other data."""
         bag = self.root / "input_bag"
-        return bag if (bag / "metadata.yaml").is_file() else None
+        return bag if bag.is_dir() else None
 
     @property
     def lanelet2_map(self) -> Path | None:
@@ -193,16 +198,31 @@ class T4Dataset:
     def lidar_sample_data(self, sample_token: str) -> dict:
         sd = self._lidar_by_sample.get(sample_token)
         if sd is None:
-            raise T4DatasetError(f"{self.annotation_dir / 'sample_data.json'}: no key-frame lidar "
-                                 f"sample_data for sample {sample_token!r}")
+            raise self.error(f"no key-frame lidar sample_data for sample {sample_token!r}", "sample_data")
         return sd
 
     def lidar_path(self, sample_token: str) -> Path:
-        return self.root / self.lidar_sample_data(sample_token)["filename"]
+        return self.root / self._field(self.lidar_sample_data(sample_token), "filename", "sample_data")
 
     def read_lidar(self, sample_token: str) -> np.ndarray:
         """The sample's lidar sweep (.pcd.bin, x y z intensity ring float32), sensor frame."""
-        return read_pcd_bin(self.lidar_path(sample_token))
+        sd = self.lidar_sample_data(sample_token)
+        path = self.lidar_path(sample_token)
+        which = f"sample {sample_token!r} (sample_data {sd['token']!r}, timestamp {sd.get('timestamp')} us)"
+        if not path.is_file():
+            raise self.error(f"{which}: lidar sweep {sd['filename']} does not exist")
+        try:
+            return read_pcd_bin(path)
+        except PCDError as exc:  # it names the file by its full path; the dataset is named already
+            raise self.error(f"{which}: {str(exc).replace(str(path), sd['filename'], 1)}") from exc
+
+    def lidar_to_base_link(self, sample_token: str) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation 3x3, translation 3) of the sample's lidar in base_link, from its calibrated_sensor."""
+        sd = self.lidar_sample_data(sample_token)
+        cs = self.get("calibrated_sensor", self._field(sd, "calibrated_sensor_token", "sample_data"),
+                      f"sample_data {sd['token']}")
+        rot = quat_wxyz_to_matrix(self._field(cs, "rotation", "calibrated_sensor"))
+        return rot, np.asarray(self._field(cs, "translation", "calibrated_sensor"), dtype=np.float64)
 
     def ego_pose(self, sample_token: str) -> np.ndarray:
         sd = self.lidar_sample_data(sample_token)

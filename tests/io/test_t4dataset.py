@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -67,7 +68,7 @@ def test_to_base_link(t4):
 
 def test_missing_table_names_file(t4_copy):
     (t4_copy / "annotation/ego_pose.json").unlink()
-    with pytest.raises(T4DatasetError, match="annotation: missing table.*ego_pose.json"):
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {t4_copy}: annotation/ lacks table\(s\) ego_pose.json$"):
         T4Dataset(t4_copy)
 
 
@@ -76,8 +77,8 @@ def test_dangling_token_names_table(t4_copy):
     rows = json.loads(p.read_text())
     rows[0]["visibility_token"] = "bogus"
     p.write_text(json.dumps(rows))
-    with pytest.raises(T4DatasetError, match=r"visibility.json: no record with token 'bogus' "
-                                             r"\(referenced by sample_annotation ef63"):
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {t4_copy}: annotation/visibility.json: no record with "
+                                             r"token 'bogus' \(referenced by sample_annotation ef63"):
         T4Dataset(t4_copy).ground_truth_at(TS)
 
 
@@ -88,7 +89,8 @@ def test_a_malformed_box_names_its_annotation(t4_copy, key, value):
     rows = json.loads(p.read_text())
     rows[0][key] = value
     p.write_text(json.dumps(rows))  # json writes NaN, as Python's own writers do
-    with pytest.raises(T4DatasetError, match=rf"record 'ef63.*': {key} should be \d finite numbers, found"):
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {t4_copy}: annotation/sample_annotation.json: "
+                                             rf"record 'ef63.*': {key} should be \d finite numbers, found"):
         T4Dataset(t4_copy).ground_truth_at(TS)
 
 
@@ -99,13 +101,13 @@ def test_bad_json_and_category_via_instance(t4_copy):
     p.write_text(json.dumps(rows))
     assert T4Dataset(t4_copy).ground_truth_at(TS).category_names.tolist() == ["human.pedestrian.adult"]
     (t4_copy / "annotation/scene.json").write_text("{not json")
-    with pytest.raises(T4DatasetError, match="scene.json: invalid JSON"):
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {t4_copy}: annotation/scene.json: invalid JSON"):
         T4Dataset(t4_copy).table("scene")
 
 
 def test_optional_paths(t4_copy):
     (t4_copy / "input_bag").mkdir()
-    (t4_copy / "input_bag/metadata.yaml").write_text("x: 1\n")
+    (t4_copy / "input_bag/input_bag.mcap").write_bytes(b"")  # no metadata.yaml: still the input bag
     (t4_copy / "map").mkdir()
     (t4_copy / "map/lanelet2_map.osm").write_text("<osm/>")
     ds = T4Dataset(t4_copy)
@@ -117,3 +119,37 @@ def test_empty_sample(t4_copy):
     gt = T4Dataset(t4_copy).ground_truth_at(TS)
     assert len(gt) == 0 and gt.centers.shape == (0, 3) and gt.to_base_link().rotations.shape == (0, 4)
     assert gt.yaws.shape == (0,)
+
+
+def test_a_missing_sweep_names_dataset_sample_and_file(t4_copy):
+    ds = T4Dataset(t4_copy)
+    (token,) = ds.sample_tokens
+    sd = ds.lidar_sample_data(token)
+    (t4_copy / sd["filename"]).unlink()
+    with pytest.raises(T4DatasetError) as exc:
+        ds.read_lidar(token)
+    assert str(exc.value) == (f"t4_dataset {t4_copy}: sample {token!r} (sample_data {sd['token']!r}, timestamp {TS} "
+                              f"us): lidar sweep {sd['filename']} does not exist")
+
+
+def test_a_truncated_sweep_names_dataset_and_sample(t4_copy):
+    ds = T4Dataset(t4_copy)
+    (token,) = ds.sample_tokens
+    path = t4_copy / ds.lidar_sample_data(token)["filename"]
+    path.write_bytes(path.read_bytes()[:-3])
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {t4_copy}: sample '{token}' \(.*\): "
+                                             rf"{re.escape(str(path.relative_to(t4_copy)))}: size 693757 bytes is "
+                                             r"not a multiple of 5 float32 fields"):
+        ds.read_lidar(token)
+
+
+def test_a_generated_dataset_without_a_sweep(tmp_path):
+    t4gen = pytest.importorskip("pytest_driveeval.synth.t4gen")
+    m = t4gen.generate_t4_dataset(tmp_path / "gen", num_frames=2, seed=1)
+    (m.root / "data/LIDAR_TOP/00001.pcd.bin").unlink()
+    ds = T4Dataset(m.root)
+    assert ds.read_lidar(ds.sample_tokens[0]).size > 0
+    with pytest.raises(T4DatasetError, match=rf"^t4_dataset {m.root}: sample '{ds.sample_tokens[1]}' \(sample_data "
+                                             r"'\w+', timestamp \d+ us\): lidar sweep data/LIDAR_TOP/00001.pcd.bin "
+                                             r"does not exist$"):
+        ds.read_lidar(ds.sample_tokens[1])

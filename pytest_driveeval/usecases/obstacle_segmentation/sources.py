@@ -11,7 +11,6 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from ...errors import DataError
-from ...geometry.quaternions import quat_wxyz_to_matrix
 from ...io.t4dataset import T4Dataset
 from ...metrics.pointcloud import xyz_columns
 
@@ -22,7 +21,7 @@ def bag_pointclouds(dataset: T4Dataset | str | os.PathLike, topic: str) -> Itera
 
     ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
     if ds.input_bag is None:
-        raise DataError(f"{ds.root}: no input_bag/ (with metadata.yaml) to read {topic} from")
+        raise DataError(f"t4_dataset {ds.root}: no input_bag/ folder to read {topic} from")
     with Bag(ds.input_bag) as bag:
         yield from bag.pointclouds(topic)
 
@@ -31,17 +30,14 @@ def sweep_pointclouds(dataset: T4Dataset | str | os.PathLike) -> Iterator[tuple]
     """Key-frame lidar sweeps (data/LIDAR_*/*.pcd.bin) moved to base_link by their calibration."""
     ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
     for token in ds.sample_tokens:
-        sd = ds.lidar_sample_data(token)
-        cs = ds.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
-        raw = ds.read_lidar(token)
-        rot, trans = quat_wxyz_to_matrix(cs["rotation"]), np.asarray(cs["translation"], dtype=np.float64)
-        x, y, z = xyz_columns(raw)
+        rot, trans = ds.lidar_to_base_link(token)
+        x, y, z = xyz_columns(ds.read_lidar(token))
         xyz = np.stack([x, y, z], axis=1).astype(np.float64) @ rot.T + trans
-        yield int(sd["timestamp"]) * 1000, "base_link", xyz
+        yield int(ds.lidar_sample_data(token)["timestamp"]) * 1000, "base_link", xyz
 
 
 def dataset_pointclouds(dataset: T4Dataset, topic: str) -> Iterator[tuple]:
-    """The bag's topic when the dataset has an input_bag, else its lidar sweeps."""
+    """The bag's topic when the dataset has an input_bag/ folder, else its lidar sweeps."""
     return bag_pointclouds(dataset, topic) if dataset.input_bag is not None else sweep_pointclouds(dataset)
 
 
