@@ -23,6 +23,17 @@ def is_scenario_file(path: Path, patterns: Iterable[str]) -> bool:
     return any(fnmatch.fnmatch(path.name, pattern) for pattern in patterns)
 
 
+def broken_scenario_links(folder: Path, patterns: Iterable[str]) -> list[Path]:
+    """Scenario-named symlinks that lead nowhere (dangling or a loop): pytest
+    walks past them as neither file nor folder, so a scenario would vanish
+    from the run without a word."""
+    try:
+        entries = sorted(folder.iterdir())
+    except OSError:
+        return []
+    return [p for p in entries if p.is_symlink() and is_scenario_file(p, patterns) and not p.exists()]
+
+
 def _marks(scenario: Scenario) -> list[pytest.MarkDecorator]:
     marks = [getattr(pytest.mark, name) for name in scenario.marks]
     if scenario.skip:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from .collect import ScenarioFile, is_scenario_file
+from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 
@@ -32,6 +32,16 @@ def pytest_collect_file(file_path: Path, parent: pytest.Collector):
     if is_scenario_file(file_path, get_settings(parent.config).patterns):
         return ScenarioFile.from_parent(parent, path=file_path)
     return None
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector):
+    report = yield
+    if isinstance(collector, pytest.Directory) and report.passed:
+        patterns = get_settings(collector.config).patterns
+        report.result.extend(ScenarioFile.from_parent(collector, path=link)
+                             for link in broken_scenario_links(collector.path, patterns))
+    return report
 
 
 @pytest.hookimpl(wrapper=True)

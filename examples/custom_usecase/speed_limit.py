@@ -6,16 +6,40 @@ the ``pytest_driveeval.usecases`` entry-point group.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from pydantic import BaseModel, PositiveFloat
 
 from pytest_driveeval import ConditionsModel, DataError, Outcome, UseCase, register_usecase
+from pytest_driveeval.errors import excerpt
 from pytest_driveeval.verdict import within
 
 
 class Limits(BaseModel, extra="forbid"):
     MaxSpeed: PositiveFloat  # m/s
     MaxAcceleration: PositiveFloat | None = None  # m/s^2
+
+
+def read_trajectory(path: Path) -> np.ndarray:
+    """Rows of t,x,y under a header line.  Errors quote only a short excerpt of
+    the file: a mistyped path may point at anything."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read a CSV of t,x,y: {getattr(exc, 'strerror', None) or exc.reason}") from None
+    rows = []
+    for number, line in enumerate(lines[1:], start=2):
+        try:
+            row = [float(v) for v in line.split(",")]
+        except ValueError:
+            row = []
+        if len(row) != 3:
+            raise DataError(f"{path}:{number}: not a CSV of t,x,y: expected 3 numbers, found {excerpt(line)}")
+        rows.append(row)
+    if len(rows) < 3:
+        raise DataError(f"{path}: expected >= 3 rows of t,x,y, found {len(rows)}")
+    return np.array(rows)
 
 
 class SpeedLimitConfig(ConditionsModel):
@@ -31,13 +55,7 @@ class SpeedLimit(UseCase):
 
     def load_dataset(self, ctx):
         path = super().load_dataset(ctx)  # resolves the path, names it if missing
-        try:
-            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-        except ValueError as exc:
-            raise DataError(f"{path}: not a CSV of t,x,y: {exc}") from None
-        if table.shape[1] != 3 or len(table) < 3:
-            raise DataError(f"{path}: expected >= 3 rows of t,x,y, found shape {table.shape}")
-        return table
+        return read_trajectory(path)
 
     def run(self, config: SpeedLimitConfig, ctx) -> Outcome:
         t, xy = ctx.fixtures["driveeval_dataset"][:, 0], ctx.fixtures["driveeval_dataset"][:, 1:]

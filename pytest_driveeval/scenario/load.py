@@ -87,8 +87,13 @@ def _dataset_refs(head: EvaluationHead, path: Path, source: SourceMap, data_root
             resolved = data_root / name
         else:
             resolved = path.parent / name
-        refs.append(DatasetRef(str(name), resolved.resolve(), options.model_dump(by_alias=True),
-                               source.line_of(keypath)))
+        try:
+            resolved = resolved.resolve()
+        except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13)
+            problems.append(Problem(f"dataset '{name}': cannot resolve {resolved}: {exc}",
+                                    source.line_of(keypath), keypath))
+            continue
+        refs.append(DatasetRef(str(name), resolved, options.model_dump(by_alias=True), source.line_of(keypath)))
     if problems:
         raise ScenarioError(path, problems)
     return refs
@@ -121,7 +126,13 @@ def _version_problems(data: dict, usecase: UseCase | None, source: SourceMap) ->
 
 def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None = None) -> Scenario:
     """Load and validate a scenario file; raise ScenarioError with every located problem."""
-    path = Path(path).resolve()
+    given = Path(path)
+    try:
+        path = given.resolve()
+    except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13)
+        raise ScenarioError(given, [Problem(f"cannot open the file: {exc}")]) from None
+    if given.is_symlink() and not path.exists():
+        raise ScenarioError(given, [Problem(f"a symbolic link to {path}, which does not exist")])
     data, source = load_yaml_with_lines(path)
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"

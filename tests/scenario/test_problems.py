@@ -116,8 +116,26 @@ def test_corrupt_dataset_names_the_file(project):
     project.makefile(".scenario.yaml", bad=speed_scenario("b", datasets=("garbage.csv",)))
     result = project.runpytest("-q")
     result.assert_outcomes(errors=1)
-    result.stdout.fnmatch_lines(["*DataError: *garbage.csv: not a CSV of t,x,y*"])
+    result.stdout.fnmatch_lines(["*DataError: *garbage.csv:2: not a CSV of t,x,y: expected 3 numbers, found '1,2'"])
     assert "Traceback" not in result.stdout.str()
+
+
+@pytest.mark.parametrize("content", [
+    "root:x:0:0:root:/root:/bin/bash\ndaemon:x:1:1:daemon:/usr/sbin:/usr/sbin/nologin TOP-SECRET-TAIL\n",
+    "header\n\x1b[2J\x00\x07" + "binary" * 20 + "TOP-SECRET-TAIL\n",
+])
+def test_a_file_that_fails_to_parse_is_quoted_only_in_a_short_printable_excerpt(project, content):
+    secret = project.path / "elsewhere" / "passwd"
+    secret.parent.mkdir()
+    secret.write_text(content)
+    text = speed_scenario("p", datasets=("secret",)).replace("    - secret: {}", "    - secret: {Path: elsewhere/passwd}")
+    project.makefile(".scenario.yaml", good=GOOD, leak=text)
+    result = project.runpytest("-q")
+    result.assert_outcomes(passed=1, errors=1)
+    result.stdout.fnmatch_lines(["*DataError: *passwd:*: not a CSV of t,x,y: expected 3 numbers, found '*...'"])
+    summary = (project.path / "driveeval-results" / "summary.json").read_text()
+    for shown in (result.stdout.str(), summary):
+        assert "TOP-SECRET-TAIL" not in shown and "\x1b" not in shown and "nologin" not in shown
 
 
 def test_bug_in_a_use_case_still_shows_its_traceback(project):
@@ -132,3 +150,31 @@ def test_bug_in_a_use_case_still_shows_its_traceback(project):
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines(["*ZeroDivisionError: bug in my loader*"])
     assert "def driveeval_dataset" in result.stdout.str()
+
+
+def test_a_scenario_symlink_that_leads_nowhere_is_a_located_failure(project):
+    project.makefile(".scenario.yaml", good=GOOD)
+    (project.path / "loop.scenario.yaml").symlink_to("loop.scenario.yaml")
+    (project.path / "gone.scenario.yaml").symlink_to("deleted.yaml")
+    result = project.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=2)
+    result.stdout.fnmatch_lines_random([
+        "*gone.scenario.yaml: a symbolic link to *deleted.yaml, which does not exist",
+        "*loop.scenario.yaml: cannot open the file: *loop*",
+    ])
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_a_dataset_path_that_is_a_symlink_loop_or_a_folder_fails_alone(project):
+    (project.path / "a").symlink_to("b")
+    (project.path / "b").symlink_to("a")
+    (project.path / "folder.csv").mkdir()
+    loop = speed_scenario("l", datasets=("looped",)).replace("    - looped: {}", "    - looped: {Path: a}")
+    project.makefile(".scenario.yaml", good=GOOD, loop=loop, folder=speed_scenario("f", datasets=("folder.csv",)))
+    result = project.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1, errors=1)
+    result.stdout.fnmatch_lines_random([
+        "*loop.scenario.yaml:8: Evaluation.Datasets[[]0[]]: dataset 'looped': cannot resolve *a: *loop*",
+        "*DataError: *folder.csv: cannot read a CSV of t,x,y: Is a directory",
+    ])
+    assert "Traceback" not in result.stdout.str()
