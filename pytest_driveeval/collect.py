@@ -14,8 +14,8 @@ import pytest
 
 from .errors import ScenarioError
 from .failure import ScenarioFailed
-from .scenario import Scenario, load_scenario
-from .settings import get_settings
+from .scenario import NotAScenario, Scenario, load_scenario
+from .settings import DECLARED_SUFFIXES, get_settings
 from .usecase import Case
 
 
@@ -91,8 +91,11 @@ class ScenarioFile(pytest.File):
     def collect(self):
         settings = get_settings(self.config)
         try:
-            scenario = load_scenario(self.path, data_root=settings.data_root)
+            scenario = load_scenario(self.path, data_root=settings.data_root,
+                                     envelope_optional=not self.path.name.endswith(DECLARED_SUFFIXES))
             cases = scenario.cases()
+        except NotAScenario:
+            return
         except ScenarioError as error:
             yield InvalidScenarioItem.from_parent(self, name="scenario", error=error)
             return

@@ -11,7 +11,12 @@ import pytest
 
 from .runs import DEFAULT_KEEP_RUNS, RunIdentity, new_identity, run_dir
 
-DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario.yaml", "scenario.yml"]
+# ``*.scenario.yaml`` declares a scenario by its name; the others are
+# driving_log_replayer's names (scenario.yaml, scenario.ja.yaml,
+# scenario_detection_only.yaml, ...), collected only when the file has the
+# scenario envelope.
+DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario*.yaml", "scenario*.yml"]
+DECLARED_SUFFIXES = (".scenario.yaml", ".scenario.yml")
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
 
 

@@ -5,6 +5,6 @@ key's line), checks the envelope (``envelope``) and the use case's own part,
 and turns every pydantic error into a located problem (``problems``).
 """
 from .envelope import XFailSpec
-from .load import DatasetRef, Scenario, load_scenario
+from .load import DatasetRef, NotAScenario, Scenario, load_scenario
 
-__all__ = ["DatasetRef", "Scenario", "XFailSpec", "load_scenario"]
+__all__ = ["DatasetRef", "NotAScenario", "Scenario", "XFailSpec", "load_scenario"]

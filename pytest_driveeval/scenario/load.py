@@ -124,8 +124,18 @@ def _version_problems(data: dict, usecase: UseCase | None, source: SourceMap) ->
     return problems
 
 
-def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None = None) -> Scenario:
-    """Load and validate a scenario file; raise ScenarioError with every located problem."""
+class NotAScenario(Exception):
+    """A YAML file without the scenario envelope, where one was optional."""
+
+
+ENVELOPE_KEYS = ("ScenarioFormatVersion", "Evaluation")
+
+
+def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None = None,
+                  envelope_optional: bool = False) -> Scenario:
+    """Load and validate a scenario file; raise ScenarioError with every located
+    problem.  With ``envelope_optional``, a YAML mapping that has none of the
+    envelope's keys raises NotAScenario instead: some other tool's file."""
     given = Path(path)
     try:
         path = given.resolve()
@@ -134,6 +144,8 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
     if given.is_symlink() and not path.exists():
         raise ScenarioError(given, [Problem(f"a symbolic link to {path}, which does not exist")])
     data, source = load_yaml_with_lines(path)
+    if envelope_optional and not (isinstance(data, dict) and any(key in data for key in ENVELOPE_KEYS)):
+        raise NotAScenario(path)
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"
         raise ScenarioError(path, [Problem(f"expected a mapping at the top level; found {found}", 1)])

@@ -1,6 +1,8 @@
 """Scenario files become items: patterns, ids, order, marks."""
 from __future__ import annotations
 
+import shutil
+
 from conftest import speed_scenario
 
 
@@ -23,6 +25,30 @@ def test_every_default_file_pattern_is_collected(project):
         "other/scenario.yml::speed_limit[../slow.csv]",
         "sub/scenario.yaml::speed_limit[../slow.csv]",
     ]
+
+
+DLR_NAMES = ("scenario.yaml", "scenario.ja.yaml", "scenario_detection_only.yaml", "scenario_non_detection_only.yaml")
+
+
+def test_driving_log_replayer_names_are_collected_and_other_yaml_so_named_is_skipped(project):
+    for name in DLR_NAMES:
+        (project.path / "dlr").mkdir(exist_ok=True)
+        (project.path / "dlr" / name).write_text(speed_scenario(name.split(".")[0], datasets=("../slow.csv",)))
+    (project.path / "dlr" / "scenario_settings.yaml").write_text("colour: blue\nsizes: [1, 2]\n")
+    (project.path / "dlr" / "scenario_list.yaml").write_text("- a\n- b\n")
+    # Named as a scenario, it is one: an envelope-less file is an error, not skipped.
+    project.makefile(".scenario.yaml", declared="colour: blue\n")
+    result = project.runpytest("--collect-only", "-q")
+    assert collected_ids(result) == ["declared.scenario.yaml::scenario"] + sorted(
+        f"dlr/{name}::speed_limit[../slow.csv]" for name in DLR_NAMES)
+
+
+def test_the_real_driving_log_replayer_samples_are_collected_without_options(project, shared_data):
+    for path in sorted((shared_data / "driving_log_replayer" / "obstacle_segmentation").glob("scenario*.yaml")):
+        shutil.copy(path, project.path / path.name)
+    shutil.copy(project.path / "scenario.yaml", project.path / "scenario.ja.yaml")
+    result = project.runpytest("--collect-only", "-q")
+    assert collected_ids(result) == sorted(f"{name}::obstacle_segmentation[sample_dataset]" for name in DLR_NAMES)
 
 
 def test_ini_option_changes_the_patterns(project):
