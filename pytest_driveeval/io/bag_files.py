@@ -14,7 +14,7 @@ from pathlib import Path
 from ..errors import DataError
 from .mcap_index import chunk_problem
 
-__all__ = ["BagError", "STORAGE_SUFFIXES", "storage_files", "storage_for"]
+__all__ = ["STORAGE_SUFFIXES", "BagError", "storage_files", "storage_for"]
 
 STORAGE_SUFFIXES = (".db3", ".mcap")
 ROS1_MAGIC = b"#ROSBAG V2.0"

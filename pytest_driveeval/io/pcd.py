@@ -24,8 +24,8 @@ __all__ = [
     "PCDError",
     "PCDHeader",
     "read_pcd",
-    "read_pcd_header",
     "read_pcd_bin",
+    "read_pcd_header",
     "write_pcd",
     "xyz",
 ]

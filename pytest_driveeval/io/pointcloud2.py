@@ -7,21 +7,22 @@ point_step``), in which case the padding has to be squeezed out.
 """
 from __future__ import annotations
 
-from typing import Any, Iterable, NamedTuple
+from collections.abc import Iterable
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..errors import DataError
 
 __all__ = [
-    "PointCloud2Error",
-    "Field",
     "DATATYPES",
     "XYZIRC_FIELDS",
     "XYZI_FIELDS",
-    "fields_dtype",
+    "Field",
+    "PointCloud2Error",
     "decode_pointcloud2",
     "encode_pointcloud2",
+    "fields_dtype",
     "make_cloud",
 ]
 

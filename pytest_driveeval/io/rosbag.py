@@ -13,9 +13,10 @@ error too, not a shorter evaluation.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -23,19 +24,22 @@ from .bag_files import BagError, storage_files, storage_for
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2
 from .tf import TFBuffer, TransformError
 
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing.Self needs Python 3.11
+
 __all__ = [
-    "BagError",
     "Bag",
-    "PointCloudFrame",
+    "BagError",
+    "BagWriter",
     "DiagnosticRecord",
     "DiagnosticsLog",
-    "BagWriter",
-    "iter_pointclouds",
-    "read_tf",
-    "read_diagnostics",
+    "PointCloudFrame",
     "default_typestore",
-    "tf_message",
     "diagnostic_array",
+    "iter_pointclouds",
+    "read_diagnostics",
+    "read_tf",
+    "tf_message",
 ]
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
@@ -97,7 +101,7 @@ class Bag:
         if self._reader.is_open:
             self._reader.close()
 
-    def __enter__(self) -> "Bag":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -261,7 +265,7 @@ class Bag:
                     raise BagError(f"{self.path}: topic {topic!r} at log time {log_ns}: {exc}") from exc
         return buffer
 
-    def read_diagnostics(self, topic: str | None = None) -> "DiagnosticsLog":
+    def read_diagnostics(self, topic: str | None = None) -> DiagnosticsLog:
         """All DiagnosticStatus entries of /diagnostics (or /diagnostics_agg, or ``topic``)."""
         if topic is None:
             topic = next((t for t in _DIAG_TOPICS if t in self.topics), _DIAG_TOPICS[0])
@@ -305,7 +309,7 @@ class DiagnosticsLog:
     def from_lists(cls, stamps, names, levels, messages, hardware_ids=None, values=None):
         n = len(stamps)
         order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
-        obj = lambda xs: np.asarray(xs, dtype=object).reshape(n)[order]  # noqa: E731
+        obj = lambda xs: np.asarray(xs, dtype=object).reshape(n)[order]
         return cls(np.asarray(stamps, dtype=np.int64)[order], obj(names),
                    np.asarray(levels, dtype=np.int16).reshape(n)[order], obj(messages),
                    obj(hardware_ids if hardware_ids is not None else [""] * n),
@@ -321,7 +325,7 @@ class DiagnosticsLog:
     def status_names(self) -> list[str]:
         return sorted(set(self.names.tolist()))
 
-    def select(self, name: str) -> "DiagnosticsLog":
+    def select(self, name: str) -> DiagnosticsLog:
         m = self.names == name
         return DiagnosticsLog(self.stamps_ns[m], self.names[m], self.levels[m], self.messages[m],
                               self.hardware_ids[m], [v for v, k in zip(self.values, m) if k])
@@ -404,7 +408,7 @@ class BagWriter:
     def close(self) -> None:
         self._writer.close()
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

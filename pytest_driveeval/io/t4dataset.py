@@ -20,11 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DataError
-from ..geometry.quaternions import matrix_to_quat_wxyz, quat_wxyz_to_matrix, yaw_from_quat_wxyz
-
+from ..geometry.quaternions import (
+    matrix_to_quat_wxyz,
+    quat_wxyz_to_matrix,
+    yaw_from_quat_wxyz,
+)
 from .pcd import PCDError, read_pcd_bin
 
-__all__ = ["T4DatasetError", "T4Dataset", "GroundTruth"]
+__all__ = ["GroundTruth", "T4Dataset", "T4DatasetError"]
 
 REQUIRED_TABLES = ("sample", "sample_data", "sample_annotation", "instance", "category",
                    "visibility", "ego_pose", "calibrated_sensor", "sensor", "scene", "log")
@@ -62,7 +65,7 @@ class GroundTruth:
     def yaws(self) -> np.ndarray:
         return yaw_from_quat_wxyz(self.rotations) if len(self) else np.zeros(0)
 
-    def to_base_link(self) -> "GroundTruth":
+    def to_base_link(self) -> GroundTruth:
         if self.frame_id == "base_link":
             return self
         inv_r = self.ego_pose[:3, :3].T
@@ -259,7 +262,7 @@ class T4Dataset:
             tok = ann.get("visibility_token", "")
             vis.append(self.get("visibility", tok, f"{where} {ann['token']}").get("level", tok)
                        if tok else "")
-        strs = lambda xs: np.array(xs, dtype=object)  # noqa: E731
+        strs = lambda xs: np.array(xs, dtype=object)
         return GroundTruth(
             sample_token=sample_token,
             timestamp_us=int(sample["timestamp"]),

@@ -3,10 +3,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from pytest_driveeval.io.pcd import (PCDError, lzf_compress, lzf_decompress, read_pcd,
-                                     read_pcd_bin, read_pcd_header, write_pcd, xyz)
+from pytest_driveeval.io.pcd import (
+    PCDError,
+    lzf_compress,
+    lzf_decompress,
+    read_pcd,
+    read_pcd_bin,
+    read_pcd_header,
+    write_pcd,
+    xyz,
+)
 
 VLP16 = "pointclouds/vlp16_sample.pcd"
 T4_BIN = "t4_sample/data/LIDAR_TOP/n015-2018-07-24-11-22-45+0800__LIDAR_TOP__1532402927647951.pcd.bin"
@@ -69,8 +78,8 @@ def test_subarray_and_mixed_types_roundtrip(tmp_path, kind):
 def test_padding_fields_skipped(tmp_path):
     body = np.zeros(2, np.dtype([("x", "<f4"), ("pad", "<f4"), ("y", "<f4")]))
     body["x"], body["y"] = [1, 2], [3, 4]
-    head = ("VERSION 0.7\nFIELDS x _ y\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
-            "WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n").encode()
+    head = (b"VERSION 0.7\nFIELDS x _ y\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+            b"WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n")
     (tmp_path / "p.pcd").write_bytes(head + body.tobytes())
     c = read_pcd(tmp_path / "p.pcd")
     assert c.dtype.names == ("x", "y") and c["y"].tolist() == [3, 4]

@@ -13,11 +13,28 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.pointcloud2 import (XYZI_FIELDS, XYZIRC_FIELDS, Field, PointCloud2Error,
-                                            decode_pointcloud2, encode_pointcloud2, make_cloud)
-from pytest_driveeval.io.rosbag import (POINTCLOUD2, Bag, BagError, BagWriter, DiagnosticsLog,
-                                       default_typestore, diagnostic_array, iter_pointclouds,
-                                       read_diagnostics, read_tf, tf_message)
+from pytest_driveeval.io.pointcloud2 import (
+    XYZI_FIELDS,
+    XYZIRC_FIELDS,
+    Field,
+    PointCloud2Error,
+    decode_pointcloud2,
+    encode_pointcloud2,
+    make_cloud,
+)
+from pytest_driveeval.io.rosbag import (
+    POINTCLOUD2,
+    Bag,
+    BagError,
+    BagWriter,
+    DiagnosticsLog,
+    default_typestore,
+    diagnostic_array,
+    iter_pointclouds,
+    read_diagnostics,
+    read_tf,
+    tf_message,
+)
 
 T0 = 1_700_000_000_000_000_000
 STORAGES = ["sqlite3", "mcap"]
@@ -97,14 +114,14 @@ def test_unknown_message_type(tmp_path):
     with Writer(tmp_path / "bag", version=8) as w:
         conn = w.add_connection("/custom", "my_msgs/msg/Unknown", msgdef="", rihs01="RIHS01_" + "0" * 64)
         w.write(conn, T0, b"\x00\x01\x00\x00")
-    with Bag(tmp_path / "bag") as bag:
-        with pytest.raises(BagError, match=r"'/custom': unknown message type 'my_msgs/msg/Unknown'"):
-            list(bag.messages("/custom"))
+    with Bag(tmp_path / "bag") as bag, \
+            pytest.raises(BagError, match=r"'/custom': unknown message type 'my_msgs/msg/Unknown'"):
+        list(bag.messages("/custom"))
 
 
 def test_custom_type_registered_from_bag_definition(tmp_path):
     from rosbags.rosbag2 import Writer
-    from rosbags.typesys import get_typestore, Stores, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     ts = get_typestore(Stores.ROS2_HUMBLE)
     ts.register(get_types_from_msg("int32 a\nstring b", "my_msgs/msg/Thing"))
     msg = ts.types["my_msgs/msg/Thing"](a=7, b="x")

@@ -35,8 +35,16 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import (BaseModel, ConfigDict, Field, NonNegativeInt, PositiveFloat, ValidationInfo, field_validator,
-                      model_validator)
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    NonNegativeInt,
+    PositiveFloat,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
 from ...usecase import ConditionsModel

@@ -14,8 +14,9 @@ after each judged frame with ``(frame, points, result)`` (``artefacts.py``).
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -127,7 +128,7 @@ class ObstacleEvaluation:
 
     @classmethod
     def load(cls, dataset, config, *, tf: Any = "auto", diagnostics: Any = "auto",
-             lanelets: Any = "auto") -> "ObstacleEvaluation":
+             lanelets: Any = "auto") -> ObstacleEvaluation:
         """``tf`` / ``diagnostics`` / ``lanelets`` default to the dataset's bag and map."""
         ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
         cfg = _config(config)

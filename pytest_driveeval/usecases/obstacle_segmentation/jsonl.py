@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,7 +23,10 @@ from ...atomic import atomic_path
 from ...geometry.quaternions import matrix_to_quat, matrix_to_rpy, quat_to_matrix
 from .result import FrameVerdict, ObstacleResult
 
-__all__ = ["JsonlWriter", "read_jsonl", "key_structure"]
+if TYPE_CHECKING:
+    from typing_extensions import Self  # typing.Self needs Python 3.11
+
+__all__ = ["JsonlWriter", "key_structure", "read_jsonl"]
 
 
 def _clean(value: Any) -> Any:
@@ -62,7 +66,7 @@ class JsonlWriter:
             self._file.close()
             self._atomic.__exit__(None, None, None)
 
-    def __enter__(self) -> "JsonlWriter":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -169,7 +173,7 @@ def frame_record(frame: FrameVerdict, result: ObstacleResult) -> dict:
         if len(counts.area_points):
             dist = np.linalg.norm(counts.area_points, axis=1)
             bins = np.bincount(np.floor(dist[dist < 100]).astype(np.int64), minlength=100)
-            info = {"PointCloud": {"NumPoints": int(len(dist)),
+            info = {"PointCloud": {"NumPoints": len(dist),
                                    "Distance": {f"{i}-{i + 1}": int(bins[i]) for i in range(100)}}}
         record["NonDetection"] = {"Result": {"Total": nd_ok, "Frame": frame.non_detection}, "Info": info}
     if frame.error is not None:

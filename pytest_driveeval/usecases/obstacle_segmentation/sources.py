@@ -5,8 +5,8 @@ A source yields one cloud at a time, so a long bag never sits in memory whole.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Callable, Iterable, Iterator
 
 import numpy as np
 

@@ -82,25 +82,23 @@ def sample_token(root, index):
 
 DAMAGE = {  # name: (storage, damage(root), the line the user reads)
     "bare_mcap": ("mcap", lambda root: (root / "input_bag/metadata.yaml").unlink(), None),
-    "ros1": ("sqlite3", lambda root: ros1_only(root / "input_bag"),
-             "*input_bag: holds a ROS 1 bag (recording.bag), and only ROS 2 bags (.db3 or .mcap storage) can be "
-             "read; convert it with `rosbags-convert --src *input_bag/recording.bag --dst *input_bag_ros2`*"),
+    "ros1": ("sqlite3", lambda root: ros1_only(root / "input_bag"), (
+        "*input_bag: holds a ROS 1 bag (recording.bag), and only ROS 2 bags (.db3 or .mcap storage) can be read; "
+        "convert it with `rosbags-convert --src *input_bag/recording.bag --dst *input_bag_ros2`*")),
     "empty_topic": ("sqlite3", lambda root: (delete_points(root / "input_bag/input_bag.db3"),
                                              (root / "input_bag/metadata.yaml").unlink()),
                     f"*input_bag: topic '{TOPIC}' has no messages; the bag holds: /diagnostics_agg *"),
-    "deleted_rows": ("sqlite3", lambda root: delete_points(root / "input_bag/input_bag.db3",
-                                                           "timestamp BETWEEN 1700000000200000000 AND "
-                                                           "1700000000400000000"),
-                     f"*input_bag: topic '{TOPIC}': metadata.yaml lists 8 messages, but only 5 can be read "
-                     "(storage files input_bag.db3): 3 are missing (deleted, or lost with a damaged part of the "
-                     "file); the longest gap, 0.400 s, is between message #1 (log time 1700000000.100000000) and "
-                     "#2 (log time 1700000000.500000000)"),
-    "lost_chunk": ("mcap", lambda root: cut_last_chunk(root / "input_bag/input_bag.mcap"),
-                   "*input_bag: input_bag.mcap: chunk 2 of 2 (log time * s, /* x4, *) is missing: the file is * "
-                   "bytes shorter than its index says; `mcap recover`*"),
-    "no_sweep": ("sqlite3", no_sweep,
-                 "*t4_dataset *no_sweep: sample '{token}' (sample_data '*', timestamp * us): lidar sweep "
-                 "data/LIDAR_TOP/00003.pcd.bin does not exist*"),
+    "deleted_rows": ("sqlite3", lambda root: delete_points(root / "input_bag/input_bag.db3", (
+        "timestamp BETWEEN 1700000000200000000 AND 1700000000400000000")), (
+        f"*input_bag: topic '{TOPIC}': metadata.yaml lists 8 messages, but only 5 can be read (storage files "
+        "input_bag.db3): 3 are missing (deleted, or lost with a damaged part of the file); the longest gap, 0.400 s, "
+        "is between message #1 (log time 1700000000.100000000) and #2 (log time 1700000000.500000000)")),
+    "lost_chunk": ("mcap", lambda root: cut_last_chunk(root / "input_bag/input_bag.mcap"), (
+        "*input_bag: input_bag.mcap: chunk 2 of 2 (log time * s, /* x4, *) is missing: the file is * bytes shorter "
+        "than its index says; `mcap recover`*")),
+    "no_sweep": ("sqlite3", no_sweep, (
+        "*t4_dataset *no_sweep: sample '{token}' (sample_data '*', timestamp * us): lidar sweep "
+        "data/LIDAR_TOP/00003.pcd.bin does not exist*")),
 }
 
 

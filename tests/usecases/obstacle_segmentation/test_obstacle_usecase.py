@@ -7,7 +7,11 @@ import shutil
 
 import pytest
 
-from pytest_driveeval.usecases.obstacle_segmentation.jsonl import key_structure, merge_structures, read_jsonl
+from pytest_driveeval.usecases.obstacle_segmentation.jsonl import (
+    key_structure,
+    merge_structures,
+    read_jsonl,
+)
 
 t4gen = pytest.importorskip("pytest_driveeval.synth.t4gen")
 
@@ -94,13 +98,13 @@ def test_bad_inputs_are_located_and_the_rest_runs(pytester, shared_data, dataset
     result = pytester.runpytest("-q")
     result.assert_outcomes(passed=1, failed=4)
     result.stdout.fnmatch_lines([
-        "*ccw.scenario.yaml:18: Evaluation.Conditions.NonDetection.ProposedArea.polygon_2d: the polygon is "
-        "counter-clockwise*list the same vertices in reverse order*",
-        "*uuid.scenario.yaml:17: Evaluation.Conditions.Detection.BoundingBoxConfig[[]0[]]."
-        "00000000000000000000000000000bad: UUID '00000000000000000000000000000bad' is not an instance*",
+        ("*ccw.scenario.yaml:18: Evaluation.Conditions.NonDetection.ProposedArea.polygon_2d: the polygon is "
+         "counter-clockwise*list the same vertices in reverse order*"),
+        ("*uuid.scenario.yaml:17: Evaluation.Conditions.Detection.BoundingBoxConfig[[]0[]]."
+         "00000000000000000000000000000bad: UUID '00000000000000000000000000000bad' is not an instance*"),
     ])
     result.stdout.fnmatch_lines(["*topic '/no/such/topic' not in bag; available:*"])
-    assert re.search(r"truncated.*(cannot open bag|corrupt or truncated)", result.stdout.str(), re.S)
+    assert re.search(r"truncated.*(cannot open bag|corrupt or truncated)", result.stdout.str(), re.DOTALL)
 
 
 def test_pointcloud_filter_fixture_and_parallel_runs_agree(pytester, shared_data, datasets):
