@@ -72,6 +72,15 @@ def _secs(ns: int | None) -> str:
     return f"{sec}.{nsec:09d}"
 
 
+def _sqlite_hint(exc: Exception) -> str:
+    # SQLite cannot say which pages a cut or overwritten .db3 lost; its own tool salvages the rest.
+    if "malformed" in str(exc) or "not a database" in str(exc):
+        return ("; the .db3 file is damaged (bytes missing or overwritten): `sqlite3 <file>.db3 .recover | "
+                "sqlite3 <recovered>.db3` salvages the rows that are left, and with the bag's metadata.yaml "
+                "beside it the missing messages are then counted")
+    return ""
+
+
 class PointCloudFrame(NamedTuple):
     stamp_ns: int       # header.stamp, not the bag's receive time
     frame_id: str
@@ -94,7 +103,7 @@ class Bag:
             self._reader.open()
         except Exception as exc:  # rosbags/apsw/yaml all raise their own types
             raise BagError(f"{self.path}: cannot open bag ({storage_files(self.path)}): "
-                           f"{type(exc).__name__}: {exc}") from exc
+                           f"{type(exc).__name__}: {exc}{_sqlite_hint(exc)}") from exc
 
     # -- context management ------------------------------------------------
     def close(self) -> None:
@@ -183,7 +192,8 @@ class Bag:
             except Exception as exc:
                 after = f"message #{index} (log time {_secs(last_ns)})" if index >= 0 else "its first message"
                 raise BagError(f"{self.path}: topic {topic!r}: corrupt or truncated bag after {after} "
-                               f"({storage_files(self.path)}): {type(exc).__name__}: {exc}") from exc
+                               f"({storage_files(self.path)}): {type(exc).__name__}: {exc}{_sqlite_hint(exc)}"
+                               ) from exc
             index += 1
             if last_ns is None:
                 first_ns = log_ns

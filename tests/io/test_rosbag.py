@@ -105,8 +105,11 @@ def test_truncated_bag_names_file(tmp_path, storage, suffix):
     (f,) = (tmp_path / "bag").glob("*" + suffix)
     raw = f.read_bytes()
     f.write_bytes(raw[: len(raw) // 2])
-    with pytest.raises(BagError, match=rf"bag.*{suffix}"):
+    with pytest.raises(BagError, match=rf"bag.*{suffix}") as exc:
         list(iter_pointclouds(tmp_path / "bag", "/points"))
+    if storage == "sqlite3":
+        assert "malformed; the .db3 file is damaged (bytes missing or overwritten): `sqlite3 <file>.db3 .recover" \
+            in str(exc.value)
 
 
 def test_unknown_message_type(tmp_path):
