@@ -20,7 +20,11 @@ __all__ = ["chunk_problem"]
 MAGIC = b"\x89MCAP0\r\n"
 FOOTER_SIZE = 37  # op, length, summary_start, summary_offset_start, crc, magic
 OP_FOOTER, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END = 0x02, 0x04, 0x06, 0x08, 0x0F
-MAX_OP = 0x10
+MAX_OP, PRIVATE_OPS = 0x10, 0x80  # 0x80.. are other tools' own records: valid, skipped
+
+
+def _known(op: int) -> bool:
+    return 0 < op <= MAX_OP or op >= PRIVATE_OPS
 RECOVER = "`mcap recover` (the mcap CLI) salvages the readable messages into a new file"
 
 
@@ -64,7 +68,7 @@ def _parse_summary(f: BinaryIO, start: int, end: int) -> tuple[list[ChunkEntry],
     try:
         while pos < end:
             op, length = _record_at(f, pos) or (0, 0)
-            if not 0 < op <= MAX_OP or pos + 9 + length > end:
+            if not _known(op) or pos + 9 + length > end:
                 return None
             if op in (OP_CHUNK_INDEX, OP_CHANNEL):
                 body = _read_at(f, pos + 9, length)
@@ -92,7 +96,7 @@ def _scan(f: BinaryIO, start: int, end: int) -> tuple[set, int | None, int | Non
     seen, pos, last = set(), start, None
     while pos < end:
         rec = _record_at(f, pos)
-        if rec is None or not 0 < rec[0] <= MAX_OP or pos + 9 + rec[1] > end:
+        if rec is None or not _known(rec[0]) or pos + 9 + rec[1] > end:
             return seen, None, pos, last
         op, length = rec
         if op == OP_DATA_END:
@@ -120,8 +124,10 @@ def _misplaced(f: BinaryIO, chunk: ChunkEntry) -> str | None:
     if op != OP_CHUNK:
         return f"that byte holds {'zeros' if not any(head) else f'a record of type 0x{op:02x}'}, not a chunk"
     start_ns, end_ns, usize = struct.unpack_from("<QQQ", head, 9)
-    if (start_ns, end_ns, usize) != chunk.key() or length != chunk.length - 9:
+    if (start_ns, end_ns, usize) != chunk.key():
         return f"the chunk found there covers log time {_secs(start_ns)} .. {_secs(end_ns)} s"
+    if length != chunk.length - 9:
+        return f"the chunk there is {length + 9} bytes long, the index says {chunk.length}"
     return None
 
 
