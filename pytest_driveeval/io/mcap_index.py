@@ -21,11 +21,12 @@ MAGIC = b"\x89MCAP0\r\n"
 FOOTER_SIZE = 37  # op, length, summary_start, summary_offset_start, crc, magic
 OP_FOOTER, OP_CHANNEL, OP_CHUNK, OP_CHUNK_INDEX, OP_DATA_END = 0x02, 0x04, 0x06, 0x08, 0x0F
 MAX_OP, PRIVATE_OPS = 0x10, 0x80  # 0x80.. are other tools' own records: valid, skipped
+RECOVER = "`mcap recover` (the mcap CLI) salvages the readable messages into a new file"
 
 
 def _known(op: int) -> bool:
     return 0 < op <= MAX_OP or op >= PRIVATE_OPS
-RECOVER = "`mcap recover` (the mcap CLI) salvages the readable messages into a new file"
+
 
 
 @dataclass(frozen=True)
