@@ -62,6 +62,25 @@ def distance_to_reference(
     return _distance_to_reference_full(p, ref, reference_available, waypoints_only)
 
 
+def distance_to_reference_l5kit(driven: np.ndarray, logged: np.ndarray, unrolled: np.ndarray,
+                                scene_fraction: float = 0.8) -> np.ndarray:
+    """l5kit's ``DistanceToRefTrajectoryMetric`` per frame: (..., T, 2), (..., T, 2),
+    (..., T) bool -> (..., T).
+
+    ``unrolled`` marks the simulated frames (one run per row, as l5kit
+    simulates them).  Of those n frames, the first ``int(n * scene_fraction)``
+    get the distance from the driven centroid to the nearest logged centroid
+    of the unrolled frames (waypoints, not the path between them); the rest,
+    which l5kit does not measure, and the frames outside are NaN.  The
+    fraction cuts the *driven* frames, not the reference.
+    """
+    measured = np.asarray(unrolled, dtype=bool)
+    n = measured.sum(axis=-1, keepdims=True)
+    measured = measured & (np.cumsum(measured, axis=-1) <= np.floor(n * scene_fraction))
+    dist = distance_to_reference(driven, logged, unrolled, waypoints_only=True)
+    return np.where(measured, dist, np.nan)
+
+
 # Segments per chunk of the reference polyline, and waypoints each side of the
 # frame index for the first bound (see distance_to_reference).
 _CHUNK = 16

@@ -19,23 +19,34 @@ class ConstantVelocityPolicy(nn.Module):
     """Keep the last step's displacement and heading: a straight line at constant speed.
 
     The step is ``history_positions[:, 0] - history_positions[:, 1]`` (one
-    frame back); at a scene's first frame, with no past, it is ``speed``
-    along the heading.  It never
-    brakes, so it runs red lights and into whatever stops ahead: the
-    baseline every real policy must beat.
+    frame back).  Where there is no past (a scene's first frame) it is, with
+    ``first_step="heading"``, ``speed`` along the heading, or with
+    ``"logged_next"`` the step to the logged next position
+    (``target_positions[:, 0]``), which is where a constant-velocity model
+    in l5kit's closed loop starts: its ``speed`` input comes from that
+    position.  It never brakes, so it runs red lights and into whatever
+    stops ahead: the baseline every real policy must beat.
     """
 
-    def __init__(self, future_frames: int = 12, step_time: float = 0.1):
+    FIRST_STEPS = ("heading", "logged_next")
+
+    def __init__(self, future_frames: int = 12, step_time: float = 0.1, first_step: str = "heading"):
         super().__init__()
+        if first_step not in self.FIRST_STEPS:
+            raise ValueError(f"first_step must be one of {', '.join(self.FIRST_STEPS)}, not {first_step!r}")
         self.future_frames = future_frames
         self.step_time = step_time
+        self.first_from_log = first_step == "logged_next"
 
     def forward(self, data: Dict[str, Tensor]) -> Dict[str, Tensor]:
         pos = data["history_positions"]
         avail = data["history_availabilities"]
         has_past = avail[:, 1:2] > 0
-        ahead = torch.zeros_like(pos[:, 0])
-        ahead[:, 0] = data["speed"] * self.step_time
+        if self.first_from_log:
+            ahead = data["target_positions"][:, 0]
+        else:
+            ahead = torch.zeros_like(pos[:, 0])
+            ahead[:, 0] = data["speed"] * self.step_time
         step = torch.where(has_past, pos[:, 0] - pos[:, 1], ahead)
         k = torch.arange(1, self.future_frames + 1, dtype=pos.dtype, device=pos.device)
         positions = pos[:, 0:1] + k[None, :, None] * step[:, None, :]

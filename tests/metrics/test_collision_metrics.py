@@ -17,6 +17,7 @@ from pytest_driveeval.metrics.collisions import (
 from pytest_driveeval.metrics.drift import (
     displacement_error,
     distance_to_reference,
+    distance_to_reference_l5kit,
     driven_distance,
     speed_difference,
     speed_from_positions,
@@ -177,6 +178,21 @@ def test_distance_to_reference_uses_segments():
     # Dropping the corner waypoint removes both its segments.
     avail = np.array([True, False, True])
     np.testing.assert_allclose(distance_to_reference(driven[:1], ref, avail), [np.hypot(5, 2)], atol=1e-9)
+
+
+def test_distance_to_reference_l5kit_measures_the_first_80_percent_against_waypoints():
+    logged = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0], [30.0, 0.0], [40.0, 0.0], [99.0, 99.0]])
+    driven = logged + [0.0, 3.0]
+    driven[1] = [5.0, 1.0]  # between two waypoints: 5.1 m from the nearest, 1 m from the path
+    unrolled = np.array([True] * 5 + [False])  # frame 5 is not unrolled: not a waypoint either
+    got = distance_to_reference_l5kit(driven, logged, unrolled)
+    np.testing.assert_allclose(got[:4], [3.0, np.hypot(5, 1), 3.0, 3.0])
+    assert np.isnan(got[4:]).all()  # int(5 * 0.8) = 4 frames measured
+    both = distance_to_reference_l5kit(np.stack([driven, driven]), logged, np.stack([unrolled, unrolled[::-1]]),
+                                       scene_fraction=0.5)
+    np.testing.assert_allclose(both[0], [3.0, np.hypot(5, 1)] + [np.nan] * 4)
+    # Second row: frames 1..5 unrolled, 2 of them measured, against waypoints 1..5 only.
+    np.testing.assert_allclose(both[1], [np.nan, np.hypot(5, 1), 3.0] + [np.nan] * 3)
 
 
 def test_distance_to_reference_matches_brute_force_batched():

@@ -131,16 +131,23 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
     return log
 
 
-def _frame_rows(scene: L5Scene, track_ids: np.ndarray) -> np.ndarray:
-    """(T, A) position of each track's row among its frame's agent rows (A:
-    ``track_ids``, sorted): the order l5kit looks at a frame's agents in, which
-    the columns, sorted by track id, do not keep."""
+def rows_by_frame(scene: L5Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every agent row of the scene's frames, frame by frame in stored order:
+    (row index into ``scene.agents``, its frame, its position in that frame)."""
     intervals = scene.frames["agent_index_interval"].astype(np.int64)
     counts = intervals[:, 1] - intervals[:, 0]
     frame = np.repeat(np.arange(counts.size), counts)
     rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    track = np.searchsorted(track_ids, scene.agents["track_id"][intervals[frame, 0] + rank])
-    out = np.full((counts.size, track_ids.size), -1, np.int32)
+    return intervals[frame, 0] + rank, frame, rank
+
+
+def _frame_rows(scene: L5Scene, track_ids: np.ndarray) -> np.ndarray:
+    """(T, A) position of each track's row among its frame's agent rows (A:
+    ``track_ids``, sorted): the order l5kit looks at a frame's agents in, which
+    the columns, sorted by track id, do not keep."""
+    rows, frame, rank = rows_by_frame(scene)
+    track = np.searchsorted(track_ids, scene.agents["track_id"][rows])
+    out = np.full((scene.num_frames, track_ids.size), -1, np.int32)
     out[frame, track] = rank
     return out
 

@@ -26,10 +26,20 @@ if TYPE_CHECKING:
 BASELINES = ("constant_velocity", "log_replay")
 
 
-def baseline(name: str):
+def baseline(name: str, config: ClosedLoopConfig | None = None):
     from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
 
-    return {"constant_velocity": ConstantVelocityPolicy, "log_replay": ReplayLogPolicy}[name]().eval()
+    if name == "constant_velocity":
+        spec = config.ConstantVelocity if config is not None else None
+        return ConstantVelocityPolicy(first_step=spec.FirstStep if spec else "heading").eval()
+    return {"log_replay": ReplayLogPolicy}[name]().eval()
+
+
+def replayed_agents(spec):
+    """The engine's ReplayedAgents from the YAML's ``Unroll.Agents``."""
+    from pytest_driveeval.sim.logreplay import ReplayedAgents
+
+    return ReplayedAgents(labels=spec.Labels, label_threshold=spec.LabelThreshold, within_at_start=spec.WithinAtStart)
 
 
 @register_usecase
@@ -54,7 +64,7 @@ class ClosedLoop(UseCase):
                              "or a driveeval_model fixture)")
         ctx.notes["policy"] = Path(spec).name if spec not in BASELINES and ":" not in spec else spec
         if spec in BASELINES:
-            return baseline(spec)
+            return baseline(spec, ctx.scenario.config)
         if not from_option and not ctx.allow_code and runs_code(spec):
             where = f"{display_path(ctx.scenario.path)}:{ctx.scenario.line_of('Evaluation', 'Model')}"
             refuse_code_from_data(spec, where)
@@ -75,7 +85,7 @@ class ClosedLoop(UseCase):
                                steps=spec.Steps, drift_threshold=spec.DriftThreshold,
                                freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
                                history_frames=spec.HistoryFrames, future_frames=spec.FutureFrames,
-                               max_agents=spec.MaxAgents) if ids else None
+                               max_agents=spec.MaxAgents, agents=replayed_agents(spec.Agents)) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         for verdict in verdicts:
             findings.extend(verdict.findings)

@@ -6,6 +6,7 @@
       Datasets:
         - real_scene: {Path: ../fixtures/l5kit/single_scene.zarr}
       Model: ../fixtures/models/planning_mlp.pt   # or constant_velocity / log_replay
+      ConstantVelocity: {FirstStep: logged_next}  # only with Model: constant_velocity
       Unroll:
         Scenes: [0]            # or SceneStride: 10 (every 10th, as the seed does); default all
         StartFrame: 10
@@ -13,10 +14,11 @@
         DriftThreshold: 10.0   # reset the ego to the log when it drifts further (seed rule)
         FreezeOnCollision: true
         Kinematic: false
+        Agents: {Labels: [CAR], LabelThreshold: 0.5, WithinAtStart: 50.0}   # default: every agent replays
       Conditions:
         Collisions: {Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}
         Displacement: {Max: 4.0, Duration: 0.5}   # metres; seconds above tolerated
-        DistanceToReference: {Max: 2.0}
+        DistanceToReference: {Max: 2.0, Measure: polyline}   # or l5kit
         MaxResets: 0
         ScenePassRate: 100.0   # % of unrolled scenes that must pass
       Artefacts: {Animations: all}   # all | failing | none
@@ -25,13 +27,41 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveInt, model_validator
+from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
+                      ValidationInfo, field_validator, model_validator)
 
 from pytest_driveeval.usecase import ConditionsModel
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+class AgentsSpec(_Strict):
+    """Which logged agents replay (and can be hit); see sim.logreplay.selection.
+
+    l5kit's ``disable_new_agents`` set-up is ``{Labels: [CAR], WithinAtStart: 50.0}``
+    (its notebook's ``distance_th_close``; the threshold is its 0.5).
+    """
+
+    Labels: list[str] | None = Field(None, min_length=1)
+    LabelThreshold: float = Field(0.5, ge=0.0, lt=1.0)
+    WithinAtStart: PositiveFloat | None = None
+
+    @field_validator("Labels")
+    @classmethod
+    def _known_labels(cls, labels):
+        from pytest_driveeval.io.l5kit_zarr import label_index
+
+        for name in labels or ():
+            label_index(name)  # ValueError listing the known labels
+        return labels
+
+    @model_validator(mode="after")
+    def _threshold_needs_labels(self):
+        if "LabelThreshold" in self.model_fields_set and self.Labels is None:
+            raise ValueError("LabelThreshold applies to Labels; give Labels too")
+        return self
 
 
 class UnrollSpec(_Strict):
@@ -45,6 +75,7 @@ class UnrollSpec(_Strict):
     HistoryFrames: PositiveInt = 10
     FutureFrames: PositiveInt = 12
     MaxAgents: PositiveInt = 30
+    Agents: AgentsSpec = Field(default_factory=AgentsSpec)
 
     @model_validator(mode="after")
     def _one_selection(self):
@@ -67,10 +98,19 @@ class RangeLimit(_Strict):
     Duration: NonNegativeFloat = 0.0
 
 
+class ReferenceLimit(RangeLimit):
+    """``Measure``: ``polyline``, the distance to the nearest point of the logged
+    path; or ``l5kit``, l5kit's DistanceToRefTrajectoryMetric: the distance to
+    the nearest logged position, on the first 80 % of the unrolled frames only.
+    The scene figures report the same measure."""
+
+    Measure: Literal["polyline", "l5kit"] = "polyline"
+
+
 class ClosedLoopConditions(_Strict):
     Collisions: CollisionLimits = Field(default_factory=CollisionLimits)
     Displacement: RangeLimit | None = None
-    DistanceToReference: RangeLimit | None = None
+    DistanceToReference: ReferenceLimit | None = None
     SpeedDifference: RangeLimit | None = None
     MaxResets: NonNegativeInt | None = None
     ScenePassRate: float = Field(100.0, ge=0.0, le=100.0)
@@ -81,8 +121,25 @@ class ArtefactSpec(_Strict):
     Charts: bool = True
 
 
+class ConstantVelocitySpec(_Strict):
+    """``FirstStep``: where the constant_velocity baseline goes from a frame
+    without a past: ``heading`` (its speed along the heading) or
+    ``logged_next`` (to the logged next position, as in l5kit's closed loop)."""
+
+    FirstStep: Literal["heading", "logged_next"] = "heading"
+
+
 class ClosedLoopConfig(ConditionsModel):
     Model: str | None = None
+    ConstantVelocity: ConstantVelocitySpec | None = None
     Unroll: UnrollSpec = Field(default_factory=UnrollSpec)
     Conditions: ClosedLoopConditions = Field(default_factory=ClosedLoopConditions)
     Artefacts: ArtefactSpec = Field(default_factory=ArtefactSpec)
+
+    @field_validator("ConstantVelocity")
+    @classmethod
+    def _only_for_constant_velocity(cls, spec, info: ValidationInfo):
+        model = info.data.get("Model")
+        if spec is not None and model not in (None, "constant_velocity"):
+            raise ValueError(f"applies to Model: constant_velocity, not {model!r}")
+        return spec

@@ -14,11 +14,13 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from pytest_driveeval.errors import DataError
+from pytest_driveeval.metrics.drift import distance_to_reference_l5kit
 from pytest_driveeval.outcome import Finding
 from pytest_driveeval.verdict import violations, within
 
-if TYPE_CHECKING:  # the reader imports numcodecs; a dataset arrives already open
+if TYPE_CHECKING:  # the reader imports numcodecs, the engine torch; a dataset arrives already open
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.sim.logreplay import ReplayedAgents
 
 KINDS = ("front", "side", "rear")
 KIND_CODE = {"front": 1, "side": 2, "rear": 3}
@@ -58,9 +60,18 @@ def starts_past_end(dataset: L5Dataset, ids: Sequence[int], start_frame: int) ->
 def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | None = None, *,
                   start_frame: int = 0, steps: int | None = None, drift_threshold: float | None = 10.0,
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
-                  future_frames: int = 12, max_agents: int = 30) -> Unroll:
-    """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch."""
-    from pytest_driveeval.sim.logreplay import UnrollConfig, stack_scenes, unroll
+                  future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None) -> Unroll:
+    """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
+
+    ``agents`` says which logged agents replay (default: all of them).
+    """
+    from pytest_driveeval.sim.logreplay import (
+        ReplayedAgents,
+        UnrollConfig,
+        keep_agents,
+        stack_scenes,
+        unroll,
+    )
 
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
@@ -69,7 +80,8 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     for scene, length in starts_past_end(dataset, ids, start_frame):
         raise DataError(f"{dataset.path}: start_frame {start_frame} is past the end of scene {scene} "
                         f"({length} frames, 0..{length - 1})")
-    log = stack_scenes([dataset.scene(i) for i in ids], scene_ids=ids)
+    agents = agents or ReplayedAgents()
+    log = stack_scenes([keep_agents(dataset.scene(i), agents, start_frame) for i in ids], scene_ids=ids)
     config = UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
                           freeze_on_collision=freeze_on_collision, kinematic=kinematic,
                           history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
@@ -103,20 +115,36 @@ def collision_detail(event: dict) -> str:
     return f" with agent {event['track_id']}" + ("" if event["at_fault"] else " (not at fault)")
 
 
-def scene_figures(unroll: Unroll, row: int) -> dict[str, float | int]:
+def reference_distance(unroll: Unroll, row: int, measure: str = "polyline") -> np.ndarray:
+    """(T,) distance of scene ``row``'s ego to its logged trajectory, NaN where
+    not measured: ``polyline`` to the logged path on every unrolled frame,
+    ``l5kit`` as l5kit's DistanceToRefTrajectoryMetric (see
+    :func:`~pytest_driveeval.metrics.drift.distance_to_reference_l5kit`)."""
+    r = unroll.result
+    if measure == "polyline":
+        return r.distance_to_reference[row]
+    if measure == "l5kit":
+        return distance_to_reference_l5kit(r.driven_xy[row], r.logged_xy[row], r.valid[row])
+    raise ValueError(f"measure must be 'polyline' or 'l5kit', not {measure!r}")
+
+
+def scene_figures(unroll: Unroll, row: int, reference: str = "polyline") -> dict[str, float | int]:
+    """The figures of scene ``row``; ``reference``: the measure of the distance to it."""
     r = unroll.result
     valid = r.valid[row]
     kinds = r.collision_kind[row][valid]
     at_fault = r.collision_at_fault[row][valid]
     disp = r.displacement_error[row][valid]
-    ref = r.distance_to_reference[row][valid]
+    ref = reference_distance(unroll, row, reference)[valid]
+    ref = ref[~np.isnan(ref)]
     figures: dict[str, float | int] = {f: int((kinds == KIND_CODE[f]).sum()) for f in KINDS}
     figures["at_fault"] = int((at_fault & (kinds > 0)).sum())
     figures["drift_resets"] = int(r.reset[row][valid].sum()) if unroll.drift_threshold is not None else 0
     figures["steps"] = int(valid.sum())
     figures["max_displacement"] = float(np.nanmax(disp)) if disp.size else 0.0
     figures["mean_displacement"] = float(np.nanmean(disp)) if disp.size else 0.0
-    figures["mean_distance_to_reference"] = float(np.nanmean(ref)) if ref.size else 0.0
+    figures["max_distance_to_reference"] = float(ref.max()) if ref.size else 0.0
+    figures["mean_distance_to_reference"] = float(ref.mean()) if ref.size else 0.0
     return figures
 
 
@@ -124,7 +152,9 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
     """Per-scene verdict against ``ClosedLoopConditions`` (see usecases.closed_loop.config)."""
     r = unroll.result
     scene = int(r.scene_ids[row])
-    figures = scene_figures(unroll, row)
+    to_reference = conditions.DistanceToReference
+    measure = to_reference.Measure if to_reference is not None else "polyline"
+    figures = scene_figures(unroll, row, measure)
     findings: list[Finding | None] = []  # a rule that holds adds None
     if r.errors[row]:  # the engine's messages already name the scene(s) and frame
         findings.append(Finding(r.errors[row], scene=scene))
@@ -137,14 +167,18 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
                                    what=f"{blame}{kind} collision frame(s)", figure=kind, scene=scene,
                                    keypath=("Evaluation", "Conditions", "Collisions", kind.capitalize()),
                                    first_detail=detail))
-    frames = np.flatnonzero(r.valid[row])
-    for key, array, unit in (("Displacement", r.displacement_error, " m"),
-                             ("DistanceToReference", r.distance_to_reference, " m"),
-                             ("SpeedDifference", r.speed_difference, " m/s")):
+    for key, values, unit in (("Displacement", r.displacement_error[row], " m"),
+                              ("DistanceToReference", None, " m"),
+                              ("SpeedDifference", r.speed_difference[row], " m/s")):
         limit = getattr(conditions, key)
         if limit is None:
             continue
-        findings.append(within(np.abs(array[row][frames]), figure=key, max=limit.Max, frames=frames, unit=unit,
+        measured = r.valid[row]
+        if values is None:  # l5kit's measure leaves the last 20 % of the frames out (NaN)
+            values = reference_distance(unroll, row, measure)
+            measured = measured & ~np.isnan(values)
+        frames = np.flatnonzero(measured)
+        findings.append(within(np.abs(values[frames]), figure=key, max=limit.Max, frames=frames, unit=unit,
                                scene=scene, keypath=("Evaluation", "Conditions", key),
                                tolerated_frames=int(round(limit.Duration / unroll.step_time))))
     if conditions.MaxResets is not None:

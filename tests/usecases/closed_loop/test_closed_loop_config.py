@@ -1,0 +1,66 @@
+"""The closed_loop YAML keys that set l5kit's options: what they accept, and where a mistake is."""
+from __future__ import annotations
+
+import pytest
+
+from pytest_driveeval import load_scenario
+from pytest_driveeval.errors import ScenarioError
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: keys
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Model: {model}
+{extra}"""
+
+
+def load(tmp_path, extra, model="constant_velocity"):
+    path = tmp_path / "k.scenario.yaml"
+    path.write_text(SCENARIO.format(model=model, extra=extra))
+    return load_scenario(path)
+
+
+def problems(tmp_path, extra, model="constant_velocity") -> list[str]:
+    with pytest.raises(ScenarioError) as failed:
+        load(tmp_path, extra, model)
+    return [p.render("k") for p in failed.value.problems]
+
+
+def test_l5kit_setup_is_read(tmp_path):
+    config = load(tmp_path, "  ConstantVelocity: {FirstStep: logged_next}\n"
+                            "  Unroll:\n    Agents: {Labels: [CAR], WithinAtStart: 50.0}\n"
+                            "  Conditions:\n    DistanceToReference: {Max: 4.0, Measure: l5kit}\n").config
+    assert config.ConstantVelocity.FirstStep == "logged_next"
+    assert (config.Unroll.Agents.Labels, config.Unroll.Agents.LabelThreshold,
+            config.Unroll.Agents.WithinAtStart) == (["CAR"], 0.5, 50.0)
+    assert config.Conditions.DistanceToReference.Measure == "l5kit"
+
+
+def test_defaults_keep_todays_behaviour(tmp_path):
+    config = load(tmp_path, "  Conditions:\n    DistanceToReference: {Max: 4.0}\n").config
+    assert config.ConstantVelocity is None
+    assert (config.Unroll.Agents.Labels, config.Unroll.Agents.WithinAtStart) == (None, None)
+    assert config.Conditions.DistanceToReference.Measure == "polyline"
+
+
+@pytest.mark.parametrize("extra, model, expected", [
+    ("  Unroll:\n    Agents: {Labels: [LORRY]}\n", "constant_velocity",
+     "k:8: Evaluation.Unroll.Agents.Labels: unknown perception label 'LORRY'; known: PERCEPTION_LABEL_NOT_SET"),
+    ("  Unroll:\n    Agents: {LabelThreshold: 0.3}\n", "constant_velocity",
+     "k:8: Evaluation.Unroll.Agents: LabelThreshold applies to Labels; give Labels too"),
+    ("  Unroll:\n    Agents: {Labels: [CAR], LabelThreshold: 1.0}\n", "constant_velocity",
+     "k:8: Evaluation.Unroll.Agents.LabelThreshold: expected less than 1; found 1.0"),
+    ("  Unroll:\n    Agents: {WithinAtStart: -5}\n", "constant_velocity",
+     "k:8: Evaluation.Unroll.Agents.WithinAtStart: expected greater than 0; found -5"),
+    ("  Conditions:\n    DistanceToReference: {Max: 4.0, Measure: waypoints}\n", "constant_velocity",
+     "k:8: Evaluation.Conditions.DistanceToReference.Measure: "),
+    ("  ConstantVelocity: {FirstStep: logged}\n", "constant_velocity",
+     "k:7: Evaluation.ConstantVelocity.FirstStep: "),
+    ("  ConstantVelocity: {FirstStep: logged_next}\n", "log_replay",
+     "k:7: Evaluation.ConstantVelocity: applies to Model: constant_velocity, not 'log_replay'"),
+])
+def test_mistakes_are_located(tmp_path, extra, model, expected):
+    found = problems(tmp_path, extra, model)
+    assert len(found) == 1 and found[0].startswith(expected), found
