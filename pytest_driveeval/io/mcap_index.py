@@ -28,7 +28,6 @@ def _known(op: int) -> bool:
     return 0 < op <= MAX_OP or op >= PRIVATE_OPS
 
 
-
 @dataclass(frozen=True)
 class ChunkEntry:
     number: int          # 1-based, in index order
