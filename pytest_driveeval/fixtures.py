@@ -15,6 +15,7 @@ from typing import Any, Callable
 
 import pytest
 
+from .deadline import time_limit
 from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
@@ -121,10 +122,12 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
     def run(**overrides: Any) -> Outcome:
         ctx = driveeval_context
         usecase = ctx.scenario.usecase
-        for name in usecase.fixtures:
-            ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
+        seconds = ctx.scenario.time_limit or get_settings(request.config).time_limit
         try:
-            outcome = usecase.run(ctx.scenario.config, ctx)
+            with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})"):
+                for name in usecase.fixtures:
+                    ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
+                outcome = usecase.run(ctx.scenario.config, ctx)
         except DriveEvalError as exc:
             if isinstance(exc.outcome, Outcome):
                 _keep(request, ctx, exc.outcome)

@@ -29,6 +29,7 @@ class Settings:
     patterns: tuple[str, ...]
     allow_scenario_code: bool = False
     run: RunIdentity | None = None
+    time_limit: float | None = None
     keep_runs: int = DEFAULT_KEEP_RUNS
 
     @property
@@ -73,6 +74,9 @@ def add_options(parser: pytest.Parser) -> None:
                          "'weights.pt=module:factory', or 'module:factory' (ini: driveeval_model)")
     group.addoption("--driveeval-seed", metavar="N", type=int, default=None,
                     help="base seed; every item derives its own from it and its id (ini: driveeval_seed; default 0)")
+    group.addoption("--driveeval-time-limit", metavar="SECONDS", default=None,
+                    help="fail a scenario item that runs longer, naming where it was (a scenario's TimeLimit "
+                         "key wins; ini: driveeval_time_limit; default: none)")
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
                     help="let scenario files name code to run: 'Model: pickle:file' or 'module:factory' "
                          "(ini: driveeval_allow_scenario_code; off by default: scenario files travel with data)")
@@ -82,6 +86,7 @@ def add_options(parser: pytest.Parser) -> None:
     parser.addini("driveeval_seed", "base seed", default="0")
     parser.addini("driveeval_allow_scenario_code", "let scenario files name code to run (pickle:, module:factory)",
                   type="bool", default=False)
+    parser.addini("driveeval_time_limit", "seconds a scenario item may run (none by default)", default="")
     parser.addini("driveeval_keep_runs", "finished runs kept under the output folder's runs/ (0: all)",
                   default=str(DEFAULT_KEEP_RUNS))
     parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
@@ -109,6 +114,13 @@ def settings_from_config(config: pytest.Config) -> Settings:
         seed_value = int(seed or 0)
     except ValueError:
         raise pytest.UsageError(f"driveeval seed must be an integer, got {seed!r}") from None
+    limit, _ = pick("driveeval_time_limit", "driveeval_time_limit")
+    try:
+        time_limit = float(limit) if limit else None
+    except ValueError:
+        time_limit = -1.0
+    if time_limit is not None and not time_limit > 0:
+        raise pytest.UsageError(f"driveeval time limit must be a number of seconds > 0, got {limit!r}")
     keep = config.getini("driveeval_keep_runs")
     if not str(keep).isdigit():
         raise pytest.UsageError(f"driveeval_keep_runs must be a whole number (0: keep all), got {keep!r}")
@@ -125,6 +137,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
                                  or config.getini("driveeval_allow_scenario_code")),
         run=run,
         keep_runs=int(keep),
+        time_limit=time_limit,
     )
 
 

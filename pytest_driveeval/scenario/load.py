@@ -44,6 +44,7 @@ class Scenario:
     marks: list[str] = field(default_factory=list)
     skip: str | None = None
     xfail: XFailSpec | None = None
+    time_limit: float | None = None
 
     @property
     def folder(self) -> Path:
@@ -189,4 +190,5 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
         marks=list(env.Marks),
         skip=env.Skip,
         xfail=xfail,
+        time_limit=env.TimeLimit,
     )

@@ -23,9 +23,10 @@ ROOT = REPO_ROOT / PACKAGE
 # What each part of the package may import (besides itself).  A part is a
 # subpackage (its top level) or a root module; the pytest side (plugin,
 # collect, fixtures, results, failure, assertions, __init__) may import anything.
-FOUNDATION = {"errors", "outcome", "geometry", "atomic"}
+FOUNDATION = {"errors", "outcome", "geometry", "atomic", "deadline"}
 ALLOWED = {
     "errors": set(),
+    "deadline": {"errors"},
     "atomic": set(),
     "outcome": set(),
     "geometry": set(),

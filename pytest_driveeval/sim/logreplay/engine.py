@@ -32,6 +32,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
+from pytest_driveeval.deadline import TimeLimitExceeded, guarded_call, note
 from pytest_driveeval.geometry import norm2d, oriented_boxes_overlap
 from pytest_driveeval.io.l5kit_zarr import L5Scene
 from pytest_driveeval.metrics.collisions import detect_collisions, max_or_zero
@@ -219,10 +220,13 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             if cfg.device != "cpu":
                 batch = {k: v.to(cfg.device) for k, v in batch.items()}
             forwards += 1
+            note(scenes=format_scenes(log.scene_ids[rows]), frame=t, step=t - start)
             tic = time.perf_counter()
             try:
-                out = policy(batch)
+                out = guarded_call(policy, batch)
                 pos, dyaw = first_pose(out, rows.size)
+            except TimeLimitExceeded:
+                raise
             except Exception as exc:  # a broken model must not take the harness down
                 what = str(exc) if isinstance(exc, BadPolicyOutput) else f"policy raised {type(exc).__name__}: {exc}"
                 msg = f"model output at frame {t} for scenes {format_scenes(log.scene_ids[rows])}: {what}"

@@ -62,7 +62,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ...errors import DataError, Problem, ScenarioError
+from ...errors import DriveEvalError, Problem, ScenarioError
 from ...outcome import FAILED, PASSED, Finding, Outcome
 from ...usecase import RunContext, UseCase, register_usecase
 from .config import LEGACY, V3, ObstacleSegmentationConfig
@@ -112,7 +112,7 @@ class ObstacleSegmentation(UseCase):
         try:
             with artefacts:
                 result = evaluation.run(clouds, on_frame=artefacts)
-        except DataError as exc:
+        except DriveEvalError as exc:
             partial = getattr(exc, "partial_result", None)
             if partial is not None and partial.frames:
                 exc.outcome = self._outcome(partial, config, artefacts.files, error=str(exc))

@@ -20,7 +20,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ...errors import DataError
+from ...deadline import note
+from ...errors import DataError, DriveEvalError
 from ...io.t4dataset import GroundTruth, T4Dataset
 from ...io.tf import TransformError
 from ...metrics.pointcloud import Area, BoxSet, evaluate_cloud, xyz_columns
@@ -155,12 +156,13 @@ class ObstacleEvaluation:
                     result.skipped += 1  # DLR's FrameSkip: no ground truth within 75 ms / no UUID in its window
                     continue
                 name = str(index[gt.sample_token])
+                note(frame=name, **{"cloud stamped": f"{stamp_ns} ns"})
                 map_T_base, points, error = self.locate(name, stamp_ns, frame_id, points)
                 frame = self.judge(name, stamp_ns, gt.to_base_link(), points, targets, map_T_base, error)
                 result.add(frame)
                 if on_frame is not None:
                     on_frame(frame, points, result)
-        except DataError as exc:
+        except DriveEvalError as exc:  # bad data, or out of time: the frames judged so far are kept
             exc.partial_result = result
             raise
         return result

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...deadline import guarded_call, note
 from ...errors import DataError
 from ...io.t4dataset import T4Dataset
 from ...metrics.pointcloud import xyz_columns
@@ -50,4 +51,5 @@ class FilteredPointClouds:
 
     def __iter__(self):
         for stamp_ns, frame_id, points in self.source:
-            yield stamp_ns, frame_id, np.asarray(self.filter(points))
+            note(**{"the point-cloud filter on the cloud stamped": f"{stamp_ns} ns"})
+            yield stamp_ns, frame_id, np.asarray(guarded_call(self.filter, points))

@@ -135,3 +135,24 @@ def test_t4_sample_sweep_without_bag_is_one_frame(pytester, shared_data):
     (record,) = summary(pytester).values()
     assert record["figures"]["frames"] == 1 and record["figures"]["detection_rate"] == 100.0
     assert "topic rate unknown" in record["summary"]
+
+
+def test_a_filter_that_never_returns_fails_its_item_naming_the_cloud_and_keeps_the_judged_frames(
+        pytester, shared_data, datasets):
+    text = dlr_scenario(shared_data, "scenario_detection_only.yaml", datasets["clean"]).replace(
+        "  SensingEvaluationConfig:", "  PointCloud: {RawTopic: /perception/obstacle_segmentation/pointcloud}\n"
+                                      "  SensingEvaluationConfig:").replace("Evaluation:", "TimeLimit: 2\nEvaluation:", 1)
+    sub = pytester.mkdir("hangs")
+    (sub / "scenario.yaml").write_text(text)
+    (sub / "conftest.py").write_text(
+        "import time\nimport pytest\n\ncalls = []\n\n@pytest.fixture\ndef driveeval_pointclouds():\n"
+        "    def stuck_on_the_fourth(points):\n        calls.append(1)\n"
+        "        if len(calls) == 4:\n            time.sleep(3600)\n        return points\n"
+        "    return stuck_on_the_fourth\n")
+    (pytester.path / "plain.scenario.yaml").write_text(text)
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*TimeLimitExceeded: scenario *: time limit of 2 s exceeded in a model call that "
+                                 "did not return at the point-cloud filter on the cloud stamped * ns*"])
+    record = summary(pytester)["hangs/scenario.yaml::obstacle_segmentation[sample_dataset]"]
+    assert record["status"] == "failed" and record["figures"]["frames"] == 3

@@ -1,0 +1,99 @@
+"""A model that never returns fails its own item, named by scene and step; the rest runs."""
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from conftest import GAIN_SCENARIO, REPO_ROOT
+
+torch = pytest.importorskip("torch")
+
+from test_closed_loop_usecase import scenario  # noqa: E402
+
+REAL = REPO_ROOT / "fixtures" / "l5kit" / "single_scene.zarr"
+
+SLEEPY = """\
+import time
+import torch
+
+
+class Sleepy(torch.nn.Module):
+    def forward(self, batch):
+        time.sleep(3600)
+
+
+def sleepy():
+    return Sleepy()
+
+
+def spin(x):
+    while True:
+        pass
+"""
+
+
+class Spin(torch.nn.Module):
+    def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        x = batch["history_positions"]
+        while bool(x.sum() > -1.0e30):  # native code that never returns, holding no Python frame
+            x = x + 1.0
+        return {"positions": x, "yaws": x}
+
+
+@pytest.fixture
+def cl(pytester):
+    shutil.copytree(REAL, pytester.path / "real.zarr")
+    pytester.path.joinpath("sleepy.py").write_text(SLEEPY)
+    pytester.syspathinsert()
+    return pytester
+
+
+def with_limit(text: str, seconds: float) -> str:
+    return text.replace("Evaluation:", f"TimeLimit: {seconds}\nEvaluation:", 1)
+
+
+def test_a_python_policy_that_never_returns_fails_its_item_naming_scene_and_step(cl):
+    cl.makefile(".scenario.yaml", good=scenario(name="good", unroll="    StartFrame: 10\n    Steps: 5"),
+                hangs=with_limit(scenario(name="hangs"), 1.5))
+    cl.makeconftest("import pytest\nimport sleepy\n\n"
+                    "@pytest.fixture\ndef driveeval_model(driveeval_scenario):\n"
+                    "    if driveeval_scenario.name == 'hangs':\n        return sleepy.sleepy()\n"
+                    "    from pytest_driveeval.policies.baselines import ReplayLogPolicy\n"
+                    "    return ReplayLogPolicy()\n")
+    result = cl.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*TimeLimitExceeded: scenario 'hangs' (closed_loop[[]logs[]]): time limit of 1.5 s "
+                                 "exceeded in a model call that did not return at scenes [[]0[]], frame 10, step 0 "
+                                 "(TimeLimit in the scenario, or --driveeval-time-limit)"])
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_a_torchscript_loop_is_left_behind_and_the_session_goes_on(cl):
+    torch.jit.save(torch.jit.script(Spin()), cl.path / "spin.pt")
+    cl.makefile(".scenario.yaml", good=scenario(name="good", unroll="    StartFrame: 10\n    Steps: 5"),
+                spins=scenario(name="spins", model="spin.pt"))
+    # In its own process: the abandoned loop keeps a core busy until that process ends.
+    result = cl.runpytest_subprocess("-q", "-p", "no:randomly", "--driveeval-time-limit", "2", timeout=120)
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*TimeLimitExceeded: scenario 'spins'*time limit of 2 s exceeded in a model call "
+                                 "that did not return at scenes [[]0[]], frame 10, step 0*"])
+
+
+def test_python_code_outside_a_model_call_is_interrupted_too(pytester):
+    pytester.makepyfile(gain_usecase=__import__("conftest").GAIN_USECASE, mymodels="def forever(x):\n"
+                        "    while True:\n        pass\n")
+    pytester.makeconftest("import gain_usecase\n")
+    pytester.syspathinsert()
+    pytester.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    pytester.makeini("[pytest]\ndriveeval_time_limit = 1\n")
+    result = pytester.runpytest("-q", "--driveeval-model", "mymodels:forever")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*TimeLimitExceeded: scenario 'a' (gain): time limit of 1 s exceeded (TimeLimit*"])
+
+
+@pytest.mark.parametrize("value", ["soon", "0", "-3"])
+def test_a_time_limit_that_is_not_a_positive_number_is_a_usage_error(pytester, value):
+    result = pytester.runpytest("--driveeval-time-limit", value)
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines([f"*driveeval time limit must be a number of seconds > 0, got '{value}'*"])
