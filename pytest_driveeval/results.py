@@ -103,8 +103,11 @@ class ResultCollector:
             record["status"] = status
         if status == "skipped" and isinstance(report.longrepr, tuple):
             record["message"] = str(report.longrepr[2]).removeprefix("Skipped: ")
-        if hasattr(report, "wasxfail") and report.wasxfail:
-            record.setdefault("message", report.wasxfail)
+        if hasattr(report, "wasxfail"):
+            # The evaluation's own verdict stays as it was; this says that pytest expected it to fail.
+            record["expected_to_fail"] = report.wasxfail or True
+            if report.wasxfail:
+                record.setdefault("message", report.wasxfail)
 
     def sorted_records(self) -> list[dict[str, Any]]:
         return [self.records[k] for k in sorted(self.records)]

@@ -50,7 +50,9 @@ def test_summary_records_every_scenario_item(mixed):
     assert failed["findings"][0]["keypath"] == ["Evaluation", "Conditions", "MaxSpeed"]
     assert "speed should be <= 14 m/s" in failed["message"]
     assert by_id["skipped.scenario.yaml::speed_limit[slow.csv]"]["message"] == "later"
-    assert by_id["known.scenario.yaml::speed_limit[fast.csv]"]["status"] == "xfailed"
+    known = by_id["known.scenario.yaml::speed_limit[fast.csv]"]
+    assert known["status"] == "xfailed" and known["verdict"] == "failed"
+    assert known["expected_to_fail"] == "ticket 7"
     broken = by_id["broken.scenario.yaml::scenario"]
     assert broken["status"] == "failed" and "missing required key 'ScenarioName'" in broken["message"]
     assert by_id["nodata.scenario.yaml::speed_limit[absent.csv]"]["status"] == "error"
