@@ -289,7 +289,8 @@ class L5Dataset:
                 attrs = json.loads((path / ".zattrs").read_text())
             except ValueError as exc:
                 raise L5FormatError(f"{path / '.zattrs'}: invalid JSON: {exc}") from exc
-        arrays = {name: ZarrArray1D(path, name, EXPECTED_DTYPES[name], error=L5FormatError) for name in ARRAY_NAMES}
+        arrays = {name: ZarrArray1D(path, name, EXPECTED_DTYPES[name], error=L5FormatError, every_chunk_written=True)
+                  for name in ARRAY_NAMES}
         return cls(path, arrays, attrs)
 
     def __repr__(self) -> str:

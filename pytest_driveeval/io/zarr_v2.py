@@ -84,8 +84,11 @@ class ZarrArray1D:
     """Lazy reader of one 1-D zarr v2 array directory."""
 
     def __init__(self, store: Path, name: str, expected_dtype: np.dtype | None = None,
-                 error: type[ZarrFormatError] | None = None):
+                 error: type[ZarrFormatError] | None = None, every_chunk_written: bool = False):
         self.error = error or ZarrFormatError  # callers name their format in the errors they catch
+        # zarr may leave out a chunk that is all fill value; a format whose rows
+        # are never all zeros (L5's) says so, and a missing chunk is then a lost file.
+        self.every_chunk_written = every_chunk_written
         self.store, self.name, self.dir = store, name, store / name
         meta_path = self.dir / ".zarray"
         if not meta_path.is_file():
@@ -146,6 +149,12 @@ class ZarrArray1D:
             self._cache.move_to_end(index)
             return cached
         path = self.dir / str(index)
+        if not path.exists() and self.every_chunk_written:
+            first = index * self.chunk_len
+            raise self.error(
+                f"{self.store}: chunk {index} of array {self.name!r} (rows {first}..{min(first + self.chunk_len, self.length) - 1})"
+                f" is missing: {path} does not exist; every chunk of this format holds data, so the file was "
+                "deleted or lost: restore the dataset")
         if not path.exists():  # zarr leaves chunks equal to the fill value unwritten
             chunk = np.full(self.chunk_len, self.fill, dtype=self.dtype)
         else:

@@ -172,16 +172,28 @@ def test_interval_outside_array(tmp_path):
         L5Dataset.open(tmp_path / "s.zarr").scene(0)
 
 
-def test_missing_chunk_reads_fill_value(tmp_path):
+def test_a_deleted_chunk_is_named_not_read_as_zeros(sample_copy):
+    # zarr may omit a chunk that is all fill value, but no L5 chunk is: a
+    # missing one was lost, and reading zeros would blame the data's content
+    # ("a track id occurs twice in one frame").
+    (sample_copy / "agents" / "0").unlink()
+    ds = L5Dataset.open(sample_copy)
+    with pytest.raises(L5FormatError) as err:
+        ds.scene(0)
+    assert str(err.value).startswith(f"{sample_copy}: chunk 0 of array 'agents' (rows 0..")
+    assert f"is missing: {sample_copy / 'agents' / '0'} does not exist" in str(err.value)
+    assert "track id" not in str(err.value)
+
+
+def test_a_deleted_edge_chunk_of_a_generated_dataset_is_named(tmp_path):
     scenes = np.zeros(1, SCENE_DTYPE)
     scenes[0] = ((0, 4), "h", 0, 3)
     frames = np.zeros(4, FRAME_DTYPE)
     write_l5_zarr(tmp_path / "s.zarr", scenes, frames, np.zeros(0, AGENT_DTYPE), np.zeros(0, TL_FACE_DTYPE),
                   chunk_sizes={"frames": 3})
-    (tmp_path / "s.zarr" / "frames" / "1").unlink()  # zarr omits chunks that equal the fill value
-    scene = L5Dataset.open(tmp_path / "s.zarr").scene(0)
-    assert scene.frames.tobytes() == frames.tobytes()
-    assert scene.agent_tensor().available.shape == (4, 0)
+    (tmp_path / "s.zarr" / "frames" / "1").unlink()
+    with pytest.raises(L5FormatError, match=r"chunk 1 of array 'frames' \(rows 3..3\) is missing"):
+        L5Dataset.open(tmp_path / "s.zarr").scene(0)
 
 
 def test_writer_rejects_bad_input(tmp_path):
