@@ -64,3 +64,14 @@ def test_defaults_keep_todays_behaviour(tmp_path):
 def test_mistakes_are_located(tmp_path, extra, model, expected):
     found = problems(tmp_path, extra, model)
     assert len(found) == 1 and found[0].startswith(expected), found
+
+
+def test_the_demo_l5kit_scenario_uses_the_l5kit_setup():
+    from conftest import REPO_ROOT
+
+    config = load_scenario(REPO_ROOT / "scenario_tests" / "closed_loop" / "real_scene_l5kit.scenario.yaml").config
+    assert (config.Model, config.ConstantVelocity.FirstStep) == ("constant_velocity", "logged_next")
+    assert (config.Unroll.StartFrame, config.Unroll.DriftThreshold, config.Unroll.FreezeOnCollision) == (0, None, False)
+    agents = config.Unroll.Agents
+    assert (agents.Labels, agents.LabelThreshold, agents.WithinAtStart) == (["CAR"], 0.5, 50.0)
+    assert config.Conditions.DistanceToReference.Measure == "l5kit"
