@@ -119,3 +119,20 @@ def test_each_l5kit_option_is_needed_for_its_figures(real):
     assert scene_figures(_cv(real, first_step="heading"), 0, "l5kit")["max_distance_to_reference"] > 3.0
     everyone = _cv(real, agents="all")
     assert (everyone.result.collision_kind[0] > 0).sum() > 0  # other agents' rows would be hit
+
+
+def test_with_every_agent_the_partner_is_the_first_overlapping_row(real):
+    # The issue's case: 35 collision frames, 7 of which had another partner
+    # when the lowest packed column (tracks sorted by id) was taken.
+    from pytest_driveeval.geometry import oriented_boxes_overlap
+    from pytest_driveeval.sim.logreplay import EGO_EXTENT
+
+    r = _cv(real, agents="all").result
+    scene = real.scene(0)
+    frames = np.flatnonzero(r.collision_kind[0])
+    assert frames.size == 35
+    for t in frames:
+        rows = scene.agents_of_frame(t)
+        hit = oriented_boxes_overlap(r.driven_xy[0, t], r.driven_yaw[0, t], EGO_EXTENT[:2], rows["centroid"],
+                                     rows["yaw"].astype(float), rows["extent"][:, :2].astype(float))
+        assert r.collision_track_id[0, t] == rows["track_id"][np.argmax(hit)], t
