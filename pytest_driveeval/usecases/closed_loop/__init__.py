@@ -17,8 +17,13 @@ from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
-from pytest_driveeval.usecases.closed_loop.evaluate import (KINDS, judge_scene, select_scenes, starts_past_end,
-                                                             unroll_scenes)
+from pytest_driveeval.usecases.closed_loop.evaluate import (
+    KINDS,
+    judge_scene,
+    select_scenes,
+    starts_past_end,
+    unroll_scenes,
+)
 
 if TYPE_CHECKING:
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
@@ -27,7 +32,10 @@ BASELINES = ("constant_velocity", "log_replay")
 
 
 def baseline(name: str, config: ClosedLoopConfig | None = None):
-    from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
+    from pytest_driveeval.policies.baselines import (
+        ConstantVelocityPolicy,
+        ReplayLogPolicy,
+    )
 
     if name == "constant_velocity":
         spec = config.ConstantVelocity if config is not None else None
@@ -55,7 +63,11 @@ class ClosedLoop(UseCase):
         return L5Dataset.open(super().load_dataset(ctx))
 
     def load_model(self, ctx: RunContext, spec: str | None):
-        from pytest_driveeval.policies.loading import load_model, refuse_code_from_data, runs_code
+        from pytest_driveeval.policies.loading import (
+            load_model,
+            refuse_code_from_data,
+            runs_code,
+        )
 
         from_option = spec is not None
         spec = spec or ctx.scenario.config.Model
