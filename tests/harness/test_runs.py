@@ -9,7 +9,6 @@ import sys
 import time
 
 import pytest
-
 from conftest import GAIN_SCENARIO
 from test_fixtures import summary
 

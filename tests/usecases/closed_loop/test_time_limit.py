@@ -4,7 +4,6 @@ from __future__ import annotations
 import shutil
 
 import pytest
-
 from conftest import GAIN_SCENARIO, REPO_ROOT
 
 torch = pytest.importorskip("torch")
