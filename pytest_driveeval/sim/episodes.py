@@ -1,0 +1,179 @@
+"""The policy benchmark's engine: E seeded episodes of one blueprint, stepped together.
+
+``reset(blueprint, seeds, agent_limit)`` draws episode ``i`` from
+``np.random.default_rng(seeds[i])`` alone and nothing in a step mixes
+episodes, so an episode's course depends on its seed (and the blueprint,
+traffic model and agent limit), never on which other episodes share the batch.
+
+Per step, all episodes at once: the ego moves by a kinematic bicycle driven
+by the action (acceleration m/s^2, steering angle rad, clipped to the
+blueprint's ``ego_accel`` and ``ego_max_steer``), traffic by
+:func:`~pytest_driveeval.sim.agents.step_traffic` from the same snapshot, then
+the outcomes of :mod:`pytest_driveeval.metrics.episode_outcomes` are judged on
+the new snapshot.  An episode that has ended keeps its last state: stepping it
+again changes nothing and earns nothing.
+
+For observers (the graph observation), in world coordinates: ``xy`` (E, A, 2),
+``yaw``, ``speed``, ``valid`` (E, A) with agent 0 the ego (always valid) and
+invalid rows padding or vehicles that left the map; ``goal_centre`` (E, 2),
+``goal_heading`` (E,), ``goal_speed`` (E,) (the middle of the goal's speed
+bounds); ``map_bounds`` (xmin, ymin, xmax, ymax).  Every agent's box is
+``size`` (length, width); a pose is the box centre.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from pytest_driveeval.geometry import box_corners
+from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, classify,
+                                                       ego_collides, in_goal, off_road, step_reward)
+from pytest_driveeval.sim.agents import Traffic, TrafficModel, step_traffic
+from pytest_driveeval.sim.blueprints import Blueprint, make_blueprint
+from pytest_driveeval.sim.dynamics import KinematicBicycle
+from pytest_driveeval.sim.state import AgentState
+
+__all__ = ["Episodes", "StepResult", "reset"]
+
+# Padding rows sit far upstream on lane 0, never valid.
+_PAD_S = -1.0e4
+
+
+class StepResult(NamedTuple):
+    """What one step did, each (E,).  The four flags mark episodes that ended on this step and why."""
+
+    reward: np.ndarray  # float, 0 for episodes that had already ended
+    done: np.ndarray  # bool, ended on this step or before
+    goal: np.ndarray
+    collision: np.ndarray
+    off_road: np.ndarray
+    step_limit: np.ndarray
+
+
+class Episodes:
+    """A batch of episodes in flight; build it with :func:`reset`."""
+
+    def __init__(self, blueprint: Blueprint, seeds: np.ndarray, agent_limit: int, traffic_model: TrafficModel):
+        p = blueprint.params
+        self.blueprint = blueprint
+        self.traffic_model = traffic_model
+        self.seeds = seeds
+        self.agent_limit = agent_limit
+        self.size = np.array([p.vehicle_length, p.vehicle_width])
+        self.map_bounds = blueprint.road.bounds
+        self._bicycle = KinematicBicycle(wheelbase=p.ego_wheelbase, dt=p.dt, max_accel=p.ego_accel[1],
+                                         max_decel=-p.ego_accel[0], max_steer=p.ego_max_steer,
+                                         max_speed=p.ego_max_speed)
+        spawns = [blueprint.spawn(np.random.default_rng(int(seed)), agent_limit) for seed in seeds]
+        e_n, a_n = len(spawns), agent_limit
+        lane = np.zeros((e_n, a_n), np.int64)
+        s = np.full((e_n, a_n), _PAD_S)
+        speed = np.zeros((e_n, a_n))
+        desired = np.ones((e_n, a_n))
+        valid = np.zeros((e_n, a_n), bool)
+        for i, sp in enumerate(spawns):
+            n = len(sp.s)
+            lane[i, 0], s[i, 0], speed[i, 0], valid[i, 0] = sp.ego_lane, sp.ego_s, sp.ego_speed, True
+            lane[i, 1:n + 1], s[i, 1:n + 1], speed[i, 1:n + 1] = sp.lane, sp.s, sp.speed
+            desired[i, 1:n + 1], valid[i, 1:n + 1] = sp.desired_speed, True
+        # The ego's slot: traffic judges whether it may cut in front of the ego by
+        # the ego's IDM response, taken at the fastest desired speed of traffic.
+        desired[:, 0] = p.desired_speed[1]
+        settled = traffic_model.lane_change_duration + traffic_model.lane_change_cooldown
+        self._traffic = Traffic(lane, s, np.zeros((e_n, a_n)), speed, desired, np.zeros((e_n, a_n)),
+                                np.full((e_n, a_n), settled), valid)
+        xy, heading = blueprint.road.pose(lane, s, 0.0)
+        self.xy, self.yaw, self.speed, self.valid = xy, heading, speed.copy(), valid.copy()
+        self._ego = AgentState(xy[:, 0] - self._half_wheelbase(heading[:, 0]), heading[:, 0], speed[:, 0])
+
+        self.goal_centre = np.stack([sp.goal.centre for sp in spawns])
+        self.goal_heading = np.array([sp.goal.heading for sp in spawns])
+        self.goal_size = np.array([[sp.goal.length, sp.goal.width] for sp in spawns])
+        self.goal_heading_tol = np.array([sp.goal.heading_tol for sp in spawns])
+        self.goal_speed_bounds = np.array([sp.goal.speed for sp in spawns])
+        self.goal_speed = self.goal_speed_bounds.mean(axis=1)
+
+        self.steps = np.zeros(e_n, np.int64)
+        self.outcome = np.zeros(e_n, np.int8)
+        self.returns = np.zeros(e_n)
+
+    def _half_wheelbase(self, yaw: np.ndarray) -> np.ndarray:
+        # The bicycle's pose is the rear axle; boxes are centred half a wheelbase ahead of it.
+        half = 0.5 * self._bicycle.wheelbase
+        return half * np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
+
+    @property
+    def num_episodes(self) -> int:
+        return len(self.seeds)
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.outcome != RUNNING
+
+    @property
+    def traffic(self) -> Traffic:
+        return self._traffic
+
+    def step(self, actions: np.ndarray) -> StepResult:
+        """Advance every running episode by one step; ``actions`` (E, 2) = (acceleration, steering angle)."""
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_episodes, 2):
+            raise ValueError(f"actions must be ({self.num_episodes}, 2) (acceleration, steering), "
+                             f"got shape {actions.shape}")
+        if not np.all(np.isfinite(actions)):
+            bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
+            raise ValueError(f"actions must be finite; episodes {bad.tolist()} got {actions[bad].tolist()}")
+        bp, road = self.blueprint, self.blueprint.road
+        active = self.outcome == RUNNING
+
+        ego = self._bicycle.step(self._ego, (actions[:, 0], actions[:, 1]))
+        traffic, xy, yaw = step_traffic(road, self.traffic_model, self._traffic, self.xy, self.yaw, self.speed,
+                                        (self.size[0], self.size[1]), bp.dt)
+        xy[:, 0] = ego.xy + self._half_wheelbase(ego.yaw)
+        yaw[:, 0] = ego.yaw
+        speed = traffic.speed.copy()
+        speed[:, 0] = ego.speed
+        valid = traffic.valid
+
+        collision = ego_collides(xy, yaw, self.size, valid)
+        grid = road.drivable
+        left = off_road(box_corners(xy[:, 0], yaw[:, 0], self.size), grid.mask, grid.origin, grid.resolution)
+        goal = in_goal(xy[:, 0], yaw[:, 0], speed[:, 0], self.goal_centre, self.goal_heading, self.goal_size,
+                       self.goal_heading_tol, self.goal_speed_bounds)
+        steps = self.steps + active
+        outcome = classify(goal, collision, left, steps >= bp.max_steps)
+        reward = step_reward(outcome, active)
+
+        run = active[:, None]
+        self._ego = AgentState(np.where(run, ego.xy, self._ego.xy), np.where(active, ego.yaw, self._ego.yaw),
+                               np.where(active, ego.speed, self._ego.speed))
+        old = self._traffic
+        self._traffic = Traffic(*(np.where(run, new, prev) for new, prev in zip(
+            (traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
+             traffic.change_time, traffic.valid),
+            (old.lane, old.s, old.d, old.speed, old.desired_speed, old.change_offset, old.change_time, old.valid))))
+        self.xy = np.where(run[..., None], xy, self.xy)
+        self.yaw = np.where(run, yaw, self.yaw)
+        self.speed = np.where(run, speed, self.speed)
+        self.valid = np.where(run, valid, self.valid)
+        self.steps = steps
+        ended = np.where(active, outcome, RUNNING)
+        self.outcome = np.where(active, outcome, self.outcome).astype(np.int8)
+        self.returns = self.returns + reward
+        return StepResult(reward, self.outcome != RUNNING, ended == GOAL, ended == COLLISION, ended == OFF_ROAD,
+                          ended == STEP_LIMIT)
+
+
+def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_limit: int = 12,
+          traffic_model: TrafficModel | None = None) -> Episodes:
+    """Start one episode per seed; ``agent_limit`` counts the ego (rows beyond an
+    episode's vehicles are padding, ``valid`` False)."""
+    if isinstance(blueprint, str):
+        blueprint = make_blueprint(blueprint)
+    seeds = np.asarray(seeds)
+    if seeds.ndim != 1 or len(seeds) == 0 or not np.issubdtype(seeds.dtype, np.integer) or np.any(seeds < 0):
+        raise ValueError(f"seeds must be a non-empty 1-D array of non-negative integers, got {seeds!r}")
+    if isinstance(agent_limit, bool) or not isinstance(agent_limit, (int, np.integer)) or agent_limit < 1:
+        raise ValueError(f"agent_limit must be an integer >= 1 (the ego counts), got {agent_limit!r}")
+    return Episodes(blueprint, seeds, int(agent_limit), traffic_model or TrafficModel())
