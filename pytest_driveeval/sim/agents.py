@@ -15,9 +15,13 @@ ends, towards the lane it must merge into.
 * Longitudinal (IDM, highway-env 1.12's constants): the acceleration is the
   free-road term minus the strongest interaction with any vehicle ahead on the
   agent's lane, not only the nearest; a lane that ends is a standing obstacle
-  at its end.  Vehicles that wish to enter count as leaders when the follower
-  can take them in braking no harder than ``max_imposed_braking``: a
+  at its end.  A vehicle that wishes to enter counts as a leader when the
+  follower can take it in braking no harder than ``max_imposed_braking``: a
   follower yields when the gap is acceptable and drives on when it is not.
+  Once yielding it keeps yielding to that agent (``yield_to``) while the wish
+  lasts, even if the braking grows: IDM's final approach to a standing
+  obstacle brakes harder than its start, and re-judging the gap every step
+  would make the follower give up halfway and drive into the gap it opened.
 * Lateral (MOBIL, politeness 0 as in highway-env, so the followers' gains
   drop out): change when the own acceleration on the target lane beats the
   current one by ``lane_change_gain`` and no follower there would have to
@@ -86,6 +90,7 @@ class Traffic:
     desired_speed: np.ndarray  # m/s, IDM v0
     change_offset: np.ndarray  # m, lateral offset when the current change started
     change_time: np.ndarray  # s since the last change started
+    yield_to: np.ndarray  # int, the agent this vehicle is letting in, -1: none
     valid: np.ndarray  # bool: a vehicle on the map (padding and vehicles that left: False)
 
 
@@ -162,10 +167,16 @@ def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarr
     v = traffic.speed
     free = idm_free(model, v, traffic.desired_speed)  # (E, A)
     lead = idm_interaction(model, v[..., None, None], other_v, gap)  # (E, A, 3, A): i behind j
-    # A wish counts on the own lane only, and only if taking the wisher in is acceptable.
-    own_lane = np.array([True, False, False])[:, None]
-    yields = other_wish & own_lane & (free[..., None, None] - model.max_accel * lead >= -model.max_imposed_braking)
-    strongest = np.max(np.where(ahead & (other_occ | yields), lead, 0.0), axis=-1)  # (E, A, 3)
+    strongest = np.max(np.where(ahead & other_occ, lead, 0.0), axis=-1)  # (E, A, 3)
+    # Wishes count on the own lane only: if taking the wisher in is acceptable, or already promised.
+    lead_own = lead[:, :, 0]
+    agents = np.arange(a_n)
+    letting_in = other_wish[:, :, 0] & ahead[:, :, 0] & (
+        (free[..., None] - model.max_accel * lead_own >= -model.max_imposed_braking)
+        | (traffic.yield_to[..., None] == agents))
+    yielded = np.where(letting_in, lead_own, 0.0)
+    strongest[..., 0] = np.maximum(strongest[..., 0], np.max(yielded, axis=-1))
+    yield_to = np.where(np.any(letting_in, axis=-1), np.argmax(yielded, axis=-1), -1)
     end_gap = road.end_s[looked] - self_s - self_half
     lane_end = idm_interaction(model, v[..., None], 0.0, end_gap)  # 0 where the lane does not end (inf gap)
     accel = free[..., None] - model.max_accel * (strongest + lane_end)  # now (k=0), after a change (k=1, 2)
@@ -203,7 +214,8 @@ def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarr
     keep = ~is_vehicle
     nxt = Traffic(np.where(keep, lane, new_lane), np.where(keep, own_s, s_next), np.where(keep, traffic.d, d_next),
                   np.where(keep, v, v_next), traffic.desired_speed, np.where(keep, traffic.change_offset, offset),
-                  np.where(keep, traffic.change_time, t_change), still | (traffic.valid & keep))
+                  np.where(keep, traffic.change_time, t_change), np.where(keep | starts, -1, yield_to),
+                  still | (traffic.valid & keep))
     new_xy, heading = road.pose(nxt.lane, nxt.s, nxt.d)
     new_yaw = heading + np.arctan2(np.where(keep, 0.0, d_rate), np.maximum(nxt.speed, _YAW_SPEED_FLOOR))
     return nxt, new_xy, new_yaw

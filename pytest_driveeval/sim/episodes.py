@@ -82,7 +82,7 @@ class Episodes:
         desired[:, 0] = p.desired_speed[1]
         settled = traffic_model.lane_change_duration + traffic_model.lane_change_cooldown
         self._traffic = Traffic(lane, s, np.zeros((e_n, a_n)), speed, desired, np.zeros((e_n, a_n)),
-                                np.full((e_n, a_n), settled), valid)
+                                np.full((e_n, a_n), settled), np.full((e_n, a_n), -1), valid)
         xy, heading = blueprint.road.pose(lane, s, 0.0)
         self.xy, self.yaw, self.speed, self.valid = xy, heading, speed.copy(), valid.copy()
         self._ego = AgentState(xy[:, 0] - self._half_wheelbase(heading[:, 0]), heading[:, 0], speed[:, 0])
@@ -151,8 +151,9 @@ class Episodes:
         old = self._traffic
         self._traffic = Traffic(*(np.where(run, new, prev) for new, prev in zip(
             (traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
-             traffic.change_time, traffic.valid),
-            (old.lane, old.s, old.d, old.speed, old.desired_speed, old.change_offset, old.change_time, old.valid))))
+             traffic.change_time, traffic.yield_to, traffic.valid),
+            (old.lane, old.s, old.d, old.speed, old.desired_speed, old.change_offset, old.change_time, old.yield_to,
+             old.valid))))
         self.xy = np.where(run[..., None], xy, self.xy)
         self.yaw = np.where(run, yaw, self.yaw)
         self.speed = np.where(run, speed, self.speed)
