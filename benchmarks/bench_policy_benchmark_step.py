@@ -32,19 +32,19 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
 if hasattr(os, "sched_setaffinity"):
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
-from pytest_driveeval.sim.episodes import Episodes, reset  # noqa: E402
+from pytest_driveeval.sim.blueprints import make_blueprint
+from pytest_driveeval.sim.episodes import Episodes, reset
 
 AGENTS = 12
 BLUEPRINT_OF = {"highway-fast-v0": "highway", "merge-v0": "merging", "intersection-v0": "intersection"}
@@ -63,6 +63,7 @@ def graph_observer(episodes: Episodes):
     """(callable(episodes) -> flat observation, what happened) or (None, why not)."""
     try:
         import torch
+
         from pytest_driveeval.policies import graph
     except ImportError as exc:
         return None, f"not measured ({exc})"
@@ -176,7 +177,7 @@ def reference_python() -> Path:
     if not python.exists():
         print(f"creating {REFERENCE_VENV} ...", flush=True)
         subprocess.run([sys.executable, "-m", "venv", str(REFERENCE_VENV)], check=True)
-    if subprocess.run([str(python), "-c", "import highway_env"], capture_output=True).returncode != 0:
+    if subprocess.run([str(python), "-c", "import highway_env"], capture_output=True, check=False).returncode != 0:
         print(f"installing {HIGHWAY_ENV} into it (first run only) ...", flush=True)
         subprocess.run([str(python), "-m", "pip", "install", "-q", HIGHWAY_ENV], check=True)
     return python

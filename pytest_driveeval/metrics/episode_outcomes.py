@@ -9,7 +9,9 @@ limit.  The first that holds ends the episode.
 
 The reward is the seed's (BARK-ML's ``GoalReached`` evaluator plus its
 per-step bonus): +1 at the goal, -1 for a collision or leaving the road, and
-+0.01 for every other step, the step limit's included.
++0.01 for every other step, the step limit's included.  Mind that with a
+200-step limit an episode that idles to the end earns 2, more than one that
+reaches its goal early: judge policies on the outcomes, not on the return.
 """
 from __future__ import annotations
 

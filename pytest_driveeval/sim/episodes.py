@@ -22,13 +22,24 @@ bounds); ``map_bounds`` (xmin, ymin, xmax, ymax).  Every agent's box is
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from pytest_driveeval.geometry import box_corners
-from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, classify,
-                                                       ego_collides, in_goal, off_road, step_reward)
+from pytest_driveeval.metrics.episode_outcomes import (
+    COLLISION,
+    GOAL,
+    OFF_ROAD,
+    RUNNING,
+    STEP_LIMIT,
+    classify,
+    ego_collides,
+    in_goal,
+    off_road,
+    step_reward,
+)
 from pytest_driveeval.sim.agents import Traffic, TrafficModel, step_traffic
 from pytest_driveeval.sim.blueprints import Blueprint, make_blueprint
 from pytest_driveeval.sim.dynamics import KinematicBicycle

@@ -3,9 +3,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, cells_contain,
-                                                       classify, ego_collides, in_goal, off_road, step_reward,
-                                                       traffic_overlaps)
+from pytest_driveeval.metrics.episode_outcomes import (
+    COLLISION,
+    GOAL,
+    OFF_ROAD,
+    RUNNING,
+    STEP_LIMIT,
+    cells_contain,
+    classify,
+    ego_collides,
+    in_goal,
+    off_road,
+    step_reward,
+    traffic_overlaps,
+)
 
 SIZE = np.array([4.5, 1.8])
 

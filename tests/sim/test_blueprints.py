@@ -6,7 +6,13 @@ import pytest
 
 from pytest_driveeval.geometry import oriented_boxes_overlap
 from pytest_driveeval.sim.agents import TrafficModel
-from pytest_driveeval.sim.blueprints import BLUEPRINTS, Lane, ParameterError, Road, make_blueprint
+from pytest_driveeval.sim.blueprints import (
+    BLUEPRINTS,
+    Lane,
+    ParameterError,
+    Road,
+    make_blueprint,
+)
 
 NAMES = sorted(BLUEPRINTS)
 

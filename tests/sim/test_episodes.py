@@ -4,7 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT
+from pytest_driveeval.metrics.episode_outcomes import (
+    COLLISION,
+    GOAL,
+    OFF_ROAD,
+    RUNNING,
+    STEP_LIMIT,
+)
 from pytest_driveeval.sim.blueprints import make_blueprint
 from pytest_driveeval.sim.episodes import reset
 

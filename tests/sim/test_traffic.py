@@ -1,6 +1,8 @@
 """Traffic: IDM keeps its distance, MOBIL changes lanes for a gain, merges and crossings yield by gap acceptance."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -60,7 +62,7 @@ def test_idm_keeps_its_distance_behind_a_braking_leader(speed, brake):
         v = max(lead_v[-1] - brake * DT, 0.0)
         lead_s.append(lead_s[-1] + (0.5 * (lead_v[-1] + v) * DT if v > 0 else lead_v[-1] ** 2 / (2 * brake)))
         lead_v.append(v)
-    ego = lambda t: ((lead_s[t], 0.0), 0.0, lead_v[t])  # noqa: E731
+    ego = lambda t: ((lead_s[t], 0.0), 0.0, lead_v[t])
     history = run(road, vehicles(np.zeros(5), s, np.full(5, speed)), 120, ego)
     positions = np.array([np.concatenate([[lead_s[t + 1]], h.s[0, 1:]]) for t, h in enumerate(history)])
     gaps = positions[:, :-1] - positions[:, 1:] - SIZE[0]
@@ -141,7 +143,7 @@ def merging_case(main_s, ego_d):
     """A merging road; the ego stands 10 m before the end of its lane, ``ego_d`` to the left of its centre;
     one main-lane vehicle at ``main_s`` going 10 m/s wanting 12."""
     road = make_blueprint("merging").road
-    ego = lambda t: ((90.0, ego_d), 0.0, 0.0)  # noqa: E731
+    ego = lambda t: ((90.0, ego_d), 0.0, 0.0)
     return run(road, vehicles([0, 1], [90.0, main_s], [0.0, 10.0], [12.0, 12.0]), 60, ego)
 
 
@@ -173,7 +175,7 @@ def test_merge_lane_traffic_waits_for_a_gap_and_merges():
 def test_crossing_traffic_stops_for_an_ego_standing_in_its_lane():
     bp = make_blueprint("intersection")
     # Eastbound vehicle 40 m before the junction; the ego stands across the eastbound lane, facing north.
-    ego = lambda t: ((1.75, -1.75), np.pi / 2, 0.0)  # noqa: E731
+    ego = lambda t: ((1.75, -1.75), np.pi / 2, 0.0)
     history = run(bp.road, vehicles([2, 0], [80.0, 60.0], [0.0, 11.0], [11.0, 11.0]), 100, ego)
     front = history[-1].s[0, 1] - 100.0 + 0.5 * SIZE[0]  # x of its front bumper
     assert history[-1].speed[0, 1] < 0.05 and (1.75 - 0.9) - front >= 0.9 * MODEL.min_gap
@@ -190,7 +192,7 @@ def test_traffic_never_crashes_into_itself(name):
     moved = history[-1].s - start.s
     assert np.median(moved[start.valid][1:]) > 100.0, "traffic actually drove"
     if name == "highway":
-        assert sum(int(np.count_nonzero(a.lane != b.lane)) for a, b in zip(history, history[1:])) > 10
+        assert sum(int(np.count_nonzero(a.lane != b.lane)) for a, b in itertools.pairwise(history)) > 10
 
 
 def _poses_of(road, traffic):

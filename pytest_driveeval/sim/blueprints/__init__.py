@@ -13,14 +13,28 @@ where it differs from BARK-ML.
 from __future__ import annotations
 
 import difflib
+from collections.abc import Callable
 from dataclasses import fields
-from typing import Callable
 
-from pytest_driveeval.sim.blueprints.base import (Blueprint, BlueprintParams, Goal, ParameterError, Spawn)
+from pytest_driveeval.sim.blueprints.base import (
+    Blueprint,
+    BlueprintParams,
+    Goal,
+    ParameterError,
+    Spawn,
+)
 from pytest_driveeval.sim.blueprints.highway import HighwayParams, highway
-from pytest_driveeval.sim.blueprints.intersection import IntersectionParams, intersection
+from pytest_driveeval.sim.blueprints.intersection import (
+    IntersectionParams,
+    intersection,
+)
 from pytest_driveeval.sim.blueprints.merging import MergingParams, merging
-from pytest_driveeval.sim.blueprints.road import DrivableGrid, Lane, LaneProjection, Road
+from pytest_driveeval.sim.blueprints.road import (
+    DrivableGrid,
+    Lane,
+    LaneProjection,
+    Road,
+)
 
 __all__ = ["BLUEPRINTS", "Blueprint", "BlueprintParams", "DrivableGrid", "Goal", "Lane", "LaneProjection",
            "ParameterError", "Road", "Spawn", "make_blueprint"]

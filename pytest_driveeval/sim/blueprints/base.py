@@ -7,9 +7,10 @@ blueprint and the parameter, so the scenario layer can point at the YAML key.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from numbers import Real
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class Parameters:
             if check is None:
                 continue
             value = getattr(self, f.name)
-            where = lambda message, name=f.name: ParameterError(self.name, name, message)  # noqa: E731
+            where = lambda message, name=f.name: ParameterError(self.name, name, message)
             lo = f.metadata["min"]
             if check == "number":
                 value = _number(value, where)

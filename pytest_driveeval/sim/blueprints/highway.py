@@ -22,8 +22,18 @@ from typing import ClassVar
 
 import numpy as np
 
-from pytest_driveeval.sim.blueprints.base import (Blueprint, BlueprintParams, Goal, Spawn, count, indices,
-                                                  nearest_first, place_along, positive, span)
+from pytest_driveeval.sim.blueprints.base import (
+    Blueprint,
+    BlueprintParams,
+    Goal,
+    Spawn,
+    count,
+    indices,
+    nearest_first,
+    place_along,
+    positive,
+    span,
+)
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 
 __all__ = ["HighwayParams", "highway"]

@@ -28,8 +28,16 @@ from typing import ClassVar
 
 import numpy as np
 
-from pytest_driveeval.sim.blueprints.base import (Blueprint, BlueprintParams, Goal, Spawn, nearest_first,
-                                                  place_along, positive, span)
+from pytest_driveeval.sim.blueprints.base import (
+    Blueprint,
+    BlueprintParams,
+    Goal,
+    Spawn,
+    nearest_first,
+    place_along,
+    positive,
+    span,
+)
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 
 __all__ = ["IntersectionParams", "intersection"]
@@ -50,7 +58,8 @@ class IntersectionParams(BlueprintParams):
     ego_speed: tuple[float, float] = span((5.0, 10.0), "m/s (BARK-ML)", minimum=0.0)
     traffic_span: tuple[float, float] = span((-60.0, 15.0), "crossing traffic's spawn span relative to the "
                                              "junction centre along its lane, m (negative: upstream)")
-    ego_distance: tuple[float, float] = span((15.0, 25.0), "ego's start, m before the junction", minimum=0.0)
+    ego_distance: tuple[float, float] = span((15.0, 25.0), "ego's front bumper at the start, m before the "
+                                             "junction", minimum=0.0)
     goal_distance: tuple[float, float] = span((10.0, 20.0), "goal centre, m past the junction", minimum=0.0)
     goal_length: float = positive(15.0, "m")
     goal_heading_tol: float = positive(0.3, "rad")

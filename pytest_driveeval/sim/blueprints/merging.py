@@ -24,8 +24,16 @@ from typing import ClassVar
 
 import numpy as np
 
-from pytest_driveeval.sim.blueprints.base import (Blueprint, BlueprintParams, Goal, Spawn, nearest_first,
-                                                  place_along, positive, span)
+from pytest_driveeval.sim.blueprints.base import (
+    Blueprint,
+    BlueprintParams,
+    Goal,
+    Spawn,
+    nearest_first,
+    place_along,
+    positive,
+    span,
+)
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 
 __all__ = ["MergingParams", "merging"]

@@ -18,8 +18,9 @@ corners is then an index lookup per step instead of a polygon test.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -203,7 +204,7 @@ class Road:
         along = t - np.clip(t, self._lo, self._hi)
         dist = np.where(self._pad, np.inf, along * along + d * d)
         k = np.argmin(dist, axis=-1)[..., None]
-        pick = lambda v: np.take_along_axis(np.broadcast_to(v, dist.shape), k, axis=-1)[..., 0]  # noqa: E731
+        pick = lambda v: np.take_along_axis(np.broadcast_to(v, dist.shape), k, axis=-1)[..., 0]
         return LaneProjection(pick(self._start) + pick(t), pick(d), pick(self._heading))
 
     def pose(self, lane: np.ndarray, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
