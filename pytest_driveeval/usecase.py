@@ -29,6 +29,7 @@ ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
 _BUILTIN: dict[str, str] = {
     "closed_loop": "pytest_driveeval.usecases.closed_loop",
     "obstacle_segmentation": "pytest_driveeval.usecases.obstacle_segmentation",
+    "policy_benchmark": "pytest_driveeval.usecases.policy_benchmark",
 }
 
 

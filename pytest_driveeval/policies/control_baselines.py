@@ -1,0 +1,45 @@
+"""Baselines of the policy benchmark: what a learnt control policy must beat.
+
+They act on the simulator's episodes (``act_on_episodes``), not on the graph
+observation, so each knows its action bounds and each episode's seed.  Every
+action is a function of (seed, step) alone: a baseline's episode does not
+depend on which other episodes share its batch.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ConstantAction", "RandomAction"]
+
+
+def _bounds(episodes: Any) -> tuple[np.ndarray, np.ndarray]:
+    params = episodes.blueprint.params
+    low = np.array([params.ego_accel[0], -params.ego_max_steer])
+    high = np.array([params.ego_accel[1], params.ego_max_steer])
+    return low, high
+
+
+class RandomAction:
+    """Uniform in the action bounds, drawn from (seed, step) of each episode."""
+
+    def __init__(self, salt: int = 0) -> None:
+        self.salt = salt
+
+    def act_on_episodes(self, episodes: Any) -> np.ndarray:
+        low, high = _bounds(episodes)
+        draws = np.array([np.random.default_rng([self.salt, int(seed), int(step)]).random(2)
+                          for seed, step in zip(episodes.seeds, episodes.steps)])
+        return low + (high - low) * draws
+
+
+class ConstantAction:
+    """The same action every step: by default keep speed and steer straight."""
+
+    def __init__(self, acceleration: float = 0.0, steering: float = 0.0) -> None:
+        self.action = np.array([acceleration, steering], dtype=np.float64)
+
+    def act_on_episodes(self, episodes: Any) -> np.ndarray:
+        low, high = _bounds(episodes)
+        return np.broadcast_to(np.clip(self.action, low, high), (episodes.num_episodes, 2)).copy()

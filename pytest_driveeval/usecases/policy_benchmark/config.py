@@ -1,0 +1,133 @@
+"""The YAML of a ``policy_benchmark`` scenario (UseCaseFormatVersion 0.1.0).
+
+    Evaluation:
+      UseCaseName: policy_benchmark
+      UseCaseFormatVersion: 0.1.0
+      Blueprint:
+        Name: merging                 # highway | merging | intersection
+        Params: {gap: [7, 17]}        # the blueprint's own parameters, as in make_blueprint()
+      Episodes: 128                   # seeds FirstSeed .. FirstSeed + Episodes - 1
+      FirstSeed: 0
+      Strata: 8                       # seed groups the bootstrap resamples within
+      AgentLimit: 12
+      Policies:                       # name: model spec (TorchScript, weights.pt=module:factory) or a baseline
+        gnn: ../../fixtures/models/gnn_actor.pt
+        idm: idm_expert               # random | constant | idm_expert
+        random: random
+      Judged: [gnn]                   # whose items the Conditions decide; default: every non-baseline policy
+      Conditions:
+        Confidence: 95                # % for every interval below
+        GoalRate: {AtLeast: 60}       # % of episodes; decided on the interval's lower bound
+        CollisionRate: {AtMost: 10}   # decided on the upper bound
+        Beats: [{Baseline: random, Metric: goal_rate}]   # P(this policy > baseline) > 0.5 with confidence
+      Artefacts: {Animations: failing, ComparisonPlot: true}
+
+One item per policy.  A judged policy's item decides the conditions and runs
+the baselines it is compared with on the same seeds; the other items report
+their figures and intervals (the table of policies) and pass.
+"""
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
+
+from pytest_driveeval.usecase import ConditionsModel
+
+BASELINES = ("random", "constant", "idm_expert")
+METRICS = ("goal_rate", "collision_rate", "return")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class BlueprintSpec(_Strict):
+    Name: Literal["highway", "merging", "intersection"]
+    Params: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _params_fit_the_blueprint(self):
+        from pytest_driveeval.sim.blueprints import ParameterError, make_blueprint
+
+        try:
+            make_blueprint(self.Name, **self.Params)
+        except ParameterError as exc:
+            # Point at the parameter's own line, not at the Blueprint mapping.
+            message = str(exc).split(": ", 2)[-1]
+            raise ValidationError.from_exception_data("Blueprint", [InitErrorDetails(
+                type=PydanticCustomError("blueprint_parameter", "{message}", {"message": message}),
+                loc=("Params", exc.parameter), input=self.Params.get(exc.parameter))]) from None
+        return self
+
+
+class RateLimit(_Strict):
+    AtLeast: float | None = Field(None, ge=0.0, le=100.0)
+    AtMost: float | None = Field(None, ge=0.0, le=100.0)
+
+    @model_validator(mode="after")
+    def _one_bound(self):
+        if (self.AtLeast is None) == (self.AtMost is None):
+            raise ValueError("give AtLeast or AtMost")
+        return self
+
+
+class BeatsSpec(_Strict):
+    Baseline: str
+    Metric: Literal["goal_rate", "collision_rate", "return"] = "goal_rate"
+    Rule: Literal["improvement", "difference"] = "improvement"
+
+
+class BenchmarkConditions(_Strict):
+    Confidence: float = Field(95.0, gt=50.0, lt=100.0)
+    GoalRate: RateLimit | None = None
+    CollisionRate: RateLimit | None = None
+    OffRoadRate: RateLimit | None = None
+    Beats: list[BeatsSpec] = Field(default_factory=list)
+
+
+class BenchmarkArtefacts(_Strict):
+    Animations: Literal["all", "failing", "none"] = "failing"
+    ComparisonPlot: bool = True
+
+
+class PolicyBenchmarkConfig(ConditionsModel):
+    Blueprint: BlueprintSpec
+    Episodes: PositiveInt = 64
+    FirstSeed: NonNegativeInt = 0
+    Strata: PositiveInt = 8
+    AgentLimit: int = 12
+    StepLimit: PositiveInt | None = None
+    Policies: dict[str, str] = Field(min_length=1)
+    Judged: list[str] | None = None
+    Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions)
+    Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts)
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if self.AgentLimit < 1:
+            raise _located("AgentLimit", self.AgentLimit,
+                           "the agent limit counts the ego, so it is at least 1")
+        for index, name in enumerate(self.Judged or ()):
+            if name not in self.Policies:
+                raise _located(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
+                                                        f"({', '.join(self.Policies)})")
+        for index, beats in enumerate(self.Conditions.Beats):
+            if beats.Baseline not in self.Policies:
+                raise _located(("Conditions", "Beats", index, "Baseline"), beats.Baseline,
+                               f"'{beats.Baseline}' is not one of this scenario's Policies "
+                               f"({', '.join(self.Policies)})")
+        return self
+
+    def judged(self) -> list[str]:
+        if self.Judged is not None:
+            return self.Judged
+        learnt = [name for name, spec in self.Policies.items() if spec not in BASELINES]
+        return learnt or list(self.Policies)
+
+
+def _located(loc: str | tuple, value: Any, message: str) -> ValidationError:
+    loc = loc if isinstance(loc, tuple) else (loc,)
+    return ValidationError.from_exception_data("PolicyBenchmark", [InitErrorDetails(
+        type=PydanticCustomError("policy_benchmark", "{message}", {"message": message}), loc=loc, input=value)])

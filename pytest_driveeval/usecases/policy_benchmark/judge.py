@@ -1,0 +1,86 @@
+"""The verdict of a policy benchmark item: statistics over the seeded episodes, not raw differences.
+
+Every condition is decided on a confidence interval (stratified bootstrap
+over the seed groups; paired where two policies are compared) and its
+message carries the interval and the number of episodes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pytest_driveeval.metrics import benchmark_stats as stats
+from pytest_driveeval.outcome import Finding
+from pytest_driveeval.usecases.policy_benchmark.config import BenchmarkConditions, RateLimit
+from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
+
+__all__ = ["Judgement", "comparison", "judge", "rate_estimate"]
+
+RATES = {"GoalRate": ("goal rate", "goal"), "CollisionRate": ("collision rate", "collision"),
+         "OffRoadRate": ("off-road rate", "off_road")}
+
+
+@dataclass
+class Judgement:
+    passed: bool
+    findings: list[Finding]
+    #: every interval computed, for the summary and the comparison plot
+    intervals: dict[str, dict]
+
+
+def rate_estimate(run: PolicyRun, outcome: str, confidence: float, seed: int) -> stats.Estimate:
+    return stats.rate_interval(getattr(run, outcome), run.strata, confidence=confidence / 100.0, seed=seed)
+
+
+def comparison(a: PolicyRun, b: PolicyRun, metric: str, confidence: float, seed: int) -> stats.Comparison:
+    """A vs B on the same episodes; "better" means more goals, fewer collisions, a higher return."""
+    if not np.array_equal(a.seeds, b.seeds):
+        raise ValueError(f"policies '{a.policy}' and '{b.policy}' ran different episodes; a comparison is paired")
+    if metric == "goal_rate":
+        left, right, statistic = a.goal, b.goal, "mean"
+    elif metric == "collision_rate":
+        left, right, statistic = ~a.collision, ~b.collision, "mean"
+    else:
+        left, right, statistic = a.returns, b.returns, "iqm"
+    return stats.compare(left, right, a.strata, statistic=statistic, confidence=confidence / 100.0, seed=seed)
+
+
+def _interval(estimate: stats.Estimate) -> dict:
+    scale = 100.0 if estimate.percent else 1.0
+    return {"point": scale * estimate.point, "low": scale * estimate.low, "high": scale * estimate.high,
+            "n": estimate.n, "confidence": 100.0 * estimate.confidence, "method": estimate.method}
+
+
+def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: BenchmarkConditions, seed: int) -> Judgement:
+    findings: list[Finding] = []
+    intervals: dict[str, dict] = {}
+    passed = True
+    for key, (label, outcome) in RATES.items():
+        estimate = rate_estimate(run, outcome, conditions.Confidence, seed)
+        intervals[f"{outcome}_rate"] = _interval(estimate)
+        limit: RateLimit | None = getattr(conditions, key)
+        if limit is None:
+            continue
+        if limit.AtLeast is not None:
+            decision = stats.at_least(estimate, limit.AtLeast / 100.0, label=label)
+        else:
+            decision = stats.at_most(estimate, limit.AtMost / 100.0, label=label)
+        if not decision.passed:
+            passed = False
+            findings.append(Finding(decision.message, figure=f"{outcome}_rate",
+                                    keypath=("Evaluation", "Conditions", key)))
+    for index, spec in enumerate(conditions.Beats):
+        if spec.Baseline == run.policy:
+            continue  # a policy listed as its own baseline: nothing to compare
+        other = baselines[spec.Baseline]
+        result = comparison(run, other, spec.Metric, conditions.Confidence, seed)
+        label = f"'{run.policy}' beats '{other.policy}' on {spec.Metric.replace('_', ' ')}"
+        decision = stats.beats(result, rule=spec.Rule, label=label)
+        intervals[f"beats_{other.policy}_{spec.Metric}"] = {
+            "improvement": _interval(result.improvement), "difference": _interval(result.difference)}
+        if not decision.passed:
+            passed = False
+            findings.append(Finding(decision.message, figure=spec.Metric,
+                                    keypath=("Evaluation", "Conditions", "Beats", index)))
+    return Judgement(passed, findings, intervals)

@@ -1,0 +1,154 @@
+"""policy_benchmark end to end: YAML -> seeded episodes per policy -> decisions with intervals."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("scipy")
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint: {{Name: merging{params}}}
+  Episodes: {episodes}
+  AgentLimit: {agent_limit}
+  Policies:
+    mine: {mine}
+    random: random
+    constant: constant
+  Judged: [mine]
+  Conditions:
+{conditions}
+"""
+
+CONDITIONS = """\
+    GoalRate: {AtLeast: 50}
+    CollisionRate: {AtMost: 60}
+    Beats: [{Baseline: random, Metric: collision_rate}]
+"""
+
+
+def scenario(name="b", mine="constant", episodes=24, agent_limit=12, params="", conditions=CONDITIONS) -> str:
+    return SCENARIO.format(name=name, mine=mine, episodes=episodes, agent_limit=agent_limit, params=params,
+                           conditions=conditions)
+
+
+def records(pytester) -> dict:
+    data = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())
+    return {r["nodeid"]: r for r in data["results"]}
+
+
+def test_one_item_per_policy_and_the_judged_one_is_decided_on_intervals(pytester):
+    pytester.makefile(".scenario.yaml", bench=scenario())
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=2, failed=1)
+    # The point estimate is printed with its interval, the confidence and the number of episodes.
+    result.stdout.fnmatch_lines(["*goal rate 0.0 % [[]0.0, *[]] (95 % Wilson CI, 24 episodes) is not >= 50 %*"
+                                 "(bench.scenario.yaml:15)"])
+    by_id = records(pytester)
+    mine = by_id["bench.scenario.yaml::policy_benchmark[mine]"]
+    assert mine["status"] == "failed" and mine["details"]["judged"] is True
+    assert mine["figures"]["episodes"] == 24
+    goal = mine["details"]["intervals"]["goal_rate"]
+    assert goal["low"] <= goal["point"] <= goal["high"] and goal["n"] == 24
+    assert set(mine["details"]["compared"]) == {"random"}
+    baseline = by_id["bench.scenario.yaml::policy_benchmark[random]"]
+    assert baseline["status"] == "passed" and baseline["details"]["judged"] is False
+    assert len(mine["details"]["episodes"]) == 24
+
+
+def test_results_are_the_same_serially_and_with_two_workers(pytester):
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=16))
+
+    def outcome():
+        return {k: (r["status"], r["figures"], r["details"]["intervals"]) for k, r in records(pytester).items()}
+
+    pytester.runpytest("-q", "-p", "no:randomly")
+    serial = outcome()
+    pytester.runpytest("-q", "-n", "2")
+    assert outcome() == serial
+
+
+def test_a_passing_condition_set_passes(pytester):
+    easy = "    CollisionRate: {AtMost: 95}\n"
+    pytester.makefile(".scenario.yaml", easy=scenario(conditions=easy, episodes=40))
+    pytester.runpytest("-q").assert_outcomes(passed=3)
+
+
+@pytest.mark.parametrize("change, expected", [
+    (dict(params=", Params: {gapp: [7, 17]}"), "*easy.scenario.yaml:6: Evaluation.Blueprint.Params.gapp: "
+                                                "unknown parameter (did you mean 'gap'?)*"),
+    (dict(params=", Params: {gap: [17, 7]}"), "*easy.scenario.yaml:6: Evaluation.Blueprint.Params.gap: *"),
+    (dict(agent_limit=0), "*easy.scenario.yaml:8: Evaluation.AgentLimit: the agent limit counts the ego, so it "
+                          "is at least 1*"),
+    (dict(conditions="    Beats: [{Baseline: rnd}]\n"),
+     "*easy.scenario.yaml:15: Evaluation.Conditions.Beats[[]0[]].Baseline: 'rnd' is not one of this scenario's "
+     "Policies (mine, random, constant)*"),
+])
+def test_bad_scenario_values_are_located(pytester, change, expected):
+    pytester.makefile(".scenario.yaml", easy=scenario(**change))
+    result = pytester.runpytest("-q")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines([expected])
+    assert "Traceback" not in result.stdout.str()
+
+
+POLICIES = """\
+import torch
+
+
+class Broken(torch.nn.Module):
+    def __init__(self, what):
+        super().__init__()
+        self.what = what
+        self.calls = 0
+
+    def forward(self, obs):
+        self.calls += 1
+        if self.what == "shape":
+            return torch.zeros(obs.shape[0], 3)
+        out = torch.zeros(obs.shape[0], 2)
+        if self.calls == 4:
+            out[2, 1] = float("nan")
+        return out
+"""
+
+
+@pytest.mark.parametrize("what, message", [
+    ("nan", "*ModelError: policy 'mine' returned [[]0.0, nan[]] for episode 2 (seed 2) at step 3*"),
+    ("shape", "*ModelError: policy 'mine' returned actions of shape (8, 3) at step 0; expected (8, 2)*"),
+])
+def test_a_policy_returning_nan_or_the_wrong_shape_names_episode_and_step(pytester, what, message):
+    pytester.makepyfile(policies=POLICIES)
+    pytester.syspathinsert()
+    pytester.makeconftest("import pytest\nimport policies\n\n@pytest.fixture\ndef driveeval_model():\n"
+                          f"    return policies.Broken({what!r})\n")
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=8))
+    result = pytester.runpytest("-q", "-k", "mine")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines([message])
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_a_torch_policy_sees_the_seeds_flat_graph_observation(pytester):
+    pytester.makepyfile(policies="import json\nimport torch\n\n"
+                        "def keep_lane(obs):\n    with open('seen.jsonl', 'a') as f:\n"
+                        "        f.write(json.dumps([list(obs.shape), obs[:, :3].tolist()]) + '\\n')\n"
+                        "    return torch.zeros(len(obs), 2)\n")
+    pytester.syspathinsert()
+    pytester.makeconftest("import pytest\nimport policies\n\n@pytest.fixture\ndef driveeval_model():\n"
+                          "    return policies.keep_lane\n")
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=4, conditions="    Beats: []\n"))
+    result = pytester.runpytest("-q", "-k", "mine")
+    result.assert_outcomes(passed=1)
+    seen = [json.loads(line) for line in (pytester.path / "seen.jsonl").read_text().splitlines()]
+    assert seen
+    for shape, headers in seen:
+        # Seed 002's flat graph: header [agent limit, agent count, features], 12 x 11 nodes, 12 x 12 adjacency.
+        assert shape == [4, 3 + 12 * 11 + 12 * 12]
+        assert all(k == 12 and 1 <= n <= 12 and f == 11 for k, n, f in headers)
