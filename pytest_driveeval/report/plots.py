@@ -28,3 +28,39 @@ def bar_chart(path: Path, counts: Mapping[str, float], title: str, ylabel: str =
         fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
+
+
+def interval_chart(path: Path, intervals: Mapping[str, Mapping[str, Mapping[str, float]]], title: str,
+                   highlight: str | None = None) -> Path:
+    """Policies side by side, one panel per rate: the point and its confidence interval.
+
+    ``intervals[policy][metric] = {"point", "low", "high"}`` in percent; ``highlight`` the policy under test.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    policies = list(intervals)
+    metrics = list(dict.fromkeys(m for by_metric in intervals.values() for m in by_metric))
+    fig, axes = plt.subplots(1, len(metrics), figsize=(2.6 * len(metrics) + 1.2, 0.45 * len(policies) + 1.4),
+                             dpi=100, sharey=True, squeeze=False)
+    for ax, metric in zip(axes[0], metrics):
+        for row, policy in enumerate(policies):
+            value = intervals[policy].get(metric)
+            if value is None:
+                continue
+            colour = "#d32f2f" if policy == highlight else "#546e7a"
+            ax.errorbar(value["point"], row, xerr=[[value["point"] - value["low"]], [value["high"] - value["point"]]],
+                        fmt="o", color=colour, capsize=3)
+        ax.set_title(metric.replace("_", " ") + " (%)", fontsize=9)
+        ax.set_xlim(-5, 105)
+        ax.grid(axis="x", alpha=0.3)
+    axes[0][0].set_yticks(range(len(policies)), policies)
+    axes[0][0].invert_yaxis()
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path

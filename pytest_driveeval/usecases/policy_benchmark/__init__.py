@@ -63,38 +63,41 @@ class PolicyBenchmark(UseCase):
 
     def run(self, config: PolicyBenchmarkConfig, ctx: RunContext) -> Outcome:
         from pytest_driveeval.sim.blueprints import make_blueprint
+        from pytest_driveeval.usecases.policy_benchmark.artefacts import EpisodeRecorder, write_artefacts
         from pytest_driveeval.usecases.policy_benchmark.evaluate import run_policy, seeds_for
-        from pytest_driveeval.usecases.policy_benchmark.judge import judge
+        from pytest_driveeval.usecases.policy_benchmark.judge import interval, judge, rate_estimate
 
         policy = ctx.case.params["policy"]
-        blueprint = make_blueprint(config.Blueprint.Name, **config.Blueprint.Params)
+        params = dict(config.Blueprint.Params)
         if config.StepLimit is not None:
-            blueprint = make_blueprint(config.Blueprint.Name, **{**config.Blueprint.Params,
-                                                                  "max_steps": config.StepLimit})
+            params["max_steps"] = config.StepLimit
+        blueprint = make_blueprint(config.Blueprint.Name, **params)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
 
-        def run(name: str, model: Any):
-            return run_policy(blueprint, seeds, model, name, strata=strata, agent_limit=config.AgentLimit)
+        def run(name: str, model: Any, on_step=None):
+            return run_policy(blueprint, seeds, model, name, strata=strata, agent_limit=config.AgentLimit,
+                              on_step=on_step)
 
         judged = policy in config.judged()
         # Only a judged policy's item decides the conditions; the others report their intervals.
         conditions = config.Conditions if judged else BenchmarkConditions(Confidence=config.Conditions.Confidence)
-        runs = {policy: run(policy, ctx.fixtures["driveeval_model"])}
+        recorder = EpisodeRecorder() if config.Artefacts.Animations != "none" else None
+        runs = {policy: run(policy, ctx.fixtures["driveeval_model"], recorder)}
         for spec in conditions.Beats:
             if spec.Baseline not in runs:
                 runs[spec.Baseline] = run(spec.Baseline, load_policy(ctx, spec.Baseline,
                                                                      config.Policies[spec.Baseline]))
         judgement = judge(runs[policy], runs, conditions, seed=config.FirstSeed)
         mine = runs[policy]
+        rates = {name: {f"{o}_rate": interval(rate_estimate(r, o, conditions.Confidence, config.FirstSeed))
+                        for o in ("goal", "collision", "off_road")} for name, r in runs.items()}
+        artefacts = write_artefacts(ctx, mine, recorder, rates, config)
         figures = mine.figures()
         summary = (f"'{policy}' on {config.Blueprint.Name}: goal {figures['goal_rate']:.1f} %, collision "
                    f"{figures['collision_rate']:.1f} %, off road {figures['off_road_rate']:.1f} % of "
                    f"{figures['episodes']} episodes")
         details = {"policy": policy, "judged": judged, "blueprint": config.Blueprint.Name,
                    "intervals": judgement.intervals,
-                   "episodes": [{"seed": int(s), "outcome": o, "return": float(r), "steps": int(n)}
-                                for s, o, r, n in zip(mine.seeds, mine.outcome_names(), mine.returns, mine.steps)],
                    "compared": {name: r.figures() for name, r in runs.items() if name != policy}}
         return Outcome(self.name, PASSED if judgement.passed else FAILED, summary, figures=figures,
-                       findings=judgement.findings, details=details)
-
+                       findings=judgement.findings, details=details, artefacts=artefacts)

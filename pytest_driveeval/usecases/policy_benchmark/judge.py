@@ -15,7 +15,7 @@ from pytest_driveeval.outcome import Finding
 from pytest_driveeval.usecases.policy_benchmark.config import BenchmarkConditions, RateLimit
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
 
-__all__ = ["Judgement", "comparison", "judge", "rate_estimate"]
+__all__ = ["Judgement", "comparison", "interval", "judge", "rate_estimate"]
 
 RATES = {"GoalRate": ("goal rate", "goal"), "CollisionRate": ("collision rate", "collision"),
          "OffRoadRate": ("off-road rate", "off_road")}
@@ -46,7 +46,7 @@ def comparison(a: PolicyRun, b: PolicyRun, metric: str, confidence: float, seed:
     return stats.compare(left, right, a.strata, statistic=statistic, confidence=confidence / 100.0, seed=seed)
 
 
-def _interval(estimate: stats.Estimate) -> dict:
+def interval(estimate: stats.Estimate) -> dict:
     scale = 100.0 if estimate.percent else 1.0
     return {"point": scale * estimate.point, "low": scale * estimate.low, "high": scale * estimate.high,
             "n": estimate.n, "confidence": 100.0 * estimate.confidence, "method": estimate.method}
@@ -58,7 +58,7 @@ def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: Benchmark
     passed = True
     for key, (label, outcome) in RATES.items():
         estimate = rate_estimate(run, outcome, conditions.Confidence, seed)
-        intervals[f"{outcome}_rate"] = _interval(estimate)
+        intervals[f"{outcome}_rate"] = interval(estimate)
         limit: RateLimit | None = getattr(conditions, key)
         if limit is None:
             continue
@@ -78,7 +78,7 @@ def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: Benchmark
         label = f"'{run.policy}' beats '{other.policy}' on {spec.Metric.replace('_', ' ')}"
         decision = stats.beats(result, rule=spec.Rule, label=label)
         intervals[f"beats_{other.policy}_{spec.Metric}"] = {
-            "improvement": _interval(result.improvement), "difference": _interval(result.difference)}
+            "improvement": interval(result.improvement), "difference": interval(result.difference)}
         if not decision.passed:
             passed = False
             findings.append(Finding(decision.message, figure=spec.Metric,

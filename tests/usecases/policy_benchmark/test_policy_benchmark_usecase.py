@@ -59,7 +59,6 @@ def test_one_item_per_policy_and_the_judged_one_is_decided_on_intervals(pytester
     assert set(mine["details"]["compared"]) == {"random"}
     baseline = by_id["bench.scenario.yaml::policy_benchmark[random]"]
     assert baseline["status"] == "passed" and baseline["details"]["judged"] is False
-    assert len(mine["details"]["episodes"]) == 24
 
 
 def test_results_are_the_same_serially_and_with_two_workers(pytester):
@@ -152,3 +151,29 @@ def test_a_torch_policy_sees_the_seeds_flat_graph_observation(pytester):
         # Seed 002's flat graph: header [agent limit, agent count, features], 12 x 11 nodes, 12 x 12 adjacency.
         assert shape == [4, 3 + 12 * 11 + 12 * 12]
         assert all(k == 12 and 1 <= n <= 12 and f == 11 for k, n, f in headers)
+
+
+def test_artefacts_gif_of_a_failing_episode_with_its_graph_and_the_comparison_plot(pytester):
+    from PIL import Image
+
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=8))
+    pytester.runpytest("-q", "-k", "mine")
+    (record,) = records(pytester).values()
+    out = pytester.path / "driveeval-results"
+    assert set(record["artefacts"]) >= {"episodes", "comparison"}
+    (gif,) = [out / p for name, p in record["artefacts"].items() if name.endswith("_gif")]
+    frames = Image.open(gif)
+    assert frames.n_frames > 2
+    # The ego is drawn red in the middle of every frame.
+    assert frames.convert("RGB").getpixel((180, 180)) == (211, 47, 47)
+    episodes = json.loads((out / record["artefacts"]["episodes"]).read_text())["episodes"]
+    assert [e["seed"] for e in episodes] == list(range(8))
+    assert Image.open(out / record["artefacts"]["comparison"]).size[0] > 300
+
+
+def test_no_animation_when_the_scenario_asks_for_none(pytester):
+    text = scenario(episodes=4) + "  Artefacts: {Animations: none, ComparisonPlot: false}\n"
+    pytester.makefile(".scenario.yaml", bench=text)
+    pytester.runpytest("-q", "-k", "mine")
+    (record,) = records(pytester).values()
+    assert set(record["artefacts"]) == {"episodes"}
