@@ -6,12 +6,16 @@ import pytest
 # Must precede the import below, or the helpers' asserts would not be rewritten.
 pytest.register_assert_rewrite("pytest_driveeval.assertions",
                                "pytest_driveeval.usecases.closed_loop.assertions",
-                               "pytest_driveeval.usecases.obstacle_segmentation.assertions")
+                               "pytest_driveeval.usecases.obstacle_segmentation.assertions",
+                               "pytest_driveeval.usecases.policy_benchmark.assertions")
 
 from .assertions import (  # noqa: E402
+    assert_beats,
     assert_collision_free,
+    assert_collision_rate,
     assert_drift_within,
     assert_figure_within,
+    assert_goal_rate,
     assert_pass_rate,
     assert_passed,
     assert_values_within,
@@ -24,7 +28,8 @@ from .usecase import Case, ConditionsModel, RunContext, UseCase, register_usecas
 __version__ = "0.1.0"
 __all__ = [
     "Case", "ConditionsModel", "DataError", "DriveEvalError", "FAILED", "Finding", "ModelError", "Outcome",
-    "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_collision_free", "assert_drift_within",
-    "assert_figure_within", "assert_pass_rate", "assert_passed",
+    "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_beats", "assert_collision_free",
+    "assert_collision_rate", "assert_drift_within", "assert_figure_within", "assert_goal_rate", "assert_pass_rate",
+    "assert_passed",
     "assert_values_within", "load_scenario", "register_usecase",
 ]

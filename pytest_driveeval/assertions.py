@@ -18,11 +18,13 @@ from .verdict import within
 # per use case (each module is also registered for rewriting in ``__init__``).
 from .usecases.closed_loop.assertions import assert_collision_free, assert_drift_within
 from .usecases.obstacle_segmentation.assertions import assert_pass_rate
+from .usecases.policy_benchmark.assertions import assert_beats, assert_collision_rate, assert_goal_rate
 
 __all__ = [
     "assert_figure_within", "assert_passed", "assert_values_within",
     "assert_collision_free", "assert_drift_within",  # closed_loop
     "assert_pass_rate",  # obstacle_segmentation
+    "assert_beats", "assert_collision_rate", "assert_goal_rate",  # policy_benchmark
 ]
 
 
