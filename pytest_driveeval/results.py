@@ -19,7 +19,7 @@ from .errors import DriveEvalError
 from .failure import Failure
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import html_extras, html_wanted
-from .report.summary import SUMMARY_NAME, terminal_table
+from .report.summary import SUMMARY_NAME, policy_table_html, terminal_table
 from .runs import finish_run
 from .settings import RUN_KEY, get_settings
 
@@ -144,6 +144,13 @@ class ResultsReporter:
     def pytest_configure_node(self, node) -> None:
         """xdist: every worker writes into this session's run folder."""
         node.workerinput[RUN_KEY] = self.settings.run.to_json()
+
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_html_results_summary(self, prefix: list, summary: list, postfix: list, session) -> None:
+        """pytest-html: the policies side by side, above the list of tests."""
+        table = policy_table_html(self.collector.sorted_records())
+        if table:
+            postfix.append(table)
 
     def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
         # A run without scenario items leaves the results alone: no run folder.

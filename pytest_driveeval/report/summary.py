@@ -61,26 +61,60 @@ def markdown_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines + policy_table(summary["results"])) + "\n"
 
 
-def policy_table(records: list[dict[str, Any]]) -> list[str]:
-    """Policies side by side on the same data: one row per (use case, dataset),
-    one column per policy, when an evaluation names its policy in details."""
+def _interval_cell(intervals: dict[str, Any]) -> str:
+    parts = []
+    for key, label in (("goal_rate", "goal"), ("collision_rate", "collision")):
+        v = intervals.get(key)
+        if v:
+            parts.append(f"{label} {v['point']:.0f} % [{v['low']:.0f}, {v['high']:.0f}]")
+    return ", ".join(parts)
+
+
+def policy_grid(records: list[dict[str, Any]]) -> tuple[list[str], dict[tuple, dict[str, str]]]:
+    """Policies side by side on the same data: cells by (use case, dataset or
+    blueprint and scenario) and policy, when an evaluation names its policy in
+    details; a policy benchmark's cell holds its rates with their intervals."""
     cells: dict[tuple, dict[str, str]] = {}
     for r in records:
-        policy = (r.get("details") or {}).get("policy")
-        if policy is None or r.get("dataset") is None:
+        details = r.get("details") or {}
+        policy = details.get("policy")
+        where = r.get("dataset") or (f"{details['blueprint']} ({r.get('scenario')})" if details.get("blueprint")
+                                     else None)
+        if policy is None or where is None:
             continue
-        cell = f"{STATUS_MARK.get(r.get('status', ''), '')} {_cell(_key_figures(r, limit=4))}"
-        cells.setdefault((r.get("use_case"), r["dataset"]), {})[policy] = cell
-    if not any(len(by_policy) > 1 for by_policy in cells.values()):
+        shown = _interval_cell(details.get("intervals") or {}) or _key_figures(r, limit=4)
+        cells.setdefault((r.get("use_case"), where), {})[policy] = f"{STATUS_MARK.get(r.get('status', ''), '')} {shown}"
+    cells = {key: by_policy for key, by_policy in cells.items() if len(by_policy) > 1}
+    return sorted({p for by_policy in cells.values() for p in by_policy}), cells
+
+
+def policy_table(records: list[dict[str, Any]]) -> list[str]:
+    """The policy grid as Markdown (nothing when no data has two policies)."""
+    policies, cells = policy_grid(records)
+    if not cells:
         return []
-    policies = sorted({p for by_policy in cells.values() for p in by_policy})
     lines = ["", "### Policies by scenario", "",
-             "| use case | dataset | " + " | ".join(f"`{_cell(p)}`" for p in policies) + " |",
+             "| use case | data | " + " | ".join(f"`{_cell(p)}`" for p in policies) + " |",
              "|---|---|" + "---|" * len(policies)]
-    for (use_case, dataset), by_policy in sorted(cells.items()):
-        lines.append(f"| {_cell(use_case)} | {_cell(dataset)} | "
-                     + " | ".join(by_policy.get(p, "") for p in policies) + " |")
+    for (use_case, where), by_policy in sorted(cells.items()):
+        lines.append(f"| {_cell(use_case)} | {_cell(where)} | "
+                     + " | ".join(_cell(by_policy.get(p, "")) for p in policies) + " |")
     return lines
+
+
+def policy_table_html(records: list[dict[str, Any]]) -> str:
+    """The policy grid as an HTML table, for the html report's summary."""
+    from html import escape
+
+    policies, cells = policy_grid(records)
+    if not cells:
+        return ""
+    head = "".join(f"<th>{escape(p)}</th>" for p in policies)
+    rows = "".join(f"<tr><td>{escape(str(u))}</td><td>{escape(str(w))}</td>"
+                   + "".join(f"<td>{escape(by_policy.get(p, ''))}</td>" for p in policies) + "</tr>"
+                   for (u, w), by_policy in sorted(cells.items()))
+    return (f"<div class='driveeval-policies'><h3>Policies by scenario</h3><table><tr><th>use case</th>"
+            f"<th>data</th>{head}</tr>{rows}</table></div>")
 
 
 def write_summary(output_dir: Path, summary: dict[str, Any], step_summary: bool = True) -> None:

@@ -115,5 +115,5 @@ def test_markdown_compares_policies_on_the_same_data(two):
     two.runpytest("-q")
     markdown = (two.path / "driveeval-results" / "summary.md").read_text()
     table = markdown.split("### Policies by scenario")[1].strip().splitlines()
-    assert table[0] == "| use case | dataset | `constant_velocity` | `log_replay` |"
+    assert table[0] == "| use case | data | `constant_velocity` | `log_replay` |"
     assert table[2].startswith("| closed_loop | logs | ✅ front=0") and table[2].count("✅") == 2

@@ -177,3 +177,16 @@ def test_no_animation_when_the_scenario_asks_for_none(pytester):
     pytester.runpytest("-q", "-k", "mine")
     (record,) = records(pytester).values()
     assert set(record["artefacts"]) == {"episodes"}
+
+
+def test_policies_side_by_side_with_intervals_in_the_summary_and_the_html_report(pytester):
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=8))
+    pytester.runpytest("-q", "--html=report.html", "--self-contained-html")
+    markdown = (pytester.path / "driveeval-results" / "summary.md").read_text()
+    table = markdown.split("### Policies by scenario")[1].strip().splitlines()
+    assert table[0] == "| use case | data | `constant` | `mine` | `random` |"
+    row = table[2].split(" | ")
+    assert row[:2] == ["| policy_benchmark", "merging (b)"]
+    assert all("goal 0 % [0, " in cell and "collision " in cell for cell in row[2:])
+    html = (pytester.path / "report.html").read_text()
+    assert "Policies by scenario" in html and "merging (b)" in html
