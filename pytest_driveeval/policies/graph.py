@@ -224,24 +224,24 @@ def graph_observation(
                               (episodes, agents), "(E, A)").clone()
         goal_speeds[:, 0] = goal_speed
 
-    _check_finite(valid, xy=xy, yaw=yaw, speed=speed, goal_xy=goal_xy.unsqueeze(1),
-                  goal_speed=goal_speed.unsqueeze(1),
-                  **({} if agent_goal_xy is None else {"agent_goal_xy": goals}),
-                  **({} if agent_goal_speed is None else {"agent_goal_speed": goal_speeds}))
+    # One array for the checks and the gather: x, y, yaw, speed, goal x, goal y, goal speed.
+    per_agent = torch.cat([xy, yaw.unsqueeze(-1), speed.unsqueeze(-1), goals, goal_speeds.unsqueeze(-1)], dim=-1)
+    observed = valid.clone()
+    observed[:, 0] = True
+    if not bool((torch.isfinite(per_agent).all(dim=-1) | ~observed).all()):
+        _raise_not_finite(observed, xy=xy, yaw=yaw, speed=speed, goal_xy=goal_xy.unsqueeze(1),
+                          goal_speed=goal_speed.unsqueeze(1),
+                          **({} if agent_goal_xy is None else {"agent_goal_xy": goals}),
+                          **({} if agent_goal_speed is None else {"agent_goal_speed": goal_speeds}))
     order, count = _nearest(xy, valid, agent_limit)
     kept = order.shape[1]
     in_use = torch.arange(kept, device=xy.device).unsqueeze(0) < count.unsqueeze(1)
 
-    def take(values: Tensor) -> Tensor:
-        index = order.reshape(order.shape + (1,) * (values.dim() - 2)).expand(order.shape + values.shape[2:])
-        return torch.gather(values, 1, index)
-
-    pos, goal = take(xy), take(goals)
-    to_goal = goal - pos
-    raw = torch.stack([
-        pos[..., 0], pos[..., 1], take(yaw), take(speed), goal[..., 0], goal[..., 1], to_goal[..., 0],
-        to_goal[..., 1], torch.atan2(to_goal[..., 1], to_goal[..., 0]), torch.linalg.vector_norm(to_goal, dim=-1),
-        take(goal_speeds)], dim=-1)
+    taken = torch.gather(per_agent, 1, order.unsqueeze(-1).expand(-1, -1, per_agent.shape[-1]))
+    pos = taken[..., 0:2]
+    to_goal = taken[..., 4:6] - pos
+    raw = torch.cat([taken[..., :6], to_goal, torch.atan2(to_goal[..., 1:], to_goal[..., :1]),
+                     torch.linalg.vector_norm(to_goal, dim=-1, keepdim=True), taken[..., 6:]], dim=-1)
     lo, hi = torch.tensor(ranges.per_feature(), dtype=torch.float64, device=xy.device).unbind(1)
     normalised = torch.where(in_use.unsqueeze(-1), (raw - lo) / (hi - lo), 0.0)
 
@@ -270,12 +270,11 @@ def _nearest(xy: Tensor, valid: Tensor, agent_limit: int) -> tuple[Tensor, Tenso
     return order, 1 + torch.clamp(others, max=agent_limit - 1)
 
 
-def _check_finite(valid: Tensor, **arrays: Tensor) -> None:
-    """A valid agent (or the ego) with a NaN or infinite value is a simulator fault, not a far-away car."""
-    used = valid.clone()
-    used[:, 0] = True
+def _raise_not_finite(observed: Tensor, **arrays: Tensor) -> None:
+    """Name the input and agent of a NaN or infinity: in a valid agent (or the ego) it is a
+    simulator fault, not a far-away car."""
     for name, values in arrays.items():
-        bad = ~torch.isfinite(values.reshape(values.shape[:2] + (-1,))).all(dim=-1) & used[:, :values.shape[1]]
+        bad = ~torch.isfinite(values.reshape(values.shape[:2] + (-1,))).all(dim=-1) & observed[:, :values.shape[1]]
         if bool(bad.any()):
             episode, agent = (int(i) for i in bad.nonzero()[0])
             where = f"episode {episode}" if values.shape[1] == 1 else f"episode {episode}, agent {agent} (valid)"
