@@ -17,7 +17,8 @@ their edges, so no finite value they hold reaches the output.  The message's
 second layer is folded into the node update (see ``MessageRound.updated``).
 
 Everything here compiles with ``torch.jit.script``; weights load with
-``weights.pt=pytest_driveeval.policies.gnn:make_actor``.
+``weights.pt=pytest_driveeval.policies.gnn:make_actor``.  float32 or float64:
+float16 cannot hold the ``1e30``.
 """
 from __future__ import annotations
 

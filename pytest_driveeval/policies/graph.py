@@ -10,6 +10,13 @@ node features (padded rows zero), the ``K*K`` adjacency.  Edge features are not
 stored: :func:`decode` derives them from the nodes, which makes it the exact
 inverse of :func:`encode`.
 
+As BARK-ML's code does: ``goal_theta`` is the bearing from the agent to its
+goal, ``atan2(goal_dy, goal_dx)`` (the seed's prose calls it the orientation
+needed at the goal, so a goal heading is not an input); headings are neither
+wrapped nor clipped; an agent exactly at the radius is linked; each node has a
+self-loop (``SelfLoops``, on by default since October 2020; ``self_loops=False``
+is the seed's August 2020 observer).
+
 Where this differs from BARK-ML (bark_ml/observers/graph_observer.py):
 
 * The others are always sorted by distance; BARK-ML skips the sort when there
@@ -64,7 +71,8 @@ class ObservationRanges:
     ``x`` and ``y`` are the map's bounding box; distances and goal offsets
     follow from it as in BARK-ML (``distance`` up to the box diagonal, ``dx`` and
     ``dy`` over plus/minus the box size).  ``theta`` and ``velocity`` are the
-    seed's ``[0, 2pi]`` and ``[0, 100]`` m/s.
+    seed's ``[0, 2pi]`` and ``[0, 100]`` m/s (BARK-ML's ``BaseObserver`` now
+    defaults theta to ``[-2pi, 2pi]``).
     """
 
     x: Range
@@ -122,7 +130,7 @@ def check_agent_limit(agent_limit: int) -> None:
 
 def edge_features(nodes: Tensor, adjacency: Tensor) -> Tensor:
     """(B, K, K, 4): for each edge i -> j, node i minus node j in x, y, vel, theta."""
-    cols = nodes[:, :, [0, 1, 3, 2]]
+    cols = nodes[:, :, [0, 1, 3, 2]]  # EDGE_SOURCE_COLUMNS, spelled out: TorchScript reads no module globals
     return (cols.unsqueeze(2) - cols.unsqueeze(1)) * adjacency.unsqueeze(-1)
 
 
