@@ -35,7 +35,8 @@ ALLOWED = {
     "runs": {"atomic", "report"},
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
-    "policies": {"errors"},
+    # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
+    "policies": {"errors", "sim"},
     "sim": FOUNDATION | {"io", "metrics"},
     "synth": FOUNDATION | {"io"},
     "report": FOUNDATION,
