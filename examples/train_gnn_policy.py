@@ -40,7 +40,12 @@ in m.  Reaching the step limit is a truncation (bootstrapped), not a terminal.
 
 The shipped actor is the one with the best goal rate on a validation range
 (seeds 50000..50063, neither training nor evaluation), ties broken by fewer
-collisions; the curve reports the held-out range.  Deterministic for a seed
+collisions and then by the earlier checkpoint; the curve reports the held-out
+range.  In the run that made fixtures/models/gnn_actor_merging.pt (seed 0,
+``--dagger-rounds 8 --bc-epochs 8 --steps 25000 --minutes 22``) DAgger round 5
+already reached 100 % goals, 0 % collisions on both ranges and SAC fine-tuning
+held that for 23,579 updates without beating it, so the shipped weights are
+that DAgger checkpoint.  Deterministic for a seed
 with ``--steps`` (torch and numpy seeded, 2 threads); ``--minutes`` stops on
 wall time, so a run cut by it depends on the machine's speed.
 """
@@ -264,7 +269,7 @@ def main(argv=None) -> int:
             loss.backward()
             actor_opt.step()
             bc_updates += 1
-        print(f"DAgger round {rnd}: beta {beta:.3f}, {replay.size} labelled states, bc loss {float(loss):.4f}",
+        print(f"DAgger round {rnd}: beta {beta:.3f}, {replay.size} labelled states, bc loss {float(loss.detach()):.4f}",
               flush=True)
         checkpoint("dagger", bc_updates)
     if args.dagger_rounds:
