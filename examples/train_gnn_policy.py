@@ -62,7 +62,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pytest_driveeval.policies.control_baselines import ConstantAction, IDMExpert, RandomAction
+from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction
+from pytest_driveeval.policies.idm_expert import IDMExpert
 from pytest_driveeval.policies.gnn import make_actor, make_critic
 from pytest_driveeval.sim.blueprints import make_blueprint
 from pytest_driveeval.sim.episodes import reset

@@ -9,11 +9,8 @@ pytest.importorskip("scipy")  # assert_beats' intervals
 
 from pytest_driveeval import assert_beats
 from pytest_driveeval.geometry import oriented_boxes_overlap
-from pytest_driveeval.policies.control_baselines import (
-    ConstantAction,
-    IDMExpert,
-    RandomAction,
-)
+from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction
+from pytest_driveeval.policies.idm_expert import IDMExpert
 from pytest_driveeval.sim.blueprints import make_blueprint
 from pytest_driveeval.sim.blueprints.intersection import NORTH, WEST
 from pytest_driveeval.sim.episodes import reset

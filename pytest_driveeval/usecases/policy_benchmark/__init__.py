@@ -25,7 +25,7 @@ def baseline(name: str) -> Any:
         return RandomAction()
     if name == "constant":
         return ConstantAction()
-    from pytest_driveeval.policies.control_baselines import IDMExpert  # needs the simulator's lanes
+    from pytest_driveeval.policies.idm_expert import IDMExpert  # reads the simulator's lanes
 
     return IDMExpert()
 
