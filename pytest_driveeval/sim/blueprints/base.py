@@ -17,7 +17,7 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.road import Road
 
 __all__ = ["Blueprint", "BlueprintParams", "Goal", "ParameterError", "Parameters", "Spawn", "count", "indices",
-           "nearest_first", "place_along", "positive", "span"]
+           "finish_spawn", "nearest_first", "place_along", "positive", "span"]
 
 
 class ParameterError(ValueError):
@@ -202,3 +202,19 @@ def nearest_first(road: Road, ego_lane: int, ego_s: float, lane: np.ndarray, s: 
     xy, _ = road.pose(lane, s, np.zeros_like(s))
     dist = np.linalg.norm(xy - ego_xy, axis=-1)
     return np.lexsort((s, lane, dist))[:keep]
+
+
+def finish_spawn(rng: np.random.Generator, params: "BlueprintParams", road: Road, lane: np.ndarray, s: np.ndarray,
+                 ego_lane: int, ego_s: float, ego_speed: float, goal_lane: int, goal_s: float,
+                 agent_limit: int) -> Spawn:
+    """The part of a spawn every blueprint shares once its traffic is placed:
+    the vehicles' speeds, the nearest ``agent_limit - 1`` of them, and a goal
+    region centred on ``goal_lane`` at ``goal_s``.  Draws from ``rng`` in a
+    fixed order, so a seed gives the same episode whichever blueprint calls it."""
+    speed = rng.uniform(*params.speed, len(s))
+    desired = rng.uniform(*params.desired_speed, len(s))
+    keep = nearest_first(road, ego_lane, ego_s, lane, s, agent_limit - 1)
+    centre, heading = road.pose(np.array(goal_lane), np.array(goal_s), 0.0)
+    goal = Goal(centre, float(heading), params.goal_length, 2 * params.goal_lateral, params.goal_heading_tol,
+                params.goal_speed)
+    return Spawn(lane[keep], s[keep], speed[keep], desired[keep], ego_lane, ego_s, ego_speed, goal)

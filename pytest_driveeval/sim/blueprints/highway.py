@@ -25,11 +25,10 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.base import (
     Blueprint,
     BlueprintParams,
-    Goal,
     Spawn,
     count,
     indices,
-    nearest_first,
+    finish_spawn,
     place_along,
     positive,
     span,
@@ -94,12 +93,7 @@ def highway(params: HighwayParams) -> Blueprint:
             lane.append(np.full(len(pos), k))
             s.append(pos)
         lane, s = np.concatenate(lane), np.concatenate(s)
-        speed = rng.uniform(*params.speed, len(s))
-        desired = rng.uniform(*params.desired_speed, len(s))
-        keep = nearest_first(road, params.ego_lane, ego_s, lane, s, agent_limit - 1)
-        centre, heading = road.pose(np.array(goal_lane), np.array(goal_s), 0.0)
-        goal = Goal(centre, float(heading), params.goal_length, 2 * params.goal_lateral, params.goal_heading_tol,
-                    params.goal_speed)
-        return Spawn(lane[keep], s[keep], speed[keep], desired[keep], params.ego_lane, ego_s, ego_speed, goal)
+        return finish_spawn(rng, params, road, lane, s, params.ego_lane, ego_s, ego_speed, goal_lane, goal_s,
+                            agent_limit)
 
     return Blueprint("highway", params, road, spawn)

@@ -31,9 +31,8 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.base import (
     Blueprint,
     BlueprintParams,
-    Goal,
     Spawn,
-    nearest_first,
+    finish_spawn,
     place_along,
     positive,
     span,
@@ -106,12 +105,7 @@ def intersection(params: IntersectionParams) -> Blueprint:
             lane.append(np.full(len(pos), k))
             s.append(pos)
         lane, s = np.concatenate(lane), np.concatenate(s)
-        speed = rng.uniform(*params.speed, len(s))
-        desired = rng.uniform(*params.desired_speed, len(s))
-        keep = nearest_first(road, NORTH, ego_s, lane, s, agent_limit - 1)
-        centre, heading = road.pose(np.array(WEST), np.array(goal_s), 0.0)
-        goal = Goal(centre, float(heading), params.goal_length, 2 * params.goal_lateral, params.goal_heading_tol,
-                    params.goal_speed)
-        return Spawn(lane[keep], s[keep], speed[keep], desired[keep], NORTH, ego_s, ego_speed, goal)
+        return finish_spawn(rng, params, road, lane, s, NORTH, ego_s, ego_speed, WEST, goal_s,
+                            agent_limit)
 
     return Blueprint("intersection", params, road, spawn)

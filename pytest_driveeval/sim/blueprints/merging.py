@@ -27,9 +27,8 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.base import (
     Blueprint,
     BlueprintParams,
-    Goal,
     Spawn,
-    nearest_first,
+    finish_spawn,
     place_along,
     positive,
     span,
@@ -89,12 +88,7 @@ def merging(params: MergingParams) -> Blueprint:
         merge = merge[np.abs(merge - ego_s) >= params.gap[0]]
         lane = np.concatenate([np.full(len(merge), MERGE_LANE), np.full(len(main), MAIN_LANE)])
         s = np.concatenate([merge, main])
-        speed = rng.uniform(*params.speed, len(s))
-        desired = rng.uniform(*params.desired_speed, len(s))
-        keep = nearest_first(road, MERGE_LANE, ego_s, lane, s, agent_limit - 1)
-        centre, heading = road.pose(np.array(MAIN_LANE), np.array(goal_s), 0.0)
-        goal = Goal(centre, float(heading), params.goal_length, 2 * params.goal_lateral, params.goal_heading_tol,
-                    params.goal_speed)
-        return Spawn(lane[keep], s[keep], speed[keep], desired[keep], MERGE_LANE, ego_s, ego_speed, goal)
+        return finish_spawn(rng, params, road, lane, s, MERGE_LANE, ego_s, ego_speed, MAIN_LANE, goal_s,
+                            agent_limit)
 
     return Blueprint("merging", params, road, spawn)
