@@ -33,6 +33,7 @@ ALLOWED = {
     "verdict": {"outcome"},
     "settings": {"runs"},
     "runs": {"atomic", "report"},
+    "strategies": set(),
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
     # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
