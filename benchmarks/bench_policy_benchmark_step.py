@@ -57,29 +57,17 @@ REFERENCE_VENV = Path.home() / ".cache" / "driveeval-bench" / "highway-env"
 
 
 # --------------------------------------------------------------------------- HOOK: graph observation
-# Whoever owns pytest_driveeval.policies.graph: this calls graph_observation() + encode() on the
-# engine's arrays each step, inside the timing, once the module imports.  Adjust here if its API moves.
+# The use case's own observer (graph_observation + encode), inside the timing: what run_policy does each step.
 def graph_observer(episodes: Episodes):
     """(callable(episodes) -> flat observation, what happened) or (None, why not)."""
     try:
         import torch
 
-        from pytest_driveeval.policies import graph
+        from pytest_driveeval.usecases.policy_benchmark.evaluate import observer
     except ImportError as exc:
         return None, f"not measured ({exc})"
     torch.set_num_threads(1)
-    ranges = graph.ObservationRanges.from_bounding_box(*episodes.map_bounds)
-
-    def observe(ep: Episodes):
-        g = graph.graph_observation(ep.xy, ep.yaw, ep.speed, ep.valid, ep.goal_centre, ep.goal_speed, ranges,
-                                    agent_limit=ep.agent_limit)
-        return graph.encode(g)
-
-    try:
-        observe(episodes)
-    except (TypeError, AttributeError, ValueError) as exc:
-        return None, f"not measured (the hook no longer matches its API: {exc})"
-    return observe, "graph_observation + encode"
+    return observer(episodes, episodes.agent_limit), "graph_observation + encode"
 
 
 # --------------------------------------------------------------------------- ours

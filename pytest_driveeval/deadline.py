@@ -43,7 +43,7 @@ class _Limit:
 
     def error(self, in_call: bool = False) -> TimeLimitExceeded:
         during = " in a model call that did not return" if in_call or self.in_call else ""
-        where = ", ".join(f"{k} {v}" for k, v in self.where.items())
+        where = ", ".join(f"{k} {v() if callable(v) else v}" for k, v in self.where.items())
         return TimeLimitExceeded(f"{self.label}: time limit of {self.seconds:g} s exceeded{during}"
                                  f"{f' at {where}' if where else ''} (TimeLimit in the scenario, or "
                                  "--driveeval-time-limit)")
@@ -79,7 +79,8 @@ _worker: _Worker | None = None
 
 
 def note(**where: Any) -> None:
-    """Where the evaluation is now (``scene=3, step=41``); cheap when no limit is set."""
+    """Where the evaluation is now (``scene=3, step=41``); cheap when no limit is set.  A value may
+    be a callable, rendered only when the limit is hit: a step loop need not format every step."""
     if _active is not None:
         _active.where = where
 

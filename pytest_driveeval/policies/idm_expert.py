@@ -254,14 +254,10 @@ class IDMExpert:
     @staticmethod
     def _view(episodes: Any, plan: _Plan) -> _View:
         paths = plan.paths
-        hl, hw = 0.5 * np.asarray(episodes.size, np.float64)
-        proj = paths.project(episodes.xy)
-        rel = episodes.yaw[..., None] - proj.heading
-        cos_rel, sin_rel = np.cos(rel), np.sin(rel)
-        half_wide = np.abs(sin_rel) * hl + np.abs(cos_rel) * hw
-        inside = (proj.s > -hl) & (proj.s < paths.lengths + hl)
-        return _View(proj.s, proj.d, np.abs(cos_rel) * hl + np.abs(sin_rel) * hw,
-                     (np.abs(proj.d) - 0.5 * paths.widths < half_wide) & inside,
+        length, width = np.asarray(episodes.size, np.float64)
+        proj, cos_rel, half_long, clearance = paths.footprint(episodes.xy, episodes.yaw, length, width)
+        inside = (proj.s > -0.5 * length) & (proj.s < paths.lengths + 0.5 * length)
+        return _View(proj.s, proj.d, half_long, (clearance < 0.0) & inside,
                      episodes.speed[..., None] * cos_rel, (cos_rel > 0.0) & inside)
 
     @staticmethod

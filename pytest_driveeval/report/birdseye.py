@@ -1,18 +1,13 @@
 """Bird's-eye animation of an unroll: agents as boxes, the ego, its logged and
-driven trajectories, collisions marked.
-
-Drawn with Pillow straight from arrays (no matplotlib figure per frame), and
-sized for a report: frames are subsampled and the palette is small, so a GIF
-of a 250-frame scene stays a few hundred KB.
-"""
+driven trajectories, collisions marked (drawn as :mod:`.canvas` says)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
 from ..geometry import box_corners
+from .canvas import frames_to_show, pixel_mapper, save_gif
 
 BACKGROUND = (250, 250, 250)
 AGENT = (120, 144, 156)
@@ -42,11 +37,8 @@ def render_unroll_gif(
 ) -> Path:
     from PIL import Image, ImageDraw
 
-    T = len(ego_xy)
-    step = max(1, int(np.ceil(T / max_frames)))
-    shown = np.arange(0, T, step)
-    # Keep every collision frame visible even when subsampling skips it.
-    shown = np.union1d(shown, np.flatnonzero(collision)).astype(int)
+    # Every collision frame stays visible even when subsampling skips it.
+    shown = frames_to_show(len(ego_xy), max_frames, always=np.flatnonzero(collision))
     scale = size / meters
     agent_extent = np.broadcast_to(agent_extent, agent_xy.shape[:2] + (agent_extent.shape[-1],))[..., :2]
     ego_corners = box_corners(ego_xy, ego_yaw, np.broadcast_to(ego_extent[:2], ego_xy.shape))
@@ -55,11 +47,7 @@ def render_unroll_gif(
     images = []
     for t in shown:
         center = ego_xy[t]
-
-        def px(points: np.ndarray) -> list[tuple[float, float]]:
-            rel = (points - center) * scale
-            return [(size / 2 + x, size / 2 - y) for x, y in rel.reshape(-1, 2)]
-
+        px = pixel_mapper(center, scale, size)
         image = Image.new("RGB", (size, size), BACKGROUND)
         draw = ImageDraw.Draw(image)
         draw.line(px(logged_xy), fill=LOGGED, width=2)
@@ -71,9 +59,5 @@ def render_unroll_gif(
         draw.polygon(px(ego_corners[t]), outline=colour, fill=colour)
         label = f"{title}  frame {t}" + ("  COLLISION" if collision[t] else "")
         draw.text((4, 4), label, fill=COLLISION if collision[t] else TEXT)
-        images.append(image.quantize(colors=16, method=Image.Quantize.MEDIANCUT))
-
-    with atomic_path(path) as tmp:  # a killed session leaves no truncated GIF
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0,
-                       optimize=True)
-    return path
+        images.append(image)
+    return save_gif(path, images, frame_ms, colors=16)

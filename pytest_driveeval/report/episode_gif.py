@@ -2,7 +2,7 @@
 scene, as in seed 002's figure: the ego red, the others blue, the visibility
 zone around the ego, the goal green, and the observation's edges.
 
-Arrays in, a GIF out (Pillow, no figure per frame); the caller passes the
+Arrays in, a GIF out (drawn as :mod:`.canvas` says); the caller passes the
 road as polygons, so this module knows nothing of the simulator.
 """
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..atomic import atomic_path
 from ..geometry import box_corners
+from .canvas import frames_to_show, pixel_mapper, save_gif
 
 BACKGROUND = (250, 250, 250)
 ROAD = (224, 224, 224)
@@ -55,20 +55,12 @@ def render_episode_gif(
 ) -> Path:
     from PIL import Image, ImageDraw
 
-    steps = len(xy)
-    shown = np.arange(0, steps, max(1, int(np.ceil(steps / max_frames))))
-    if shown[-1] != steps - 1:
-        shown = np.append(shown, steps - 1)  # the end is what the verdict is about
+    shown = frames_to_show(len(xy), max_frames, always=[len(xy) - 1])  # the end is what the verdict is about
     scale = pixels / meters
     corners = box_corners(xy, yaw, np.broadcast_to(np.asarray(size_lw, float)[:2], xy.shape))
     images = []
     for t in shown:
-        centre = xy[t, 0]
-
-        def px(points: np.ndarray) -> list[tuple[float, float]]:
-            rel = (np.asarray(points).reshape(-1, 2) - centre) * scale
-            return [(pixels / 2 + x, pixels / 2 - y) for x, y in rel]
-
+        px = pixel_mapper(xy[t, 0], scale, pixels)
         image = Image.new("RGB", (pixels, pixels), BACKGROUND)
         draw = ImageDraw.Draw(image)
         for polygon in road:
@@ -82,8 +74,5 @@ def render_episode_gif(
             draw.polygon(px(corners[t, a]), fill=OTHER)
         draw.polygon(px(corners[t, 0]), fill=EGO)
         draw.text((4, 4), f"{title}  step {t}", fill=TEXT)
-        images.append(image.quantize(colors=32, method=Image.Quantize.MEDIANCUT))
-    with atomic_path(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=frame_ms, loop=0,
-                       optimize=True)
-    return path
+        images.append(image)
+    return save_gif(path, images, frame_ms, colors=32)

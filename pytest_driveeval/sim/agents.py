@@ -121,18 +121,14 @@ def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarr
     """
     e_n, a_n = traffic.s.shape
     lanes = np.arange(road.num_lanes)
-    hl, hw = 0.5 * size[0], 0.5 * size[1]
+    hl = 0.5 * size[0]
     is_vehicle = traffic.valid.copy()
     is_vehicle[:, 0] = False
     present = is_vehicle.copy()
     present[:, 0] = True
 
     # Every agent on every lane: (E, A, L).
-    proj = road.project(xy)
-    rel = yaw[..., None] - proj.heading
-    cos_rel, sin_rel = np.cos(rel), np.sin(rel)
-    half_long = np.abs(cos_rel) * hl + np.abs(sin_rel) * hw
-    clearance = np.abs(proj.d) - 0.5 * road.widths - (np.abs(sin_rel) * hl + np.abs(cos_rel) * hw)
+    proj, cos_rel, half_long, clearance = road.footprint(xy, yaw, *size)
     assigned = is_vehicle[..., None] & (traffic.lane[..., None] == lanes)
     occupies = present[..., None] & (assigned | (clearance < 0.0))
     lane = traffic.lane

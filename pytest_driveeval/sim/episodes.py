@@ -23,6 +23,7 @@ bounds); ``map_bounds`` (xmin, ymin, xmax, ymax).  Every agent's box is
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import fields
 from typing import NamedTuple
 
 import numpy as np
@@ -160,11 +161,8 @@ class Episodes:
         self._ego = AgentState(np.where(run, ego.xy, self._ego.xy), np.where(active, ego.yaw, self._ego.yaw),
                                np.where(active, ego.speed, self._ego.speed))
         old = self._traffic
-        self._traffic = Traffic(*(np.where(run, new, prev) for new, prev in zip(
-            (traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
-             traffic.change_time, traffic.yield_to, traffic.valid),
-            (old.lane, old.s, old.d, old.speed, old.desired_speed, old.change_offset, old.change_time, old.yield_to,
-             old.valid))))
+        self._traffic = Traffic(*(np.where(run, getattr(traffic, f.name), getattr(old, f.name))
+                                  for f in fields(Traffic)))
         self.xy = np.where(run[..., None], xy, self.xy)
         self.yaw = np.where(run, yaw, self.yaw)
         self.speed = np.where(run, speed, self.speed)

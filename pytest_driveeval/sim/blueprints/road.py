@@ -76,6 +76,15 @@ class LaneProjection(NamedTuple):
     heading: np.ndarray  # the lane's heading there, rad
 
 
+class Footprint(NamedTuple):
+    """Vehicle boxes seen from every lane; each field is (..., L)."""
+
+    proj: LaneProjection  # the box centres put onto the lanes
+    cos_rel: np.ndarray  # cosine of the box's heading relative to the lane's
+    half_long: np.ndarray  # the box's half extent along the lane, m
+    clearance: np.ndarray  # m from the box to the lane's ribbon sideways; negative: the box overlaps it
+
+
 @dataclass(frozen=True, eq=False)
 class DrivableGrid:
     """A boolean raster of the drivable area: ``mask[i, j]`` covers the cell whose
@@ -206,6 +215,17 @@ class Road:
         k = np.argmin(dist, axis=-1)[..., None]
         pick = lambda v: np.take_along_axis(np.broadcast_to(v, dist.shape), k, axis=-1)[..., 0]
         return LaneProjection(pick(self._start) + pick(t), pick(d), pick(self._heading))
+
+    def footprint(self, xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> Footprint:
+        """Boxes of ``length`` x ``width`` centred at ``xy`` (..., 2) heading ``yaw`` (...), on every lane:
+        how far along each lane they reach and whether they overlap it sideways."""
+        proj = self.project(xy)
+        rel = np.asarray(yaw)[..., None] - proj.heading
+        cos_rel, sin_rel = np.cos(rel), np.sin(rel)
+        along, across = np.abs(cos_rel), np.abs(sin_rel)
+        hl, hw = 0.5 * length, 0.5 * width
+        clearance = np.abs(proj.d) - 0.5 * self.widths - (across * hl + along * hw)
+        return Footprint(proj, cos_rel, along * hl + across * hw, clearance)
 
     def pose(self, lane: np.ndarray, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lane indices, arclengths and lateral offsets (all broadcasting) -> (xy (..., 2), heading (...))."""

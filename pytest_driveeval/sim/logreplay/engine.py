@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
@@ -220,7 +221,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             if cfg.device != "cpu":
                 batch = {k: v.to(cfg.device) for k, v in batch.items()}
             forwards += 1
-            note(scenes=format_scenes(log.scene_ids[rows]), frame=t, step=t - start)
+            note(scenes=partial(format_scenes, log.scene_ids[rows]), frame=t, step=t - start)
             tic = time.perf_counter()
             try:
                 out = guarded_call(policy, batch)

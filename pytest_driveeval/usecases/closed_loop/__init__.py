@@ -92,7 +92,8 @@ class ClosedLoop(UseCase):
         findings += [Finding(f"StartFrame {spec.StartFrame} is past the end of scene {s} of {dataset.path} "
                              f"({n} frames, 0..{n - 1})", scene=s, keypath=("Evaluation", "Unroll", "StartFrame"))
                      for s, n in past_end]
-        ids = [s for s in ids if s not in {s for s, _ in past_end}]
+        unreachable = {s for s, _ in past_end}
+        ids = [s for s in ids if s not in unreachable]
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, start_frame=spec.StartFrame,
                                steps=spec.Steps, drift_threshold=spec.DriftThreshold,
                                freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,

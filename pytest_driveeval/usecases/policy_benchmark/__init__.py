@@ -65,7 +65,7 @@ class PolicyBenchmark(UseCase):
         from pytest_driveeval.sim.blueprints import make_blueprint
         from pytest_driveeval.usecases.policy_benchmark.artefacts import EpisodeRecorder, write_artefacts
         from pytest_driveeval.usecases.policy_benchmark.evaluate import run_policy, seeds_for
-        from pytest_driveeval.usecases.policy_benchmark.judge import interval, judge, rate_estimate
+        from pytest_driveeval.usecases.policy_benchmark.judge import RATES, judge, rate_intervals
 
         policy = ctx.case.params["policy"]
         params = dict(config.Blueprint.Params)
@@ -89,8 +89,10 @@ class PolicyBenchmark(UseCase):
                                                                      config.Policies[spec.Baseline]))
         judgement = judge(runs[policy], runs, conditions, seed=config.FirstSeed)
         mine = runs[policy]
-        rates = {name: {f"{o}_rate": interval(rate_estimate(r, o, conditions.Confidence, config.FirstSeed))
-                        for o in ("goal", "collision", "off_road")} for name, r in runs.items()}
+        # This item's rates are in its judgement already; the baselines' are for the comparison plot.
+        keys = [f"{outcome}_rate" for _, outcome in RATES.values()]
+        rates = {name: {k: judgement.intervals[k] for k in keys} if name == policy
+                 else rate_intervals(r, conditions.Confidence, config.FirstSeed) for name, r in runs.items()}
         artefacts = write_artefacts(ctx, mine, recorder, rates, config)
         figures = mine.figures()
         summary = (f"'{policy}' on {config.Blueprint.Name}: goal {figures['goal_rate']:.1f} %, collision "

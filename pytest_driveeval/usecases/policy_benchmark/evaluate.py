@@ -18,7 +18,7 @@ from pytest_driveeval.deadline import TimeLimitExceeded, guarded_call, note
 from pytest_driveeval.errors import ModelError
 from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, OUTCOME_NAMES, STEP_LIMIT
 
-__all__ = ["PolicyRun", "observe", "run_policy", "seeds_for"]
+__all__ = ["PolicyRun", "observe", "observer", "run_policy", "seeds_for"]
 
 #: called after every step with the episodes, for pictures of an episode
 StepSink = Callable[[Any], None]
@@ -73,14 +73,24 @@ def seeds_for(first_seed: int, episodes: int, strata: int) -> tuple[np.ndarray, 
     return seeds, (np.arange(episodes) * groups) // episodes
 
 
-def observe(episodes: Any, agent_limit: int):
-    """The flat graph observation (E, D) float32 of every episode (seed 002's encoding)."""
+def observer(episodes: Any, agent_limit: int) -> Callable[[Any], Any]:
+    """``observe(episodes)`` -> the flat graph observation (E, D) float32 of every
+    episode (seed 002's encoding), with the normalisation of these episodes' map
+    worked out once rather than every step."""
     from pytest_driveeval.policies.graph import ObservationRanges, encode, graph_observation
 
     ranges = ObservationRanges.from_bounding_box(*episodes.map_bounds)
-    graph = graph_observation(episodes.xy, episodes.yaw, episodes.speed, episodes.valid, episodes.goal_centre,
-                              episodes.goal_speed, ranges, agent_limit=agent_limit)
-    return encode(graph)
+
+    def observe_now(now: Any):
+        return encode(graph_observation(now.xy, now.yaw, now.speed, now.valid, now.goal_centre, now.goal_speed,
+                                        ranges, agent_limit=agent_limit))
+
+    return observe_now
+
+
+def observe(episodes: Any, agent_limit: int):
+    """The flat graph observation (E, D) float32 of every episode, once."""
+    return observer(episodes, agent_limit)(episodes)
 
 
 def _actions(out: Any, episodes: Any, policy: str, step: int) -> np.ndarray:
@@ -119,6 +129,7 @@ def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str
 
     episodes = reset(blueprint, np.asarray(seeds, dtype=np.int64), agent_limit)
     on_state = getattr(policy, "act_on_episodes", None)
+    observe_now = observer(episodes, agent_limit)
     step = 0
     if on_step is not None:
         on_step(episodes)
@@ -126,8 +137,7 @@ def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str
         while not episodes.done.all():
             note(policy=name, step=step)
             try:
-                out = on_state(episodes) if on_state is not None else guarded_call(
-                    policy, observe(episodes, agent_limit))
+                out = on_state(episodes) if on_state is not None else guarded_call(policy, observe_now(episodes))
             except (TimeLimitExceeded, ModelError):
                 raise
             except Exception as exc:  # a broken policy fails its item, not the session

@@ -15,7 +15,7 @@ from pytest_driveeval.outcome import Finding
 from pytest_driveeval.usecases.policy_benchmark.config import BenchmarkConditions, RateLimit
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
 
-__all__ = ["Judgement", "comparison", "interval", "judge", "rate_estimate"]
+__all__ = ["RATES", "Judgement", "comparison", "interval", "judge", "rate_estimate", "rate_intervals"]
 
 RATES = {"GoalRate": ("goal rate", "goal"), "CollisionRate": ("collision rate", "collision"),
          "OffRoadRate": ("off-road rate", "off_road")}
@@ -52,11 +52,16 @@ def interval(estimate: stats.Estimate) -> dict:
             "n": estimate.n, "confidence": 100.0 * estimate.confidence, "method": estimate.method}
 
 
+def rate_intervals(run: PolicyRun, confidence: float, seed: int) -> dict[str, dict]:
+    """Every rate of ``run`` with its interval, keyed ``goal_rate``, ``collision_rate``, ``off_road_rate``."""
+    return {f"{outcome}_rate": interval(rate_estimate(run, outcome, confidence, seed)) for _, outcome in RATES.values()}
+
+
 def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: BenchmarkConditions, seed: int) -> Judgement:
     findings: list[Finding] = []
     intervals: dict[str, dict] = {}
     passed = True
-    for key, (label, outcome) in RATES.items():
+    for key, (label, outcome) in RATES.items():  # every rate's interval, for the report; limits where set
         estimate = rate_estimate(run, outcome, conditions.Confidence, seed)
         intervals[f"{outcome}_rate"] = interval(estimate)
         limit: RateLimit | None = getattr(conditions, key)
