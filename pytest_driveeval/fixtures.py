@@ -20,6 +20,7 @@ from .errors import DriveEvalError
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
+from .search.spec import SearchOptions
 from .runs import start_run
 from .settings import get_settings, item_seed
 from .usecase import Case, RunContext
@@ -74,9 +75,12 @@ def driveeval_seed(request: pytest.FixtureRequest) -> int:
 def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenario,
                       driveeval_output_dir: Path, driveeval_seed: int) -> RunContext:
     _, case = _binding(request)
+    settings = get_settings(request.config)
+    search = SearchOptions(examples=settings.search_examples, replay=settings.replay,
+                           profile=settings.search_profile, database=settings.search_database)
     return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
                       output_dir=driveeval_output_dir, seed=driveeval_seed,
-                      allow_code=get_settings(request.config).allow_scenario_code)
+                      allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search)
 
 
 @pytest.fixture

@@ -31,6 +31,14 @@ class Settings:
     run: RunIdentity | None = None
     time_limit: float | None = None
     keep_runs: int = DEFAULT_KEEP_RUNS
+    search_examples: int | None = None
+    replay: str | None = None
+    search_profile: str = "default"
+
+    @property
+    def search_database(self) -> Path:
+        """The example database of robustness searches: failures found are replayed first next time."""
+        return self.output_dir / "search-examples"
 
     @property
     def run_dir(self) -> Path:
@@ -80,6 +88,17 @@ def add_options(parser: pytest.Parser) -> None:
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
                     help="let scenario files name code to run: 'Model: pickle:file' or 'module:factory' "
                          "(ini: driveeval_allow_scenario_code; off by default: scenario files travel with data)")
+    group.addoption("--driveeval-search-examples", metavar="N", default=None,
+                    help="examples a robustness search tries (a scenario's Perturbation.Examples otherwise; "
+                         "ini: driveeval_search_examples)")
+    group.addoption("--driveeval-search-profile", choices=("default", "ci"), default=None,
+                    help="ci: derandomised searches without the example database (default when the CI "
+                         "environment variable is set; ini: driveeval_search_profile)")
+    group.addoption("--driveeval-replay", metavar="CASE", default=None,
+                    help="evaluate exactly this perturbed case instead of searching, e.g. "
+                         "'scene=0,lateral=1.73' (a failing search prints the line)")
+    parser.addini("driveeval_search_examples", "examples a robustness search tries", default="")
+    parser.addini("driveeval_search_profile", "default | ci", default="")
     parser.addini("driveeval_output", "where results and artefacts go", default="driveeval-results")
     parser.addini("driveeval_data_root", "folder holding the datasets scenarios name", default="")
     parser.addini("driveeval_model", "model evaluated instead of each scenario's own", default="")
@@ -124,6 +143,13 @@ def settings_from_config(config: pytest.Config) -> Settings:
     keep = config.getini("driveeval_keep_runs")
     if not str(keep).isdigit():
         raise pytest.UsageError(f"driveeval_keep_runs must be a whole number (0: keep all), got {keep!r}")
+    examples, _ = pick("driveeval_search_examples", "driveeval_search_examples")
+    if examples is not None and not (examples.isdigit() and int(examples) > 0):
+        raise pytest.UsageError(f"driveeval search examples must be a whole number > 0, got {examples!r}")
+    profile, _ = pick("driveeval_search_profile", "driveeval_search_profile")
+    profile = profile or ("ci" if os.environ.get("CI", "").lower() not in ("", "0", "false") else "default")
+    if profile not in ("default", "ci"):
+        raise pytest.UsageError(f"driveeval search profile must be 'default' or 'ci', got {profile!r}")
     # Workers take the controller's run, so one session writes one run folder.
     shared = getattr(config, "workerinput", {}).get(RUN_KEY)
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
@@ -138,6 +164,9 @@ def settings_from_config(config: pytest.Config) -> Settings:
         run=run,
         keep_runs=int(keep),
         time_limit=time_limit,
+        search_examples=int(examples) if examples else None,
+        replay=config.getoption("driveeval_replay") or None,
+        search_profile=profile,
     )
 
 

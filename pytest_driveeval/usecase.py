@@ -103,6 +103,10 @@ class RunContext:
     notes: dict[str, Any] = field(default_factory=dict)
     #: the person running pytest lets scenario files name code to run (pickle, module:factory)
     allow_code: bool = False
+    #: the pytest node id of the item (for the one-line replay of a failure)
+    nodeid: str = ""
+    #: the session's options for robustness searches (search.item.SearchOptions)
+    search: Any = None
 
     def artefact(self, filename: str) -> Path:
         self.output_dir.mkdir(parents=True, exist_ok=True)

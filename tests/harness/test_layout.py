@@ -34,6 +34,7 @@ ALLOWED = {
     "settings": {"runs"},
     "runs": {"atomic", "report"},
     "strategies": set(),
+    "search": {"errors", "outcome", "strategies"},
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
     # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
@@ -43,7 +44,8 @@ ALLOWED = {
     "report": FOUNDATION,
     "usecase": {"errors", "outcome"},
     "scenario": {"errors", "usecase"},
-    "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario"},
+    "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario",
+                             "search", "strategies"},
     # Stable import paths of the Python API, onto their use case's package.
     "closed_loop": {"usecases"},
     "obstacle": {"usecases"},
