@@ -17,8 +17,8 @@ from typing import Any, Callable, TypeVar
 
 from hypothesis import strategies as st
 
-__all__ = ["BlueprintPerturbation", "CloudPerturbation", "StartPerturbation", "blueprint_perturbations",
-           "cloud_perturbations", "describe", "start_perturbations", "tighten"]
+__all__ = ["CloudPerturbation", "EpisodePerturbation", "StartPerturbation", "cloud_perturbations", "describe",
+           "episode_perturbations", "start_perturbations", "tighten"]
 
 Range = tuple[float, float]
 P = TypeVar("P")
@@ -44,14 +44,16 @@ class StartPerturbation:
 
 
 @dataclass(frozen=True)
-class BlueprintPerturbation:
-    """Denser or sparser traffic in a benchmark blueprint: gaps and speeds scaled."""
+class EpisodePerturbation(StartPerturbation):
+    """A policy-benchmark episode's start perturbed: the ego's start as in
+    :class:`StartPerturbation`, and the blueprint's spawn gaps scaled by
+    ``gap_scale``.  Traffic density is 1 / gap, so ``gap_scale < 1`` is denser
+    traffic and ``gap_scale > 1`` sparser."""
 
     gap_scale: float = 1.0
-    speed_scale: float = 1.0
 
-    def to_json(self) -> dict[str, float]:
-        return asdict(self)
+    def is_identity(self) -> bool:
+        return self == EpisodePerturbation()
 
 
 @dataclass(frozen=True)
@@ -95,10 +97,17 @@ def start_perturbations(lateral: Range = (0.0, 0.0), longitudinal: Range = (0.0,
                      agents_speed_scale=_around("agents_speed_scale", agents_speed_scale, 1.0))
 
 
-def blueprint_perturbations(gap_scale: Range = (1.0, 1.0), speed_scale: Range = (1.0, 1.0)
-                            ) -> st.SearchStrategy[BlueprintPerturbation]:
-    return st.builds(BlueprintPerturbation, gap_scale=_around("gap_scale", gap_scale, 1.0),
-                     speed_scale=_around("speed_scale", speed_scale, 1.0))
+def episode_perturbations(lateral: Range = (0.0, 0.0), longitudinal: Range = (0.0, 0.0),
+                          heading: Range = (0.0, 0.0), speed_scale: Range = (1.0, 1.0),
+                          agents_speed_scale: Range = (1.0, 1.0), gap_scale: Range = (1.0, 1.0)
+                          ) -> st.SearchStrategy[EpisodePerturbation]:
+    """Episode perturbations within the ranges (each must contain its no-change value)."""
+    return st.builds(EpisodePerturbation, lateral=_around("lateral", lateral, 0.0),
+                     longitudinal=_around("longitudinal", longitudinal, 0.0),
+                     heading=_around("heading", heading, 0.0),
+                     speed_scale=_around("speed_scale", speed_scale, 1.0),
+                     agents_speed_scale=_around("agents_speed_scale", agents_speed_scale, 1.0),
+                     gap_scale=_around("gap_scale", gap_scale, 1.0))
 
 
 def cloud_perturbations(dropout: Range = (0.0, 0.0), range_noise: Range = (0.0, 0.0),

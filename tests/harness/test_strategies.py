@@ -6,12 +6,12 @@ from hypothesis import find, given
 from hypothesis import settings as hsettings
 
 from pytest_driveeval.strategies import (
-    BlueprintPerturbation,
     CloudPerturbation,
+    EpisodePerturbation,
     StartPerturbation,
-    blueprint_perturbations,
     cloud_perturbations,
     describe,
+    episode_perturbations,
     start_perturbations,
     tighten,
 )
@@ -45,7 +45,7 @@ def test_tighten_resets_fields_that_do_not_matter_and_bisects_integers():
 
 
 def test_scale_factors_shrink_towards_one():
-    found = find(blueprint_perturbations(gap_scale=(0.3, 2.0)), lambda p: p.gap_scale < 0.8,
+    found = find(episode_perturbations(gap_scale=(0.3, 2.0), speed_scale=(0.5, 1.5)), lambda p: p.gap_scale < 0.8,
                  settings=hsettings(max_examples=2000, database=None))
     assert found.gap_scale < 0.8 and found.speed_scale == 1.0
     assert 0.799 <= tighten(found, lambda p: p.gap_scale < 0.8).gap_scale < 0.8
@@ -72,4 +72,13 @@ def test_describe_names_only_what_changed():
     assert describe(StartPerturbation(lateral=1.25, heading=-0.05)) == "lateral=1.25, heading=-0.05"
     assert describe(StartPerturbation()) == "no perturbation" and StartPerturbation().is_identity()
     assert describe(CloudPerturbation(ghost_points=12)) == "ghost_points=12"
-    assert BlueprintPerturbation().to_json() == {"gap_scale": 1.0, "speed_scale": 1.0}
+    assert EpisodePerturbation().to_json() == {**StartPerturbation().to_json(), "gap_scale": 1.0}
+    assert EpisodePerturbation().is_identity() and not EpisodePerturbation(gap_scale=0.7).is_identity()
+    assert describe(EpisodePerturbation(gap_scale=0.7)) == "gap_scale=0.7"
+
+
+@given(episode_perturbations(**FULL, gap_scale=(0.5, 2.0)))
+def test_episode_perturbations_stay_in_their_ranges(p):
+    assert isinstance(p, EpisodePerturbation) and isinstance(p, StartPerturbation)
+    for name, (low, high) in {**FULL, "gap_scale": (0.5, 2.0)}.items():
+        assert low <= getattr(p, name) <= high
