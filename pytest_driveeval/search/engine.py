@@ -89,6 +89,15 @@ class _StopShrinking(BaseException):
     so hypothesis does not take it for a failure of the property)."""
 
 
+class _Aborted(BaseException):
+    """An error of the evaluation itself (a broken model, a time limit): it ends
+    the search at once, rather than being shrunk by hypothesis as if it were
+    the failure searched for."""
+
+    def __init__(self, error: Exception):
+        self.error = error
+
+
 def database_key(*parts: Any) -> bytes:
     """A database key from what identifies a search (scenario file, its name, the dataset ...)."""
     return hashlib.sha256("\x1f".join(map(str, ("pytest-driveeval search", *parts))).encode()).digest()
@@ -103,12 +112,13 @@ def size_of(perturbation: Any, widths: dict[str, float]) -> float:
 
 
 def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any], evaluate_many: EvaluateMany,
-           widths: dict[str, float], config: SearchSettings) -> SearchResult:
+           ranges: dict[str, tuple[float, float]], config: SearchSettings) -> SearchResult:
     """Search for a failing example; see the module's docstring.
 
-    ``widths``: each perturbation field's range width (what ``tolerance`` and
-    :func:`size_of` are relative to).
+    ``ranges``: each perturbation field's (low, high), what ``tolerance`` and
+    :func:`size_of` are relative to.
     """
+    widths = {name: high - low for name, (low, high) in ranges.items()}
     started = time.perf_counter()
     result = SearchResult()
     memo: dict[Example, Verdict] = {}
@@ -120,9 +130,12 @@ def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any],
         if new:
             if phase[0] == "shrink" and result.evaluations.get("shrink", 0) >= config.max_shrink_evaluations:
                 raise _StopShrinking
-            verdicts = evaluate_many(new)
-            if len(verdicts) != len(new):
-                raise RuntimeError(f"evaluate_many returned {len(verdicts)} verdicts for {len(new)} examples")
+            try:
+                verdicts = evaluate_many(new)
+                if len(verdicts) != len(new):
+                    raise RuntimeError(f"evaluate_many returned {len(verdicts)} verdicts for {len(new)} examples")
+            except Exception as exc:
+                raise _Aborted(exc) from exc
             memo.update(zip(new, verdicts))
             result.evaluations[phase[0]] = result.evaluations.get(phase[0], 0) + len(new)
             for e, v in zip(new, verdicts):
@@ -153,10 +166,15 @@ def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any],
             (e for e in shrunk_generation if memo[e].failed), key=lambda e: _rank(e, widths))
     except _StopShrinking:
         shrunk = smallest[0]
+    except _Aborted as aborted:
+        raise aborted.error from None
     if shrunk is not None:
         phase[0] = "tighten"
         result.shrunk = shrunk
-        result.minimal, result.edges = tighten_many(shrunk, evaluate, widths, config.tolerance)
+        try:
+            result.minimal, result.edges = tighten_many(shrunk, evaluate, ranges, config.tolerance)
+        except _Aborted as aborted:
+            raise aborted.error from None
         result.verdict = memo[result.minimal]
     result.examples = len(memo)
     result.failures = sum(v.failed for v in memo.values())
@@ -197,16 +215,20 @@ def _rank(example: Example, widths: dict[str, float]) -> tuple[float, int]:
 
 
 def tighten_many(example: Example, evaluate: Callable[[Sequence[Example]], list[Verdict]],
-                 widths: dict[str, float], tolerance: float = 0.01, points: int = 15
+                 ranges: dict[str, tuple[float, float]], tolerance: float = 0.01, points: int = 15
                  ) -> tuple[Example, dict[str, float]]:
     """``example`` (failing) with each changed field moved towards no change
     while it still fails, to within ``tolerance`` of that field's range width.
 
     Each round evaluates ``points`` values between the last passing and the
     first failing one as one batch, so a field costs about
-    log(1 / tolerance) / log(points + 1) batches.  A field whose no-change
-    value still fails is reset to it.  Returns the tightened example and, per
-    tightened field, the passing value next to the reported one.
+    log(1 / tolerance) / log(points + 1) batches.  Where the range extends
+    to the other side of no change (a lateral offset to the right as well as
+    to the left), that side's end is tried too and, if it fails, bisected:
+    hypothesis shrinks a float towards its positive side, which need not be
+    the nearer edge.  A field whose no-change value still fails is reset to
+    it.  Returns the tightened example and, per tightened field, the passing
+    value next to the reported one.
     """
     neutral = type(example.perturbation)()
     current = example
@@ -215,28 +237,42 @@ def tighten_many(example: Example, evaluate: Callable[[Sequence[Example]], list[
         base = getattr(neutral, name)
         if value == base:
             continue
-        at_base = Example(current.case, replace(current.perturbation, **{name: base}))
-        if evaluate([at_base])[0].failed:
-            current = at_base
+
+        def at(v):
+            return Example(current.case, replace(current.perturbation, **{name: v}))
+
+        if evaluate([at(base)])[0].failed:
+            current = at(base)
             continue
-        integral = isinstance(value, int)
-        passing, failing = base, value
-        step_limit = 1 if integral else tolerance * (widths.get(name) or 1.0)
-        while abs(failing - passing) > step_limit:
-            values = _between(passing, failing, points, integral)
-            if not values:
-                break
-            trials = [Example(current.case, replace(current.perturbation, **{name: v})) for v in values]
-            verdicts = evaluate(trials)
-            # The first failing value from the passing side; the one before it passed.
-            first = next((i for i, v in enumerate(verdicts) if v.failed), len(values))
-            if first < len(values):
-                failing = values[first]
-            if first > 0:
-                passing = values[first - 1]
-        current = Example(current.case, replace(current.perturbation, **{name: failing}))
+        low, high = ranges.get(name, (min(value, base), max(value, base)))
+        other = low if value > base else high
+        sides = [value] + ([other] if other != base and evaluate([at(other)])[0].failed else [])
+        width = (high - low) or 1.0
+        step_limit = 1 if isinstance(value, int) else tolerance * width
+        found = [_bisect(base, side, lambda vs: [v.failed for v in evaluate([at(x) for x in vs])], points, step_limit)
+                 for side in sides]
+        failing, passing = min(found, key=lambda edge: abs(edge[0] - base))
+        current = at(failing)
         edges[name] = passing
     return current, edges
+
+
+def _bisect(passing: Any, failing: Any, fails_many: Callable[[list], list[bool]], points: int, step_limit: float
+            ) -> tuple[Any, Any]:
+    """(failing value nearest to ``passing``, the passing value next to it), ``points`` values a round."""
+    integral = isinstance(failing, int)
+    while abs(failing - passing) > step_limit:
+        values = _between(passing, failing, points, integral)
+        if not values:
+            break
+        failed = fails_many(values)
+        # The first failing value from the passing side; the one before it passed.
+        first = next((i for i, f in enumerate(failed) if f), len(values))
+        if first < len(values):
+            failing = values[first]
+        if first > 0:
+            passing = values[first - 1]
+    return failing, passing
 
 
 def _between(passing: float, failing: float, points: int, integral: bool) -> list:

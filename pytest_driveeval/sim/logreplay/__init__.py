@@ -2,16 +2,18 @@
 other agents replay the log (l5kit's closed loop), many scenes in one batch.
 
 :mod:`.selection` says which logged agents replay, :mod:`.logarrays` stacks
-the logged scenes, :mod:`.inputs` builds the policy inputs (l5kit's planning-dataset layout), :mod:`.engine` steps the batch.
+the logged scenes, :mod:`.inputs` builds the policy inputs (l5kit's planning-dataset layout), :mod:`.engine` steps the batch,
+:mod:`.perturb` moves starts off the log for robustness searches.
 Importing this package imports torch.
 """
 from pytest_driveeval.sim.logreplay.engine import UnrollConfig, UnrollResult, unroll
 from pytest_driveeval.sim.logreplay.inputs import build_batch, collate_training_samples
 from pytest_driveeval.sim.logreplay.logarrays import (EGO_EXTENT, STEP_TIME, LogArrays, scenes_from_arrays,
                                                       stack_scenes, window_columns)
+from pytest_driveeval.sim.logreplay.perturb import perturb_history, scale_agent_time
 from pytest_driveeval.sim.logreplay.selection import ReplayedAgents, keep_agents
 
 __all__ = [
     "EGO_EXTENT", "STEP_TIME", "LogArrays", "ReplayedAgents", "UnrollConfig", "UnrollResult", "build_batch",
-    "collate_training_samples", "keep_agents", "scenes_from_arrays", "stack_scenes", "unroll", "window_columns",
+    "collate_training_samples", "keep_agents", "perturb_history", "scale_agent_time", "scenes_from_arrays", "stack_scenes", "unroll", "window_columns",
 ]

@@ -43,6 +43,7 @@ from pytest_driveeval.sim.logreplay.agents import LogCells
 from pytest_driveeval.sim.logreplay.inputs import build_batch
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
 from pytest_driveeval.sim.logreplay.outputs import BadPolicyOutput, first_pose, format_scenes
+from pytest_driveeval.sim.logreplay.perturb import perturb_history
 from pytest_driveeval.sim.state import AgentState
 
 __all__ = ["UnrollConfig", "UnrollResult", "unroll"]
@@ -183,8 +184,13 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
 
 
 def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
-           config: UnrollConfig = UnrollConfig()) -> UnrollResult:
-    """Drive ``policy`` through all ``scenes`` together; see the module doc."""
+           config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None) -> UnrollResult:
+    """Drive ``policy`` through all ``scenes`` together; see the module doc.
+
+    ``start_perturbation`` (S, 4): each scene's start moved off the log, its
+    past moved with it (:func:`~pytest_driveeval.sim.logreplay.perturb.perturb_history`);
+    the log stays the reference that drift is measured against.
+    """
     t_begin = time.perf_counter()
     log = scenes if isinstance(scenes, LogArrays) else stack_scenes(scenes)
     cfg = config
@@ -193,6 +199,12 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     end = log.num_frames if cfg.num_steps is None else np.minimum(log.num_frames, start + cfg.num_steps)
     ext = np.asarray(cfg.ego_extent, dtype=np.float64)
     driven_xy, driven_yaw = log.ego_xy.copy(), log.ego_yaw.copy()
+    # What the ego did up to the start: the log, or the perturbed past that leads to a perturbed start.
+    past_xy = log.ego_xy
+    if start_perturbation is not None and start < n_frames:
+        driven_xy, driven_yaw = perturb_history(driven_xy, driven_yaw, start, start_perturbation)
+        past_xy = log.ego_xy.copy()
+        past_xy[:, :start + 1] = driven_xy[:, :start + 1]
     proposed = np.zeros((n_scenes, n_frames))
     valid = np.zeros((n_scenes, n_frames), bool)
     reset = np.zeros((n_scenes, n_frames), bool)
@@ -202,7 +214,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     for s in np.flatnonzero(~alive):
         errors[s] = (f"scene {log.scene_ids[s]}: start_frame {start} is not before its end "
                      f"({log.num_frames[s]} frames, num_steps {cfg.num_steps})")
-    speed = _backward_speed(log.ego_xy, start, log.ego_xy, cfg.step_time)[:, min(start, n_frames - 1)]
+    speed = _backward_speed(past_xy, start, past_xy, cfg.step_time)[:, min(start, n_frames - 1)]
     model_time, forwards, scene_steps = 0.0, 0, 0
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
@@ -264,21 +276,22 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             driven_xy[rows, t + 1], driven_yaw[rows, t + 1] = nxt, nyaw
 
     return _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
-                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext)
+                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext, past_xy=past_xy)
 
 
-def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors, timing, ext) -> UnrollResult:
+def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors, timing, ext,
+            past_xy) -> UnrollResult:
     """Per-frame metrics over the whole table in one pass each."""
     t_metrics = time.perf_counter()
     start = cfg.start_frame
     dt = cfg.step_time
-    ego_speed = _backward_speed(driven_xy, start, log.ego_xy, dt)
+    ego_speed = _backward_speed(driven_xy, start, past_xy, dt)
     # Velocity for blame: the step into the frame, along the motion.
     step = np.zeros_like(driven_xy)
     step[:, 1:] = driven_xy[:, 1:] - driven_xy[:, :-1]
     first = min(start, driven_xy.shape[1] - 1)  # a start past every scene's end has no valid frame
-    step[:, : first + 1] = (log.ego_xy[:, 1:2] - log.ego_xy[:, 0:1]) if first == 0 else \
-        (log.ego_xy[:, first:first + 1] - log.ego_xy[:, first - 1:first])
+    step[:, : first + 1] = (past_xy[:, 1:2] - past_xy[:, 0:1]) if first == 0 else \
+        (past_xy[:, first:first + 1] - past_xy[:, first - 1:first])
     col = detect_collisions(driven_xy, driven_yaw, ext, log.agent_xy, log.agent_yaw, log.agent_extent,
                             log.available & valid[..., None], log.agent_velocity, step / dt,
                             track_ids=log.track_id, agent_order=log.frame_row)

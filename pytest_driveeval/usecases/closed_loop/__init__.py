@@ -27,6 +27,7 @@ from pytest_driveeval.usecases.closed_loop.evaluate import (
 
 if TYPE_CHECKING:
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.strategies import StartPerturbation
 
 BASELINES = ("constant_velocity", "log_replay")
 
@@ -84,6 +85,23 @@ class ClosedLoop(UseCase):
 
     def run(self, config: ClosedLoopConfig, ctx: RunContext) -> Outcome:
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
+        ids, problems = self._scenes(config, dataset)
+        if config.Perturbation is not None and ids:
+            from pytest_driveeval.search.item import run_item
+            from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
+
+            searchable = closed_loop_searchable(
+                config, dataset, ctx.fixtures["driveeval_model"], ids, replayed_agents(config.Unroll.Agents),
+                show=lambda scene, perturbation: self._evaluate(config, ctx, [scene], [], perturbation))
+            outcome = run_item(self.name, searchable, config.Perturbation, ctx)
+            if problems:
+                outcome.verdict, outcome.findings = FAILED, problems + outcome.findings
+            return outcome
+        return self._evaluate(config, ctx, ids, problems)
+
+    @staticmethod
+    def _scenes(config: ClosedLoopConfig, dataset: L5Dataset) -> tuple[list[int], list[Finding]]:
+        """The scenes to unroll, and findings about those asked for that cannot be."""
         spec = config.Unroll
         ids, out_of_range = select_scenes(dataset.num_scenes, spec.Scenes, spec.SceneStride)
         findings = [Finding(f"scene {s} is out of range: {dataset.path} has scenes 0..{dataset.num_scenes - 1}",
@@ -93,12 +111,20 @@ class ClosedLoop(UseCase):
                              f"({n} frames, 0..{n - 1})", scene=s, keypath=("Evaluation", "Unroll", "StartFrame"))
                      for s, n in past_end]
         unreachable = {s for s, _ in past_end}
-        ids = [s for s in ids if s not in unreachable]
+        return [s for s in ids if s not in unreachable], findings
+
+    def _evaluate(self, config: ClosedLoopConfig, ctx: RunContext, ids: list[int], problems: list[Finding],
+                  perturbation: StartPerturbation | None = None) -> Outcome:
+        """Unroll and judge the scenes ``ids`` (each under ``perturbation`` if given)."""
+        dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
+        spec = config.Unroll
+        findings = list(problems)
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, start_frame=spec.StartFrame,
                                steps=spec.Steps, drift_threshold=spec.DriftThreshold,
                                freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
                                history_frames=spec.HistoryFrames, future_frames=spec.FutureFrames,
-                               max_agents=spec.MaxAgents, agents=replayed_agents(spec.Agents)) if ids else None
+                               max_agents=spec.MaxAgents, agents=replayed_agents(spec.Agents),
+                               perturbation=perturbation) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         for verdict in verdicts:
             findings.extend(verdict.findings)
@@ -108,7 +134,7 @@ class ClosedLoop(UseCase):
         figures.update(scenes=len(verdicts), scenes_passed=passed, steps=sum(v.figures["steps"] for v in verdicts))
         if verdicts:
             figures["max_displacement"] = max(v.figures["max_displacement"] for v in verdicts)
-        ok = bool(verdicts) and not out_of_range and not past_end and rate >= config.Conditions.ScenePassRate
+        ok = bool(verdicts) and not problems and rate >= config.Conditions.ScenePassRate
         if not verdicts and not findings:
             findings.append(Finding(f"{dataset.path} has no scene to unroll", keypath=("Evaluation", "Datasets")))
         if verdicts and rate < config.Conditions.ScenePassRate:  # with none unrolled the reason is said above
@@ -122,5 +148,7 @@ class ClosedLoop(UseCase):
         artefacts = write_artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
                                "error": unroll.result.errors[row]} for row, v in enumerate(verdicts)]}
+        if perturbation is not None:
+            details["perturbation"] = perturbation.to_json()
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)

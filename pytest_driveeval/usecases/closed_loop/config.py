@@ -22,14 +22,22 @@
         MaxResets: 0
         ScenePassRate: 100.0   # % of unrolled scenes that must pass
       Artefacts: {Animations: all}   # all | failing | none
+      Perturbation:            # optional: search for the smallest start perturbation that fails a scene
+        Lateral: [-3.0, 3.0]   # m, in the ego's frame at the start; each range holds its no-change value
+        Longitudinal: [-2.0, 2.0]
+        Heading: [-0.2, 0.2]   # rad
+        SpeedScale: [0.8, 1.2] # the ego's past speeds (so its initial speed) scaled
+        AgentsSpeedScale: [0.8, 1.2]   # the other agents replayed faster or slower
+        Examples: 200          # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
 """
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
                       ValidationInfo, field_validator, model_validator)
 
+from pytest_driveeval.search.spec import SearchSpec
 from pytest_driveeval.usecase import ConditionsModel
 
 
@@ -129,12 +137,40 @@ class ConstantVelocitySpec(_Strict):
     FirstStep: Literal["heading", "logged_next"] = "heading"
 
 
+Range = tuple[float, float] | None
+
+
+class ClosedLoopPerturbation(SearchSpec):
+    """What a robustness search may change about a scene's start (strategies.StartPerturbation)."""
+
+    NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
+                                           "AgentsSpeedScale": 1.0}
+
+    Lateral: Range = None
+    Longitudinal: Range = None
+    Heading: Range = None
+    SpeedScale: Range = None
+    AgentsSpeedScale: Range = None
+
+    @model_validator(mode="after")
+    def _scales_stay_positive(self):
+        for key in ("SpeedScale", "AgentsSpeedScale"):
+            bounds = getattr(self, key)
+            if bounds is not None and min(bounds) <= 0:
+                raise ValueError(f"{key}: a speed scale must stay above 0, got [{min(bounds):g}, {max(bounds):g}]")
+        if not self.ranges() and self.Replay is None:
+            raise ValueError("give at least one range to search (Lateral, Longitudinal, Heading, SpeedScale, "
+                             "AgentsSpeedScale)")
+        return self
+
+
 class ClosedLoopConfig(ConditionsModel):
     Model: str | None = None
     ConstantVelocity: ConstantVelocitySpec | None = None
     Unroll: UnrollSpec = Field(default_factory=UnrollSpec)
     Conditions: ClosedLoopConditions = Field(default_factory=ClosedLoopConditions)
     Artefacts: ArtefactSpec = Field(default_factory=ArtefactSpec)
+    Perturbation: ClosedLoopPerturbation | None = None
 
     @field_validator("ConstantVelocity")
     @classmethod

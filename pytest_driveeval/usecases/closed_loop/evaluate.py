@@ -21,6 +21,7 @@ from pytest_driveeval.verdict import violations, within
 if TYPE_CHECKING:  # the reader imports numcodecs, the engine torch; a dataset arrives already open
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay import ReplayedAgents
+    from pytest_driveeval.strategies import StartPerturbation
 
 KINDS = ("front", "side", "rear")
 KIND_CODE = {"front": 1, "side": 2, "rear": 3}
@@ -60,19 +61,14 @@ def starts_past_end(dataset: L5Dataset, ids: Sequence[int], start_frame: int) ->
 def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | None = None, *,
                   start_frame: int = 0, steps: int | None = None, drift_threshold: float | None = 10.0,
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
-                  future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None) -> Unroll:
+                  future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None,
+                  perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None) -> Unroll:
     """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
 
-    ``agents`` says which logged agents replay (default: all of them).
+    ``agents`` says which logged agents replay (default: all of them);
+    ``perturbation`` moves every scene's start off the log (one for all, or
+    one per scene; see :mod:`pytest_driveeval.strategies`).
     """
-    from pytest_driveeval.sim.logreplay import (
-        ReplayedAgents,
-        UnrollConfig,
-        keep_agents,
-        stack_scenes,
-        unroll,
-    )
-
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
         raise DataError(f"{dataset.path}: scene index {out_of_range[0]} out of range; "
@@ -80,12 +76,45 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     for scene, length in starts_past_end(dataset, ids, start_frame):
         raise DataError(f"{dataset.path}: start_frame {start_frame} is past the end of scene {scene} "
                         f"({length} frames, 0..{length - 1})")
+    log = stack_log(dataset, ids, start_frame, agents)
+    config = unroll_config(start_frame=start_frame, steps=steps, drift_threshold=drift_threshold,
+                           freeze_on_collision=freeze_on_collision, kinematic=kinematic,
+                           history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
+    if perturbation is not None and not isinstance(perturbation, Sequence):
+        perturbation = [perturbation] * len(ids)
+    return unroll_log(log, model, config, perturbation)
+
+
+def stack_log(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None):
+    """The replayed side of the given scenes, stacked (sim.logreplay.LogArrays)."""
+    from pytest_driveeval.sim.logreplay import ReplayedAgents, keep_agents, stack_scenes
+
     agents = agents or ReplayedAgents()
-    log = stack_scenes([keep_agents(dataset.scene(i), agents, start_frame) for i in ids], scene_ids=ids)
-    config = UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
-                          freeze_on_collision=freeze_on_collision, kinematic=kinematic,
-                          history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
-    return Unroll(unroll(log, model, config), log, drift_threshold, config.step_time)
+    return stack_scenes([keep_agents(dataset.scene(i), agents, start_frame) for i in ids], scene_ids=ids)
+
+
+def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float | None, freeze_on_collision: bool,
+                  kinematic: bool, history_frames: int, future_frames: int, max_agents: int):
+    from pytest_driveeval.sim.logreplay import UnrollConfig
+
+    return UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
+                        freeze_on_collision=freeze_on_collision, kinematic=kinematic,
+                        history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
+
+
+def unroll_log(log: Any, model: Callable, config: Any,
+               perturbations: Sequence[StartPerturbation] | None = None) -> Unroll:
+    """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given."""
+    from pytest_driveeval.sim.logreplay import scale_agent_time, unroll
+
+    start = None
+    if perturbations is not None:
+        if len(perturbations) != log.ego_xy.shape[0]:
+            raise ValueError(f"{len(perturbations)} perturbations for {log.ego_xy.shape[0]} scenes")
+        start = np.array([[p.lateral, p.longitudinal, p.heading, p.speed_scale] for p in perturbations])
+        log = scale_agent_time(log, config.start_frame, np.array([p.agents_speed_scale for p in perturbations]))
+    return Unroll(unroll(log, model, config, start_perturbation=start), log, config.drift_threshold,
+                  config.step_time)
 
 
 @dataclass

@@ -1,0 +1,56 @@
+"""The closed-loop robustness search: which start perturbation makes a scene fail?
+
+An example is one of the item's scenes with its start moved off the log
+(:class:`~pytest_driveeval.strategies.StartPerturbation`); it fails when
+that scene fails the scenario's conditions.  A generation of examples is
+one unroll: the scenes are stacked once, and each generation takes its rows
+from that stack, so the examples of a generation step through the policy
+together.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from pytest_driveeval.outcome import Outcome
+from pytest_driveeval.search.engine import Example, Verdict
+from pytest_driveeval.search.item import Searchable
+from pytest_driveeval.strategies import StartPerturbation, start_perturbations
+from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
+from pytest_driveeval.usecases.closed_loop.evaluate import SceneVerdict, judge_scene, stack_log, unroll_config, unroll_log
+
+__all__ = ["closed_loop_searchable", "example_verdict"]
+
+
+def example_verdict(verdict: SceneVerdict) -> Verdict:
+    """A scene's verdict as the search sees it: the first reason, where it happened."""
+    if verdict.passed:
+        return Verdict(False)
+    first = min(verdict.findings, key=lambda f: (f.frame is None, f.frame or 0))
+    where = {"scene": verdict.scene}
+    if first.frame is not None:
+        where["frame"] = int(first.frame)
+    return Verdict(True, first.message, where)
+
+
+def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: Sequence[int],
+                           agents: Any, show: Callable[[int, StartPerturbation], Outcome]) -> Searchable:
+    """The search over ``ids`` (scene indices); ``show(scene, perturbation)`` is the item's own
+    evaluation of one scene, with its animation."""
+    spec = config.Unroll
+    log = stack_log(dataset, ids, spec.StartFrame, agents)
+    settings = unroll_config(start_frame=spec.StartFrame, steps=spec.Steps, drift_threshold=spec.DriftThreshold,
+                             freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
+                             history_frames=spec.HistoryFrames, future_frames=spec.FutureFrames,
+                             max_agents=spec.MaxAgents)
+
+    def evaluate_many(examples: list[Example]) -> list[Verdict]:
+        rows = np.array([e.case for e in examples], dtype=np.int64)
+        unrolled = unroll_log(log.take(rows), model, settings, [e.perturbation for e in examples])
+        return [example_verdict(judge_scene(unrolled, i, config.Conditions)) for i in range(len(examples))]
+
+    return Searchable(case_name="scene", case_labels=[int(i) for i in ids], perturbation_type=StartPerturbation,
+                      perturbations=start_perturbations(**config.Perturbation.ranges()),
+                      evaluate_many=evaluate_many,
+                      show=lambda example: show(int(ids[example.case]), example.perturbation))
