@@ -5,6 +5,24 @@
 episodes, so an episode's course depends on its seed (and the blueprint,
 traffic model and agent limit), never on which other episodes share the batch.
 
+``reset(..., perturbation=rows)`` perturbs each episode's start by its own row
+of :data:`PERTURBATION_COLUMNS` (a robustness search's example), so the course
+then depends on the seed and that row alone; a no-change row
+(:data:`NO_PERTURBATION`) gives the unperturbed episode bit for bit:
+
+* ``lateral``, ``longitudinal`` (m, in the ego's frame at the start, lateral
+  positive to its left) and ``heading`` (rad) move the ego off its lane;
+* ``speed_scale`` multiplies the ego's initial speed;
+* ``agents_speed_scale`` multiplies the traffic's initial *and* IDM desired
+  speeds: scaling the initial speeds alone would fade within seconds as IDM
+  pulls every vehicle back to its desired speed;
+* ``gap_scale`` multiplies the blueprint's spawn gaps from the same draws
+  (traffic density is 1 / gap: below 1 denser), never closer than a length
+  plus :data:`~pytest_driveeval.sim.blueprints.base.SPAWN_CLEARANCE`.
+
+A vehicle that the moved ego would overlap at the start is left out of that
+episode: a start inside another vehicle tests no policy.
+
 Per step, all episodes at once: the ego moves by a kinematic bicycle driven
 by the action (acceleration m/s^2, steering angle rad, clipped to the
 blueprint's ``ego_accel`` and ``ego_max_steer``), traffic by
@@ -28,7 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from pytest_driveeval.geometry import box_corners
+from pytest_driveeval.geometry import box_corners, oriented_boxes_overlap
 from pytest_driveeval.metrics.episode_outcomes import (
     COLLISION,
     GOAL,
@@ -46,7 +64,12 @@ from pytest_driveeval.sim.blueprints import Blueprint, make_blueprint
 from pytest_driveeval.sim.dynamics import KinematicBicycle
 from pytest_driveeval.sim.state import AgentState
 
-__all__ = ["Episodes", "StepResult", "reset"]
+__all__ = ["NO_PERTURBATION", "PERTURBATION_COLUMNS", "Episodes", "StepResult", "reset"]
+
+#: the columns of ``reset``'s per-episode perturbation rows (the fields of strategies.EpisodePerturbation)
+PERTURBATION_COLUMNS = ("lateral", "longitudinal", "heading", "speed_scale", "agents_speed_scale", "gap_scale")
+NO_PERTURBATION = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+_LAT, _LON, _HEADING, _SPEED, _AGENTS_SPEED, _GAP = range(len(PERTURBATION_COLUMNS))
 
 # Padding rows sit far upstream on lane 0, never valid.
 _PAD_S = -1.0e4
@@ -66,7 +89,8 @@ class StepResult(NamedTuple):
 class Episodes:
     """A batch of episodes in flight; build it with :func:`reset`."""
 
-    def __init__(self, blueprint: Blueprint, seeds: np.ndarray, agent_limit: int, traffic_model: TrafficModel):
+    def __init__(self, blueprint: Blueprint, seeds: np.ndarray, agent_limit: int, traffic_model: TrafficModel,
+                 perturbation: np.ndarray | None = None):
         p = blueprint.params
         self.blueprint = blueprint
         self.traffic_model = traffic_model
@@ -77,7 +101,12 @@ class Episodes:
         self._bicycle = KinematicBicycle(wheelbase=p.ego_wheelbase, dt=p.dt, max_accel=p.ego_accel[1],
                                          max_decel=-p.ego_accel[0], max_steer=p.ego_max_steer,
                                          max_speed=p.ego_max_speed)
-        spawns = [blueprint.spawn(np.random.default_rng(int(seed)), agent_limit) for seed in seeds]
+        self.perturbation = perturbation
+        # A custom blueprint's spawn may not take gap_scale; it is only asked to when it changes.
+        spawns = [blueprint.spawn(np.random.default_rng(int(seed)), agent_limit)
+                  if perturbation is None or perturbation[i, _GAP] == 1.0
+                  else blueprint.spawn(np.random.default_rng(int(seed)), agent_limit, gap_scale=perturbation[i, _GAP])
+                  for i, seed in enumerate(seeds)]
         e_n, a_n = len(spawns), agent_limit
         lane = np.zeros((e_n, a_n), np.int64)
         s = np.full((e_n, a_n), _PAD_S)
@@ -92,10 +121,12 @@ class Episodes:
         # The ego's slot: traffic judges whether it may cut in front of the ego by
         # the ego's IDM response, taken at the fastest desired speed of traffic.
         desired[:, 0] = p.desired_speed[1]
+        xy, heading = blueprint.road.pose(lane, s, 0.0)
+        if perturbation is not None:
+            self._perturb(perturbation, xy, heading, speed, desired, valid)
         settled = traffic_model.lane_change_duration + traffic_model.lane_change_cooldown
         self._traffic = Traffic(lane, s, np.zeros((e_n, a_n)), speed, desired, np.zeros((e_n, a_n)),
                                 np.full((e_n, a_n), settled), np.full((e_n, a_n), -1), valid)
-        xy, heading = blueprint.road.pose(lane, s, 0.0)
         self.xy, self.yaw, self.speed, self.valid = xy, heading, speed.copy(), valid.copy()
         self._ego = AgentState(xy[:, 0] - self._half_wheelbase(heading[:, 0]), heading[:, 0], speed[:, 0])
 
@@ -109,6 +140,23 @@ class Episodes:
         self.steps = np.zeros(e_n, np.int64)
         self.outcome = np.zeros(e_n, np.int8)
         self.returns = np.zeros(e_n)
+
+    def _perturb(self, rows: np.ndarray, xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
+                 desired: np.ndarray, valid: np.ndarray) -> None:
+        """Each episode's start moved by its row, in place (see the module's docstring)."""
+        c, s = np.cos(heading[:, 0]), np.sin(heading[:, 0])
+        lon, lat = rows[:, _LON], rows[:, _LAT]
+        xy[:, 0, 0] += lon * c - lat * s
+        xy[:, 0, 1] += lon * s + lat * c
+        heading[:, 0] += rows[:, _HEADING]
+        speed[:, 0] *= rows[:, _SPEED]
+        scale = rows[:, _AGENTS_SPEED, None]
+        speed[:, 1:] *= scale
+        # IDM divides by the desired speed: keep it at the blueprints' smallest allowed value.
+        desired *= scale
+        np.maximum(desired, 0.1, out=desired)
+        overlaps = oriented_boxes_overlap(xy[:, :1], heading[:, :1], self.size, xy[:, 1:], heading[:, 1:], self.size)
+        valid[:, 1:] &= ~overlaps
 
     def _half_wheelbase(self, yaw: np.ndarray) -> np.ndarray:
         # The bicycle's pose is the rear axle; boxes are centred half a wheelbase ahead of it.
@@ -176,9 +224,10 @@ class Episodes:
 
 
 def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_limit: int = 12,
-          traffic_model: TrafficModel | None = None) -> Episodes:
+          traffic_model: TrafficModel | None = None, perturbation: np.ndarray | None = None) -> Episodes:
     """Start one episode per seed; ``agent_limit`` counts the ego (rows beyond an
-    episode's vehicles are padding, ``valid`` False)."""
+    episode's vehicles are padding, ``valid`` False).  ``perturbation``: (E, 6)
+    rows of :data:`PERTURBATION_COLUMNS`, one per seed, or None."""
     if isinstance(blueprint, str):
         blueprint = make_blueprint(blueprint)
     seeds = np.asarray(seeds)
@@ -186,4 +235,19 @@ def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_l
         raise ValueError(f"seeds must be a non-empty 1-D array of non-negative integers, got {seeds!r}")
     if isinstance(agent_limit, bool) or not isinstance(agent_limit, (int, np.integer)) or agent_limit < 1:
         raise ValueError(f"agent_limit must be an integer >= 1 (the ego counts), got {agent_limit!r}")
-    return Episodes(blueprint, seeds, int(agent_limit), traffic_model or TrafficModel())
+    if perturbation is not None:
+        perturbation = _checked_perturbation(perturbation, len(seeds))
+    return Episodes(blueprint, seeds, int(agent_limit), traffic_model or TrafficModel(), perturbation)
+
+
+def _checked_perturbation(rows, episodes: int) -> np.ndarray:
+    rows = np.array(rows, dtype=np.float64)
+    if rows.shape != (episodes, len(PERTURBATION_COLUMNS)):
+        raise ValueError(f"perturbation must be ({episodes}, {len(PERTURBATION_COLUMNS)}) rows of "
+                         f"({', '.join(PERTURBATION_COLUMNS)}), got shape {rows.shape}")
+    bad = ~np.isfinite(rows).all(axis=1) | (rows[:, _SPEED] < 0) | (rows[:, _AGENTS_SPEED] < 0) | (rows[:, _GAP] <= 0)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"perturbation row {first} {rows[first].tolist()}: values must be finite, speed scales "
+                         ">= 0 and gap_scale > 0")
+    return rows

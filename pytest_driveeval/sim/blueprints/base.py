@@ -17,7 +17,7 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.road import Road
 
 __all__ = ["Blueprint", "BlueprintParams", "Goal", "ParameterError", "Parameters", "Spawn", "count", "indices",
-           "finish_spawn", "nearest_first", "place_along", "positive", "span"]
+           "finish_spawn", "gap_floor", "nearest_first", "place_along", "positive", "scaled_gap", "span"]
 
 
 class ParameterError(ValueError):
@@ -170,13 +170,15 @@ class Spawn:
 
 @dataclass(frozen=True, eq=False)
 class Blueprint:
-    """A scenario family: fixed road, seeded spawns.  ``spawn(rng, agent_limit)``
-    draws one episode from its own generator only."""
+    """A scenario family: fixed road, seeded spawns.  ``spawn(rng, agent_limit,
+    gap_scale=1.0)`` draws one episode from its own generator only;
+    ``gap_scale`` scales its traffic's spawn gaps (:func:`scaled_gap`) from the
+    same draws."""
 
     name: str
     params: BlueprintParams
     road: Road
-    spawn: Callable[[np.random.Generator, int], Spawn]
+    spawn: Callable[..., Spawn]
 
     @property
     def dt(self) -> float:
@@ -187,11 +189,42 @@ class Blueprint:
         return self.params.max_steps
 
 
-def place_along(rng: np.random.Generator, lo: float, hi: float, gap: tuple[float, float]) -> np.ndarray:
-    """Positions from ``lo`` up to ``hi``, consecutive ones ``gap`` apart (uniform)."""
+#: bumper to bumper, m: how close scaled spawn gaps may bring two vehicles (centre to centre: a length more)
+SPAWN_CLEARANCE = 1.0
+
+
+def gap_floor(params: "BlueprintParams") -> float:
+    """The closest scaled spawn gaps bring two vehicles, centre to centre: denser traffic never spawns overlapping."""
+    return params.vehicle_length + SPAWN_CLEARANCE
+
+
+def scaled_gap(params: "BlueprintParams", scale: float) -> tuple[float, float]:
+    """The blueprint's spawn gaps times ``scale``, each at least :func:`gap_floor`."""
+    if scale == 1.0:
+        return params.gap
+    floor = gap_floor(params)
+    return max(scale * params.gap[0], floor), max(scale * params.gap[1], floor)
+
+
+def place_along(rng: np.random.Generator, lo: float, hi: float, gap: tuple[float, float], scale: float = 1.0,
+                floor: float = 0.0) -> np.ndarray:
+    """Positions from ``lo`` up to ``hi``, consecutive ones ``gap`` apart (uniform).
+
+    ``scale`` (a perturbation of the traffic's density) multiplies every gap
+    drawn, each kept at least ``floor``; the draws are the same whatever the
+    scale, so a seed's other draws (speeds, goal) do not move with it, and
+    denser traffic than drawn for repeats the drawn gaps to fill the span.
+    """
     # Enough draws for the densest case, drawn at once so the count never depends on the values.
     n = int((hi - lo) / max(gap[0], 1e-6)) + 2
-    s = lo + rng.uniform(0.0, gap[1]) + np.concatenate([[0.0], np.cumsum(rng.uniform(gap[0], gap[1], n))])
+    first = rng.uniform(0.0, gap[1])
+    steps = rng.uniform(gap[0], gap[1], n)
+    if scale == 1.0:
+        s = lo + first + np.concatenate([[0.0], np.cumsum(steps)])
+        return s[s <= hi]
+    steps = np.maximum(scale * steps, floor)
+    repeats = int((hi - lo) / steps.sum()) + 1
+    s = lo + scale * first + np.concatenate([[0.0], np.cumsum(np.tile(steps, repeats))])
     return s[s <= hi]
 
 

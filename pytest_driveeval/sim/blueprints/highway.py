@@ -29,8 +29,10 @@ from pytest_driveeval.sim.blueprints.base import (
     count,
     indices,
     finish_spawn,
+    gap_floor,
     place_along,
     positive,
+    scaled_gap,
     span,
 )
 from pytest_driveeval.sim.blueprints.road import Lane, Road
@@ -80,16 +82,17 @@ def highway(params: HighwayParams) -> Blueprint:
                 right=tuple(k - 1 for k in range(n)))
     goal_lanes = np.array(params.goal_lanes)
 
-    def spawn(rng: np.random.Generator, agent_limit: int) -> Spawn:
+    def spawn(rng: np.random.Generator, agent_limit: int, gap_scale: float = 1.0) -> Spawn:
+        gap, floor = scaled_gap(params, gap_scale), gap_floor(params)
         ego_s = rng.uniform(*params.ego_s)
         ego_speed = rng.uniform(*params.ego_speed)
         goal_lane = int(goal_lanes[rng.integers(len(goal_lanes))])
         goal_s = ego_s + rng.uniform(*params.goal_ahead)
         lane, s = [], []
         for k in range(n):
-            pos = place_along(rng, *params.traffic_span, params.gap)
+            pos = place_along(rng, *params.traffic_span, params.gap, gap_scale, floor)
             if k == params.ego_lane:
-                pos = pos[np.abs(pos - ego_s) >= params.gap[0]]
+                pos = pos[np.abs(pos - ego_s) >= gap[0]]
             lane.append(np.full(len(pos), k))
             s.append(pos)
         lane, s = np.concatenate(lane), np.concatenate(s)

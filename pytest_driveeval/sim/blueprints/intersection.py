@@ -33,8 +33,10 @@ from pytest_driveeval.sim.blueprints.base import (
     BlueprintParams,
     Spawn,
     finish_spawn,
+    gap_floor,
     place_along,
     positive,
+    scaled_gap,
     span,
 )
 from pytest_driveeval.sim.blueprints.road import Lane, Road
@@ -95,13 +97,14 @@ def intersection(params: IntersectionParams) -> Blueprint:
              Lane(np.array([[-h, arm], [-h, -arm]]), w, "southbound"))
     road = Road(lanes, areas=_kerbs(w, params.kerb_radius))
 
-    def spawn(rng: np.random.Generator, agent_limit: int) -> Spawn:
+    def spawn(rng: np.random.Generator, agent_limit: int, gap_scale: float = 1.0) -> Spawn:
+        gap, floor = scaled_gap(params, gap_scale), gap_floor(params)
         ego_s = arm - w - 0.5 * params.vehicle_length - rng.uniform(*params.ego_distance)
         ego_speed = rng.uniform(*params.ego_speed)
         goal_s = arm + w + rng.uniform(*params.goal_distance)
         lane, s = [], []
         for k in (EAST, WEST):
-            pos = arm + place_along(rng, *params.traffic_span, params.gap)
+            pos = arm + place_along(rng, *params.traffic_span, params.gap, gap_scale, floor)
             lane.append(np.full(len(pos), k))
             s.append(pos)
         lane, s = np.concatenate(lane), np.concatenate(s)

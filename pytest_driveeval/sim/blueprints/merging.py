@@ -29,8 +29,10 @@ from pytest_driveeval.sim.blueprints.base import (
     BlueprintParams,
     Spawn,
     finish_spawn,
+    gap_floor,
     place_along,
     positive,
+    scaled_gap,
     span,
 )
 from pytest_driveeval.sim.blueprints.road import Lane, Road
@@ -79,13 +81,14 @@ def merging(params: MergingParams) -> Blueprint:
     # Main-lane traffic never changes into a lane that is about to end.
     road = Road(lanes, left=(MAIN_LANE, -1), right=(-1, -1), ends=(True, False))
 
-    def spawn(rng: np.random.Generator, agent_limit: int) -> Spawn:
+    def spawn(rng: np.random.Generator, agent_limit: int, gap_scale: float = 1.0) -> Spawn:
+        gap, floor = scaled_gap(params, gap_scale), gap_floor(params)
         ego_s = rng.uniform(*params.ego_s)
         ego_speed = rng.uniform(*params.ego_speed)
         goal_s = rng.uniform(*params.goal_s)
-        main = place_along(rng, *params.main_span, params.gap)
-        merge = place_along(rng, *params.merge_span, params.gap)
-        merge = merge[np.abs(merge - ego_s) >= params.gap[0]]
+        main = place_along(rng, *params.main_span, params.gap, gap_scale, floor)
+        merge = place_along(rng, *params.merge_span, params.gap, gap_scale, floor)
+        merge = merge[np.abs(merge - ego_s) >= gap[0]]
         lane = np.concatenate([np.full(len(merge), MERGE_LANE), np.full(len(main), MAIN_LANE)])
         s = np.concatenate([merge, main])
         return finish_spawn(rng, params, road, lane, s, MERGE_LANE, ego_s, ego_speed, MAIN_LANE, goal_s,
