@@ -25,7 +25,16 @@ with a callable ``raw_points -> obstacle_points``; the use case then streams
         return my_ground_filter          # structured (x, y, z, ...) in, same or (N, 3) out
 
 Any other value is taken as the clouds themselves (iterable of
-``(stamp_ns, frame_id, points)``).
+``(stamp_ns, frame_id, points)``).  ``PointCloud.RawTopic: null`` feeds the
+filter the lidar sweeps even when the dataset has a bag.
+
+Robustness search.  A ``Perturbation`` section (Dropout, RangeNoise,
+GhostPoints ranges; see ``config``) probes such a filter: hypothesis perturbs
+the raw cloud of one judged frame at a time (``perturb``), runs the filter and
+judges the frame; the item fails with the smallest perturbation that fails a
+frame, that frame's bird's-eye PNG and the one-line replay
+(``--driveeval-replay 'frame=1,dropout=0.42'``).  It needs the fixture to be a
+filter: with clouds it is an error.  See ``robustness``.
 
 Where we differ from driving_log_replayer (deliberately):
 
@@ -55,7 +64,8 @@ Where we differ from driving_log_replayer (deliberately):
 This package: ``config`` (the scenario's YAML), ``sources`` (point-cloud
 streams), ``evaluate`` (the per-frame judgement; it writes nothing), ``result``
 (verdicts and pass rates), ``artefacts`` and ``jsonl`` (result.jsonl and PNGs,
-fed frame by frame), ``assertions`` (``assert_pass_rate`` for Python tests).
+fed frame by frame), ``assertions`` (``assert_pass_rate`` for Python tests),
+``perturb`` (dropout, range noise, ghost clusters) and ``robustness`` (the search).
 """
 from __future__ import annotations
 
@@ -94,18 +104,16 @@ class ObstacleSegmentation(UseCase):
 
     def run(self, config: ObstacleSegmentationConfig, ctx: RunContext) -> Outcome:
         from .artefacts import ObstacleArtefacts
-        from .evaluate import ObstacleEvaluation, UnknownUUIDError
         from .sources import FilteredPointClouds, dataset_pointclouds
 
         dataset: T4Dataset = ctx.fixtures["driveeval_dataset"]
         clouds = ctx.fixtures["driveeval_pointclouds"]
-        if callable(clouds) and not hasattr(clouds, "__iter__"):
+        if config.Perturbation is not None:
+            return self._search(config, ctx, dataset, clouds)
+        if _is_filter(clouds):
             clouds = FilteredPointClouds(dataset_pointclouds(dataset, config.PointCloud.RawTopic), clouds)
         jsonl = ctx.artefact("result.jsonl")
-        try:
-            evaluation = ObstacleEvaluation.load(dataset, config)
-        except UnknownUUIDError as exc:
-            raise ScenarioError(ctx.scenario.path, _uuid_problems(ctx, config, exc)) from None
+        evaluation = _load(ctx, config, dataset)
         # Opened only once the inputs load: a scenario with a bad UUID, bag or map leaves no result.jsonl.
         artefacts = ObstacleArtefacts(jsonl, config.condition_record(), ctx.output_dir,
                                       config.Artefacts.FailingFramePlots)
@@ -118,6 +126,57 @@ class ObstacleSegmentation(UseCase):
                 exc.outcome = self._outcome(partial, config, artefacts.files, error=str(exc))
             raise
         return self._outcome(result, config, artefacts.files)
+
+    def _search(self, config: ObstacleSegmentationConfig, ctx: RunContext, dataset: T4Dataset, point_filter: Any
+                ) -> Outcome:
+        """The Perturbation section's robustness search of the filter (see ``robustness``)."""
+        from ...search.item import run_item
+        from .robustness import FilterSearch, read_frames
+        from .sources import dataset_pointclouds
+
+        if not _is_filter(point_filter):
+            keypath = ("Evaluation", "Perturbation")
+            raise ScenarioError(ctx.scenario.path, [Problem(
+                "a Perturbation section searches for what breaks a point-cloud filter, so driveeval_pointclouds "
+                "must be overridden in conftest.py to return a callable raw_points -> obstacle_points (it is "
+                f"{type(point_filter).__name__}: clouds, not a filter)", ctx.scenario.line_of(*keypath), keypath)])
+        evaluation = _load(ctx, config, dataset)
+        frames, skipped, more = read_frames(evaluation, dataset_pointclouds(dataset, config.PointCloud.RawTopic),
+                                            config.Perturbation.Frames)
+        if not frames:
+            result = evaluation.new_result()
+            result.skipped = skipped
+            return self._outcome(result, config, {})
+        search = FilterSearch(evaluation, frames, point_filter, ctx.seed)
+        outcome = run_item(self.name, search.searchable(config.Perturbation.strategy_ranges(),
+                                                        lambda example: self._show(config, ctx, search, example)),
+                           config.Perturbation, ctx)
+        searched = {"searched": len(frames), "skipped_before": skipped, "more_not_searched": more}
+        outcome.details = {**outcome.details, "search_frames": searched}
+        if more:
+            outcome.summary += (f" (the first {len(frames)} frames only: Perturbation.Frames bounds the raw clouds "
+                                "kept in memory)")
+        return outcome
+
+    def _show(self, config: ObstacleSegmentationConfig, ctx: RunContext, search, example) -> Outcome:
+        """One frame under one perturbation, judged and written as the item does, always with its picture."""
+        from ...strategies import describe
+        from .artefacts import ObstacleArtefacts, frame_png
+
+        frame, points = search.judge(example.case, example.perturbation)
+        result = search.evaluation.new_result()
+        note = describe(example.perturbation)
+        artefacts = ObstacleArtefacts(ctx.artefact("result.jsonl"), config.condition_record(), ctx.output_dir,
+                                      max_plots=1, title_note=note)
+        with artefacts:
+            result.add(frame)
+            artefacts(frame, points, result)
+        if not artefacts.plots:  # a passing frame (a replay of the edge) is shown too
+            artefacts.plots.append(frame_png(ctx.output_dir, frame, points, note))
+        outcome = self._outcome(result, config, artefacts.files)
+        outcome.details = {**outcome.details, "frame": example.case,
+                           "perturbation": example.perturbation.to_json()}
+        return outcome
 
     def _outcome(self, result: ObstacleResult, config, files: dict[str, Path], error: str | None = None) -> Outcome:
         cond = config.Conditions
@@ -154,6 +213,20 @@ class ObstacleSegmentation(UseCase):
         ok = result.success and not errors and error is None
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=dict(files), details=details)
+
+
+def _is_filter(clouds: Any) -> bool:
+    """A point-cloud filter (raw -> obstacle points), not the clouds themselves."""
+    return callable(clouds) and not hasattr(clouds, "__iter__")
+
+
+def _load(ctx: RunContext, config, dataset: T4Dataset):
+    from .evaluate import ObstacleEvaluation, UnknownUUIDError
+
+    try:
+        return ObstacleEvaluation.load(dataset, config)
+    except UnknownUUIDError as exc:
+        raise ScenarioError(ctx.scenario.path, _uuid_problems(ctx, config, exc)) from None
 
 
 def _uuid_problems(ctx: RunContext, config, exc: UnknownUUIDError) -> list[Problem]:

@@ -26,7 +26,8 @@ class ObstacleArtefacts(AbstractContextManager):
     write the final line; that happens after an error too, so nothing judged is lost."""
 
     def __init__(self, jsonl: str | Path | None, condition: dict, plots_dir: str | Path | None = None,
-                 max_plots: int = 5):
+                 max_plots: int = 5, title_note: str = ""):
+        self.title_note = title_note
         self.jsonl = None if jsonl is None else Path(jsonl)
         self.plots: list[Path] = []
         self.plots_dir = None if plots_dir is None else Path(plots_dir)
@@ -39,7 +40,7 @@ class ObstacleArtefacts(AbstractContextManager):
         if self._writer is not None:
             self._writer.record(result.success, result.summary, frame.stamp_ns / 1e9, frame_record(frame, result))
         if self.plots_dir is not None and frame.failed and len(self.plots) < self.max_plots:
-            self.plots.append(frame_png(self.plots_dir, frame, points))
+            self.plots.append(frame_png(self.plots_dir, frame, points, self.title_note))
 
     def close(self) -> None:
         """Write the final line (once a frame was judged) and close result.jsonl."""
@@ -61,15 +62,16 @@ class ObstacleArtefacts(AbstractContextManager):
         return files
 
 
-def frame_png(folder: Path, frame: FrameVerdict, points: np.ndarray) -> Path:
-    """The bird's-eye PNG of one frame: its cloud in base_link, boxes coloured by status, the area."""
+def frame_png(folder: Path, frame: FrameVerdict, points: np.ndarray, note: str = "") -> Path:
+    """The bird's-eye PNG of one frame: its cloud in base_link, boxes coloured by status, the area;
+    ``note`` ends the title (e.g. the perturbation the cloud was under)."""
     x, y, _ = xyz_columns(points)
     verdicts = [str(s) if t else "Other" for s, t in zip(frame.status, frame.target)]
     labels = [str(u)[:6] for u in frame.gt.instance_tokens]
     areas = [] if frame.area is None else [frame.area.polygon] + list(frame.area.clips or [])
     area_points = frame.counts.area_points
     title = (f"frame {frame.name} @ {frame.stamp_ns / 1e9:.6f}s  Detection: {frame.detection}  "
-             f"NonDetection: {frame.non_detection}")
+             f"NonDetection: {frame.non_detection}") + (f"  [{note}]" if note else "")
     return render_frame_png(folder / f"frame_{frame.name}_{frame.stamp_ns}.png", np.stack([x, y], axis=1),
                             frame.boxes.footprints(), verdicts, labels, areas,
                             None if area_points is None else np.asarray(area_points)[:, :2], title)

@@ -26,13 +26,20 @@ the targets from ``target_uuids``.  Keys of our own, all optional (a
 driving_log_replayer file needs none of them)::
 
     PointCloud: {Topic: /perception/obstacle_segmentation/pointcloud,
-                 RawTopic: /sensing/lidar/concatenated/pointcloud,   # read when a filter is given
+                 RawTopic: /sensing/lidar/concatenated/pointcloud,   # read when a filter is given;
+                                                                     # null: the lidar sweeps
                  TopicRateDiagnostic: topic_state_monitor_obstacle_segmentation_pointcloud}
     Artefacts: {FailingFramePlots: 5}
+    Perturbation:              # a robustness search of the point-cloud filter (see robustness.py)
+      Dropout: [0.0, 0.5]      # fraction of raw points dropped
+      RangeNoise: [0.0, 0.1]   # m, standard deviation along each point's ray
+      GhostPoints: [0, 40]     # points of a ghost cluster in the non-detection area
+      Frames: 200              # the first judged frames searched (their raw clouds stay in memory)
+      Examples: 100            # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
 """
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import (
@@ -41,12 +48,14 @@ from pydantic import (
     Field,
     NonNegativeInt,
     PositiveFloat,
+    PositiveInt,
     ValidationInfo,
     field_validator,
     model_validator,
 )
 
 from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
+from ...search.spec import SearchSpec
 from ...usecase import ConditionsModel
 
 V3 = "0.3.0"
@@ -184,7 +193,7 @@ class SensingSpec(_Strict):
 
 class PointCloudOptions(_Strict):
     Topic: str = "/perception/obstacle_segmentation/pointcloud"
-    RawTopic: str = "/sensing/lidar/concatenated/pointcloud"
+    RawTopic: str | None = "/sensing/lidar/concatenated/pointcloud"  # None: the dataset's lidar sweeps
     TopicRateDiagnostic: str = "topic_state_monitor_obstacle_segmentation_pointcloud"
 
 
@@ -192,11 +201,51 @@ class ArtefactOptions(_Strict):
     FailingFramePlots: NonNegativeInt = 5
 
 
+class ObstaclePerturbation(SearchSpec):
+    """What a robustness search may do to each raw cloud (strategies.CloudPerturbation)."""
+
+    NEUTRAL: ClassVar[dict[str, float]] = {"Dropout": 0.0, "RangeNoise": 0.0, "GhostPoints": 0}
+
+    Dropout: tuple[float, float] | None = None
+    RangeNoise: tuple[float, float] | None = None
+    GhostPoints: tuple[NonNegativeInt, NonNegativeInt] | None = None
+    # Each searched frame's raw cloud is read once and kept: this bounds the memory of a long bag.
+    Frames: PositiveInt = 200
+
+    @model_validator(mode="after")
+    def _sensible(self):
+        if self.Dropout is not None and not 0.0 <= min(self.Dropout) <= max(self.Dropout) <= 1.0:
+            raise ValueError(f"Dropout: a fraction of the points, within [0, 1]; got {list(self.Dropout)}")
+        if self.RangeNoise is not None and min(self.RangeNoise) < 0:
+            raise ValueError(f"RangeNoise: a standard deviation (m) cannot be negative; got {list(self.RangeNoise)}")
+        if not self.ranges() and self.Replay is None:
+            raise ValueError("give at least one range to search (Dropout, RangeNoise, GhostPoints)")
+        return self
+
+    def strategy_ranges(self) -> dict[str, tuple]:
+        """The ranges as ``cloud_perturbations`` takes them (ghost points as whole numbers)."""
+        ranges: dict[str, tuple] = dict(self.ranges())
+        if "ghost_points" in ranges:
+            ranges["ghost_points"] = tuple(int(b) for b in ranges["ghost_points"])
+        return ranges
+
+
 class ObstacleSegmentationConfig(ConditionsModel):
     Conditions: ConditionsSpec
     SensingEvaluationConfig: SensingSpec = Field(default_factory=SensingSpec)
     PointCloud: PointCloudOptions = Field(default_factory=PointCloudOptions)
     Artefacts: ArtefactOptions = Field(default_factory=ArtefactOptions)
+    Perturbation: ObstaclePerturbation | None = None
+
+    @model_validator(mode="after")
+    def _ghosts_need_an_area(self):
+        p = self.Perturbation
+        if p is not None and p.GhostPoints is not None and max(p.GhostPoints) > 0 \
+                and self.Conditions.NonDetection is None:
+            # A ghost cluster is placed in the non-detection area: without one it has nowhere to go.
+            raise ValueError("Perturbation.GhostPoints needs a NonDetection condition: the ghost cluster is "
+                             "placed in its ProposedArea")
+        return self
 
     def condition_record(self) -> dict:
         """The ``Condition`` driving_log_replayer writes first in result.jsonl."""

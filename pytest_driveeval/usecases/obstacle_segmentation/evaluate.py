@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Protocol
 
 import numpy as np
@@ -139,23 +140,15 @@ class ObstacleEvaluation:
 
     def run(self, pointclouds: Iterable[tuple], on_frame: FrameSink | None = None) -> ObstacleResult:
         """Judge every cloud.  On a DataError the frames judged so far stay on it as ``partial_result``."""
-        ds, cfg = self.dataset, self.cfg
-        det, nd = cfg.Conditions.detection, cfg.Conditions.NonDetection
-        windows = det.windows() if det is not None else None
-        index = {t: i for i, t in enumerate(ds.sample_tokens)}
-        result = ObstacleResult(detection_pass_rate=det.PassRate if det else None,
-                                non_detection_pass_rate=nd.PassRate if nd else None)
+        result = self.new_result()
         try:
             for stamp_ns, frame_id, points in pointclouds:
                 stamp_ns = int(stamp_ns)
-                gt = ds.ground_truth_at(stamp_ns // 1000, GT_TOLERANCE_US)
-                targets = cfg.SensingEvaluationConfig.evaluation_config_dict.target_uuids
-                if windows is not None:
-                    targets = [u for u, (s, e) in windows.items() if s <= stamp_ns / 1e9 <= e]
-                if gt is None or (windows is not None and not targets):
+                selected = self.select(stamp_ns)
+                if selected is None:
                     result.skipped += 1  # DLR's FrameSkip: no ground truth within 75 ms / no UUID in its window
                     continue
-                name = str(index[gt.sample_token])
+                name, gt, targets = selected
                 note(frame=name, **{"cloud stamped": f"{stamp_ns} ns"})
                 map_T_base, points, error = self.locate(name, stamp_ns, frame_id, points)
                 frame = self.judge(name, stamp_ns, gt.to_base_link(), points, targets, map_T_base, error)
@@ -166,6 +159,40 @@ class ObstacleEvaluation:
             exc.partial_result = result
             raise
         return result
+
+    def new_result(self) -> ObstacleResult:
+        det, nd = self.cfg.Conditions.detection, self.cfg.Conditions.NonDetection
+        return ObstacleResult(detection_pass_rate=det.PassRate if det else None,
+                              non_detection_pass_rate=nd.PassRate if nd else None)
+
+    @cached_property
+    def _sample_index(self) -> dict[str, int]:
+        return {t: i for i, t in enumerate(self.dataset.sample_tokens)}
+
+    @cached_property
+    def _windows(self) -> dict[str, tuple[float, float]] | None:
+        det = self.cfg.Conditions.detection
+        return det.windows() if det is not None else None
+
+    def select(self, stamp_ns: int) -> tuple[str, GroundTruth, list[str] | None] | None:
+        """The frame a cloud stamped ``stamp_ns`` is judged as: its name, ground truth (in the
+        dataset's frame) and target UUIDs (None: all); None when the cloud is skipped."""
+        cfg, windows = self.cfg, self._windows
+        gt = self.dataset.ground_truth_at(stamp_ns // 1000, GT_TOLERANCE_US)
+        targets = cfg.SensingEvaluationConfig.evaluation_config_dict.target_uuids
+        if windows is not None:
+            targets = [u for u, (s, e) in windows.items() if s <= stamp_ns / 1e9 <= e]
+        if gt is None or (windows is not None and not targets):
+            return None
+        return str(self._sample_index[gt.sample_token]), gt, targets
+
+    def area(self, map_T_base: np.ndarray | None) -> Area | None:
+        """The non-detection area at the ego pose ``map_T_base`` (None: not checked, or the map
+        needs a pose that TF does not have)."""
+        nd = self.cfg.Conditions.NonDetection
+        if nd is not None and (self.lanelets is None or map_T_base is not None):
+            return _area(nd, self.lanelets, map_T_base)
+        return None
 
     def locate(self, name: str, stamp_ns: int, frame_id: str, points: np.ndarray
                ) -> tuple[np.ndarray | None, np.ndarray, str | None]:
@@ -193,10 +220,8 @@ class ObstacleEvaluation:
         """One frame's verdicts; ``gt`` and ``points`` in base_link, ``targets`` the UUIDs judged (None: all)."""
         det, nd = self.cfg.Conditions.detection, self.cfg.Conditions.NonDetection
         params = self.cfg.SensingEvaluationConfig.evaluation_config_dict
-        area = None
-        if nd is not None and (self.lanelets is None or map_T_base is not None):
-            area = _area(nd, self.lanelets, map_T_base)
-        elif nd is not None and error is None:
+        area = self.area(map_T_base)
+        if nd is not None and area is None and error is None:
             error = (f"frame {name} (stamp {stamp_ns / 1e9:.6f}): the map's lanelets need map -> base_link, "
                      "and TF has none")
         boxes = BoxSet.from_ground_truth(gt.centers, gt.sizes, gt.yaws, params.box_scale_0m, params.box_scale_100m)

@@ -37,9 +37,12 @@ def sweep_pointclouds(dataset: T4Dataset | str | os.PathLike) -> Iterator[tuple]
         yield int(ds.lidar_sample_data(token)["timestamp"]) * 1000, "base_link", xyz
 
 
-def dataset_pointclouds(dataset: T4Dataset, topic: str) -> Iterator[tuple]:
-    """The bag's topic when the dataset has an input_bag/ folder, else its lidar sweeps."""
-    return bag_pointclouds(dataset, topic) if dataset.input_bag is not None else sweep_pointclouds(dataset)
+def dataset_pointclouds(dataset: T4Dataset, topic: str | None) -> Iterator[tuple]:
+    """The bag's topic when the dataset has an input_bag/ folder, else (or with ``topic`` None)
+    its lidar sweeps."""
+    if topic is None or dataset.input_bag is None:
+        return sweep_pointclouds(dataset)
+    return bag_pointclouds(dataset, topic)
 
 
 @dataclass
