@@ -5,6 +5,8 @@ confidence intervals (seed 002).
 
 :mod:`.evaluate` runs a policy's episodes, :mod:`.judge` decides the
 conditions, :mod:`.config` is the YAML.  One item per policy of a scenario.
+With a ``Perturbation`` section the item is a robustness search instead
+(:mod:`.robustness`).
 """
 from __future__ import annotations
 
@@ -73,6 +75,12 @@ class PolicyBenchmark(UseCase):
             params["max_steps"] = config.StepLimit
         blueprint = make_blueprint(config.Blueprint.Name, **params)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
+        if config.Perturbation is not None:
+            from pytest_driveeval.search.item import run_item
+            from pytest_driveeval.usecases.policy_benchmark.robustness import policy_searchable
+
+            searchable = policy_searchable(config, blueprint, seeds, ctx.fixtures["driveeval_model"], policy, ctx)
+            return run_item(self.name, searchable, config.Perturbation, ctx)
 
         def run(name: str, model: Any, on_step=None):
             return run_policy(blueprint, seeds, model, name, strata=strata, agent_limit=config.AgentLimit,

@@ -21,7 +21,7 @@ from pytest_driveeval.metrics.episode_outcomes import GOAL
 from pytest_driveeval.usecase import RunContext
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
 
-__all__ = ["EpisodeRecorder", "write_artefacts"]
+__all__ = ["EpisodeRecorder", "episode_gif", "write_artefacts"]
 
 
 class EpisodeRecorder:
@@ -68,15 +68,20 @@ def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder |
                                            highlight=run.policy)
     row = _chosen(run, config.Artefacts.Animations) if recorder is not None else None
     if row is not None:
-        from pytest_driveeval.report.episode_gif import render_episode_gif
-
-        episodes = recorder.episodes
-        xy, yaw, valid = recorder.episode(row)
-        road = episodes.blueprint.road
-        goal = box_corners(episodes.goal_centre[row], episodes.goal_heading[row], episodes.goal_size[row])
         seed = int(run.seeds[row])
-        out[f"episode_{seed}_gif"] = render_episode_gif(
-            ctx.artefact(f"episode_seed_{seed}.gif"), xy, yaw, valid, episodes.size,
-            [lane.outline() for lane in road.lanes] + list(road.areas), goal, agent_limit=config.AgentLimit,
-            title=f"{run.policy} seed {seed}: {run.outcome_names()[row]}")
+        out[f"episode_{seed}_gif"] = episode_gif(ctx.artefact(f"episode_seed_{seed}.gif"), recorder, row,
+                                                 config.AgentLimit,
+                                                 f"{run.policy} seed {seed}: {run.outcome_names()[row]}")
     return out
+
+
+def episode_gif(path: Path, recorder: EpisodeRecorder, row: int, agent_limit: int, title: str) -> Path:
+    """The GIF of one recorded episode, its road and goal drawn."""
+    from pytest_driveeval.report.episode_gif import render_episode_gif
+
+    episodes = recorder.episodes
+    xy, yaw, valid = recorder.episode(row)
+    road = episodes.blueprint.road
+    goal = box_corners(episodes.goal_centre[row], episodes.goal_heading[row], episodes.goal_size[row])
+    return render_episode_gif(path, xy, yaw, valid, episodes.size, [lane.outline() for lane in road.lanes]
+                              + list(road.areas), goal, agent_limit=agent_limit, title=title)

@@ -21,18 +21,31 @@
         CollisionRate: {AtMost: 10}   # decided on the upper bound
         Beats: [{Baseline: random, Metric: goal_rate}]   # P(this policy > baseline) > 0.5 with confidence
       Artefacts: {Animations: failing, ComparisonPlot: true}
+      Perturbation:                   # optional: a robustness search instead of the benchmark
+        Lateral: [-1.0, 1.0]          # m, the ego's start in its own frame; each range holds its no-change value
+        Longitudinal: [-5.0, 5.0]     # m
+        Heading: [-0.1, 0.1]          # rad
+        SpeedScale: [0.5, 1.5]        # the ego's initial speed scaled
+        AgentsSpeedScale: [0.8, 1.2]  # the traffic's initial and desired speeds scaled
+        GapScale: [0.5, 2.0]          # the blueprint's spawn gaps scaled: below 1 denser traffic
+        FailOn: [collision, off_road, step_limit]   # episode outcomes that fail an example (default: all)
+        Examples: 200                 # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
 
 One item per policy.  A judged policy's item decides the conditions and runs
 the baselines it is compared with on the same seeds; the other items report
-their figures and intervals (the table of policies) and pass.
+their figures and intervals (the table of policies) and pass.  With a
+``Perturbation`` section every item instead searches the episodes' seeds and
+the perturbations within the ranges for an episode of its policy that ends in
+one of ``FailOn``; the Conditions are not judged then.
 """
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, ValidationError, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
+from pytest_driveeval.search.spec import SearchSpec
 from pytest_driveeval.usecase import ConditionsModel
 
 BASELINES = ("random", "constant", "idm_expert")
@@ -92,6 +105,62 @@ class BenchmarkArtefacts(_Strict):
     ComparisonPlot: bool = True
 
 
+FAILURES = ("collision", "off_road", "step_limit")
+Range = tuple[float, float] | None
+
+
+class PolicyPerturbation(SearchSpec):
+    """What a robustness search may change about an episode's start (strategies.EpisodePerturbation)."""
+
+    NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
+                                           "AgentsSpeedScale": 1.0, "GapScale": 1.0}
+    #: the smallest value each scale may take, and whether it may reach it
+    FLOORS: ClassVar[dict[str, tuple[float, bool]]] = {"SpeedScale": (0.0, True), "AgentsSpeedScale": (0.0, True),
+                                                       "GapScale": (0.0, False)}
+
+    Lateral: Range = None
+    Longitudinal: Range = None
+    Heading: Range = None
+    SpeedScale: Range = None
+    AgentsSpeedScale: Range = None
+    GapScale: Range = None
+    FailOn: list[Literal["collision", "off_road", "step_limit"]] = Field(default_factory=lambda: list(FAILURES),
+                                                                          min_length=1)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _ranges_located(cls, data: Any):
+        # Runs before SearchSpec's own check, so a bad range is reported at its own key's line.
+        if not isinstance(data, dict):
+            return data
+        for key, neutral in cls.NEUTRAL.items():
+            bounds = data.get(key)
+            if bounds is None:
+                continue
+            if isinstance(bounds, (int, float)) and not isinstance(bounds, bool):
+                bounds = [bounds, bounds]
+            if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(
+                    isinstance(b, (int, float)) and not isinstance(b, bool) for b in bounds):
+                raise _located(key, data.get(key), f"a range [low, high] is needed, got {data.get(key)!r}")
+            low, high = sorted(float(b) for b in bounds)
+            if not low <= neutral <= high:
+                raise _located(key, data.get(key), f"the range [{low:g}, {high:g}] must contain {neutral:g} "
+                                                   "(no change), which is what a failure shrinks towards")
+            floor, reachable = cls.FLOORS.get(key, (-float("inf"), True))
+            if low < floor or (low == floor and not reachable):
+                raise _located(key, data.get(key), f"a scale must stay {'>=' if reachable else '>'} {floor:g}, "
+                                                   f"got [{low:g}, {high:g}]")
+        return data
+
+    @model_validator(mode="after")
+    def _something_to_search(self):
+        if not self.ranges() and self.Replay is None:
+            raise ValueError(f"give at least one range to search ({', '.join(self.NEUTRAL)})")
+        if len(set(self.FailOn)) != len(self.FailOn):
+            raise _located("FailOn", self.FailOn, "each outcome once")
+        return self
+
+
 class PolicyBenchmarkConfig(ConditionsModel):
     Blueprint: BlueprintSpec
     Episodes: PositiveInt = 64
@@ -103,6 +172,7 @@ class PolicyBenchmarkConfig(ConditionsModel):
     Judged: list[str] | None = None
     Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions)
     Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts)
+    Perturbation: PolicyPerturbation | None = None
 
     @model_validator(mode="after")
     def _consistent(self):

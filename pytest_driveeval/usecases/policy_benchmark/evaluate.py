@@ -116,8 +116,12 @@ def _actions(out: Any, episodes: Any, policy: str, step: int) -> np.ndarray:
 
 
 def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str, *, strata: Sequence[int] | None = None,
-               agent_limit: int = 12, on_step: StepSink | None = None) -> PolicyRun:
+               agent_limit: int = 12, on_step: StepSink | None = None,
+               perturbation: np.ndarray | None = None) -> PolicyRun:
     """Run ``policy`` on one episode per seed until every episode has ended.
+
+    ``perturbation``: one row per seed moving that episode's start
+    (:data:`pytest_driveeval.sim.episodes.PERTURBATION_COLUMNS`), or None.
 
     ``policy`` is a callable from the flat graph observation (E, D) tensor to
     actions (E, 2) (a torch module or any function), or an object with
@@ -127,7 +131,7 @@ def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str
 
     from pytest_driveeval.sim.episodes import reset
 
-    episodes = reset(blueprint, np.asarray(seeds, dtype=np.int64), agent_limit)
+    episodes = reset(blueprint, np.asarray(seeds, dtype=np.int64), agent_limit, perturbation=perturbation)
     on_state = getattr(policy, "act_on_episodes", None)
     observe_now = observer(episodes, agent_limit)
     step = 0
