@@ -16,7 +16,7 @@ exactly the cloud the search judged.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -47,7 +47,7 @@ class SearchFrame:
     gt: GroundTruth           # in base_link
     targets: list[str] | None
     origin: np.ndarray        # the sensor in the raw cloud's frame (range noise is along rays from it)
-    ghost: GhostRegion | None  # None: no non-detection area in this frame
+    ghost: GhostRegion | None  # None: no non-detection area in this frame (no road in it, or a TF error)
 
 
 def sensor_origin(evaluation: ObstacleEvaluation, sample_token: str, frame_id: str) -> np.ndarray:
@@ -84,7 +84,7 @@ def read_frames(evaluation: ObstacleEvaluation, raw_clouds: Iterable[tuple], lim
         map_T_base, _, error = evaluation.locate(name, stamp_ns, frame_id, np.zeros((0, 3)))
         area = evaluation.area(map_T_base) if error is None else None
         ghost = None
-        if area is not None:
+        if area is not None and not area.empty:
             boxes = BoxSet.from_ground_truth(gt_base.centers, gt_base.sizes, gt_base.yaws, params.box_scale_0m,
                                              params.box_scale_100m)
             cloud_T_base = None
@@ -126,6 +126,10 @@ class FilterSearch:
 
     def perturbed(self, case: int, perturbation: CloudPerturbation) -> np.ndarray:
         frame = self.frames[case]
+        if frame.ghost is None and perturbation.ghost_points:
+            # Nowhere to put them: ghosts could only fail an area this frame does not have (or
+            # cannot check: its TF error fails the frame anyway).
+            perturbation = replace(perturbation, ghost_points=0)
         return perturb_cloud(frame.raw, perturbation, example_rng(self.seed, case), origin=frame.origin,
                              ghost=frame.ghost)
 

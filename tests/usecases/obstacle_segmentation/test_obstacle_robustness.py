@@ -5,6 +5,7 @@ from __future__ import annotations
 import html
 import json
 import re
+import shlex
 import sys
 
 import numpy as np
@@ -225,7 +226,7 @@ def test_the_replay_line_reproduces_the_failure_and_the_edge_next_to_it_passes(d
     search = record_of(demo)["details"]["search"]
     line = search["replay"]
     value = line.split("--driveeval-replay ", 1)[1]
-    assert line.startswith(f"pytest {NODE!r} --driveeval-replay") or line.startswith(f"pytest {NODE} ")
+    assert line == f"pytest {shlex.quote(NODE)} --driveeval-replay {shlex.quote(value)}"
     demo.runpytest(NODE, "--driveeval-replay", value, "--driveeval-output", "replayed").assert_outcomes(xfailed=1)
     replayed = record_of(demo, "replayed")
     assert replayed["details"]["replay"] == value
@@ -327,3 +328,25 @@ def test_the_search_runs_on_the_real_nuscenes_sweep(pytester, shared_data):
     assert search["where"]["frame"] == 0 and search["reason"].endswith("has 0 of 1 point(s) needed")
     assert 0 < search["edge"]["dropout"] < search["minimal"]["perturbation"]["dropout"] <= 1.0
     assert search["examples"] >= 2 and "--driveeval-replay frame=0,dropout=" in search["replay"]
+
+
+def test_without_a_perturbation_section_the_filter_passes_the_clean_sweeps(demo):
+    text = (DEMO / "filtered.scenario.yaml").read_text().replace("../../../fixtures/t4/clean", str(CLEAN))
+    (demo.path / "scenarios" / "filtered.scenario.yaml").write_text(text)
+    demo.runpytest("scenarios/filtered.scenario.yaml").assert_outcomes(passed=1)
+    record = record_of(demo)
+    assert record["figures"]["frames"] == 10 and record["figures"]["detection_rate"] == 100.0
+    assert record["figures"]["non_detection_rate"] == 100.0 and "search" not in record["details"]
+
+
+def test_frames_bounds_the_search_and_a_bag_topic_is_searched_as_structured_clouds(demo):
+    path = demo.path / "scenarios" / "dropout.scenario.yaml"
+    text = path.read_text().replace(
+        "PointCloud: {RawTopic: null}", "PointCloud: {RawTopic: /perception/obstacle_segmentation/pointcloud}")
+    path.write_text(text.replace("    Examples: 100\n", "    Examples: 40\n    Frames: 3\n"))
+    demo.runpytest("--driveeval-search-profile=ci").assert_outcomes(xfailed=1)
+    record = record_of(demo)
+    assert record["details"]["search_frames"] == {"searched": 3, "skipped_before": 0, "more_not_searched": True}
+    assert "the first 3 frames only" in record["summary"]
+    search = record["details"]["search"]
+    assert search["where"]["frame"] in (0, 1, 2) and "of 10 point(s) needed" in search["reason"]
