@@ -189,8 +189,9 @@ class Blueprint:
         return self.params.max_steps
 
 
-#: bumper to bumper, m: how close scaled spawn gaps may bring two vehicles (centre to centre: a length more)
-SPAWN_CLEARANCE = 1.0
+#: bumper to bumper, m: how close scaled spawn gaps may bring two vehicles (centre to centre: a length more);
+#: the traffic model's own standstill gap (TrafficModel.min_gap), so no spawn is closer than traffic would stand
+SPAWN_CLEARANCE = 2.0
 
 
 def gap_floor(params: "BlueprintParams") -> float:
