@@ -5,12 +5,12 @@ An example is one of the scenario's episode seeds with its start perturbed
 that episode ends in one of the section's ``FailOn`` outcomes.  A generation
 of examples is one batch of episodes: one ``reset`` with each example's seed
 and perturbation row, one policy call per step for all of them, so the cost
-of a generation is close to that of its longest episode.
+of a generation is close to that of its longest episode (and torch runs on
+one thread: see :func:`~pytest_driveeval.usecases.policy_benchmark.evaluate.one_torch_thread`).
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -23,26 +23,7 @@ from pytest_driveeval.strategies import EpisodePerturbation, describe, episode_p
 from pytest_driveeval.usecases.policy_benchmark.config import PolicyBenchmarkConfig
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun, run_policy
 
-__all__ = ["episode_verdict", "one_torch_thread", "perturbation_rows", "policy_searchable", "show_episode"]
-
-
-@contextmanager
-def one_torch_thread() -> Iterator[None]:
-    """torch on one thread while a search runs, then as it was.  A generation's
-    batch (tens of observations) gains nothing from intra-op threads, and on a
-    loaded 2-core machine their spinning made the shipped GNN's 32 merging
-    episodes take 17 s instead of 0.2 s."""
-    try:
-        import torch
-    except ImportError:  # baselines need no torch
-        yield
-        return
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
+__all__ = ["episode_verdict", "perturbation_rows", "policy_searchable", "show_episode"]
 
 
 def perturbation_rows(perturbations: Sequence[EpisodePerturbation]) -> np.ndarray:
@@ -74,10 +55,8 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
     fail_on = tuple(spec.FailOn)
 
     def run(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation], on_step=None) -> PolicyRun:
-        # The same thread count for the search and for the case it shows, so both see the same actions.
-        with one_torch_thread():
-            return run_policy(blueprint, case_seeds, policy, name, agent_limit=config.AgentLimit, on_step=on_step,
-                              perturbation=perturbation_rows(perturbations))
+        return run_policy(blueprint, case_seeds, policy, name, agent_limit=config.AgentLimit, on_step=on_step,
+                          perturbation=perturbation_rows(perturbations))
 
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
         done = run(seeds[[e.case for e in examples]], [e.perturbation for e in examples])
