@@ -88,12 +88,14 @@ class ClosedLoop(UseCase):
         ids, problems = self._scenes(config, dataset)
         if config.Perturbation is not None and ids:
             from pytest_driveeval.search.item import run_item
+            from pytest_driveeval.sim.torch_threads import one_torch_thread
             from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
 
             searchable = closed_loop_searchable(
                 config, dataset, ctx.fixtures["driveeval_model"], ids, replayed_agents(config.Unroll.Agents),
                 show=lambda scene, perturbation: self._evaluate(config, ctx, [scene], [], perturbation))
-            outcome = run_item(self.name, searchable, config.Perturbation, ctx)
+            with one_torch_thread():
+                outcome = run_item(self.name, searchable, config.Perturbation, ctx)
             if problems:
                 outcome.verdict, outcome.findings = FAILED, problems + outcome.findings
             return outcome

@@ -1,0 +1,27 @@
+"""torch on one intra-op thread for the length of a block.
+
+The engines' batches are small (one scene, tens of episodes), too small for
+intra-op threads to help; on a loaded machine (two pytest-xdist workers on
+two cores) those threads spin against each other.  Measured on the
+closed-loop search of the real scene with the shipped model: 31 s with
+torch's default two threads, 9 s on one, the same verdicts.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
+
+__all__ = ["one_torch_thread"]
+
+
+@contextmanager
+def one_torch_thread() -> Iterator[None]:
+    """torch on one thread inside the block, then as it was."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
