@@ -17,7 +17,8 @@ import hashlib
 import math
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
-from typing import Any, Callable, Sequence
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Sequence
 
 from hypothesis import HealthCheck, Phase, given, settings as hypothesis_settings, strategies as st
 from hypothesis.database import ExampleDatabase
@@ -203,11 +204,36 @@ def _find(strategy: st.SearchStrategy, condition: Callable[[Any], bool], setting
     test._hypothesis_internal_database_key = key  # what find() sets: our key, not the closure's digest
     if seed is not None:
         test._hypothesis_internal_use_seed = seed  # what @seed sets, without its database=None
-    try:
-        test()
-    except Found:
-        return found[0]
+    with _without_local_constants():
+        try:
+            test()
+        except Found:
+            return found[0]
     return None
+
+
+@contextmanager
+def _without_local_constants() -> Iterator[None]:
+    """Hypothesis mixes into its draws constants found in the source of the
+    non-library modules imported so far, so the same seed draws different
+    examples depending on which tests ran before in the process (serially,
+    or on a pytest-xdist worker).  A search must not depend on that: its
+    draws see no local constants (hypothesis's own pool stays).  If a
+    hypothesis release moves these internals, nothing is patched, and the
+    reproducibility tests say so."""
+    try:
+        from hypothesis.internal.conjecture import providers
+
+        saved = providers._get_local_constants, providers.CONSTANTS_CACHE
+        empty = providers.Constants()
+    except (ImportError, AttributeError):
+        yield
+        return
+    providers._get_local_constants, providers.CONSTANTS_CACHE = (lambda: empty), {}
+    try:
+        yield
+    finally:
+        providers._get_local_constants, providers.CONSTANTS_CACHE = saved
 
 
 def _rank(example: Example, widths: dict[str, float]) -> tuple[float, int]:

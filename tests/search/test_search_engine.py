@@ -117,3 +117,33 @@ def test_an_evaluation_that_breaks_ends_the_search_with_its_own_error_at_once():
     with pytest.raises(ValueError, match="NaN at frame 12"):
         run(broken)
     assert len(calls) == 1  # not shrunk as if it were a failure of the policy
+
+
+SEARCH_IN_A_FRESH_PROCESS = """
+import hashlib, sys
+sys.path[:0] = [{tests!r}, {extra!r}]
+if {preload!r}:
+    import preloaded_constants_x
+from test_search_engine import Edge, run
+evaluate = Edge(left=(9, 9), right=(-9, -9))
+run(evaluate, examples=160, batch=16, seed=5)
+print(hashlib.sha256(repr([e for b in evaluate.batches for e in b]).encode()).hexdigest())
+"""
+
+
+def test_modules_imported_before_do_not_change_the_search(tmp_path):
+    """Hypothesis mixes into its draws constants from the source of local modules
+    imported so far; a search must draw the same examples whatever else the
+    process (a pytest-xdist worker, say) imported before it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "preloaded_constants_x.py").write_text("VALUES = [0.123456, 2.718281, 1.414213]\n")
+    digests = set()
+    for preload in (False, True):
+        code = SEARCH_IN_A_FRESH_PROCESS.format(tests=str(Path(__file__).parent), extra=str(tmp_path),
+                                                preload=preload)
+        digests.add(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True
+                                   ).stdout.strip())
+    assert len(digests) == 1
