@@ -46,12 +46,36 @@ def _figures_table(outcome: Outcome) -> str:
             f"{escape(outcome.summary)}</p><table>{rows}</table></div>")
 
 
+def search_lines(outcome: Outcome) -> list[str]:
+    """A robustness search in a few lines: what broke it, where, the statistics, the replay.
+    Reports show them also when the item is an expected failure, whose pytest
+    report keeps nothing but the reason."""
+    search = outcome.details.get("search")
+    if not search:
+        return []
+    lines = [f"robustness search ({search.get('profile')} profile): {search.get('examples')} examples, "
+             f"{search.get('failures')} failing, {search.get('generations')} generation(s) of "
+             f"{search.get('batch')}, {search.get('seconds')} s; replayed first from the example database: "
+             f"{search.get('replayed_from_database')}"]
+    if search.get("minimal_text"):
+        where = ", ".join(f"{k} {v}" for k, v in (search.get("where") or {}).items())
+        lines += [f"smallest failing perturbation: {search['minimal_text']} (shrunk by hypothesis to "
+                  f"{search.get('shrunk_text')}, then moved to the edge of failure)",
+                  f"where: {where}: {search.get('reason')}", f"replay: {search.get('replay')}"]
+    return lines
+
+
 def html_extras(outcome: Outcome) -> list[dict]:
     """pytest-html extras: a figures table, images inline (base64, so a
     self-contained report carries them), result files as JSON / text."""
+    from html import escape
+
     from pytest_html import extras
 
     out = [extras.html(_figures_table(outcome))]
+    if search_lines(outcome):
+        out.append(extras.html("<div class='driveeval-search'>" + "".join(
+            f"<p>{escape(line)}</p>" for line in search_lines(outcome)) + "</div>"))
     # pytest-html shows images one at a time: animations first, they say the most.
     ordered = sorted(outcome.artefacts.items(), key=lambda item: Path(item[1]).suffix.lower() != ".gif")
     for name, path in ordered:
@@ -90,6 +114,8 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
     for key, value in scalar_figures(outcome).items():
         # Excluded from allure's history id: a figure changing is the news, not a new test.
         allure.dynamic.parameter(key, value, excluded=True)
+    if search_lines(outcome):
+        allure.attach("\n".join(search_lines(outcome)), name="robustness search", attachment_type=AttachmentType.TEXT)
     for name, path in outcome.artefacts.items():
         path = Path(path)
         if path.is_file():

@@ -58,7 +58,21 @@ def markdown_summary(summary: dict[str, Any]) -> str:
         text = text if isinstance(text, str) else " ".join(text)
         lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
                      f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
-    return "\n".join(lines + policy_table(summary["results"])) + "\n"
+    return "\n".join(lines + policy_table(summary["results"]) + search_list(summary["results"])) + "\n"
+
+
+def search_list(records: list[dict[str, Any]]) -> list[str]:
+    """The robustness searches that found a failure: the smallest perturbation and its replay line."""
+    found = [(r["nodeid"], (r.get("details") or {}).get("search") or {}) for r in records]
+    found = [(nodeid, s) for nodeid, s in found if s.get("minimal_text")]
+    if not found:
+        return []
+    lines = ["", "### Robustness searches that broke a policy or filter", ""]
+    for nodeid, s in found:
+        where = ", ".join(f"{k} {v}" for k, v in (s.get("where") or {}).items())
+        lines.append(f"- `{_cell(nodeid)}`: **{_cell(s['minimal_text'])}** ({_cell(where)}; {s.get('examples')} "
+                     f"examples, {s.get('seconds')} s). Replay: `{_cell(s.get('replay'))}`")
+    return lines
 
 
 def _interval_cell(intervals: dict[str, Any]) -> str:

@@ -81,7 +81,8 @@ def run_item(use_case: str, searchable: Searchable, spec: SearchSpec, ctx: Any) 
     message = (f"{describe(example.perturbation)} breaks it ({where}: {verdict.reason}); shrunk from "
                f"{describe(result.shrunk.perturbation)}; {result.examples} examples, {result.failures} failing, "
                f"{result.seconds:.1f} s. Replay: {command}")
-    stats.update(replay=command, shown_verdict=shown.verdict)
+    stats.update(replay=command, shown_verdict=shown.verdict, minimal_text=describe(example.perturbation),
+                 shrunk_text=describe(result.shrunk.perturbation))
     findings = [Finding(message, scene=verdict.where.get("scene"), frame=verdict.where.get("frame"),
                         keypath=KEYPATH), *shown.findings]
     summary = f"robustness: {describe(example.perturbation)} breaks it at {where} ({verdict.reason})"

@@ -140,3 +140,24 @@ def test_a_replay_of_an_unknown_field_or_scene_says_what_is_known(demo):
     assert "Lateral" in result.stdout.str()
     result = demo.runpytest("--driveeval-replay", "scene=4,lateral=1.0")
     assert "scene 4 is not one of this item's (0)" in result.stdout.str()
+
+
+def test_an_expected_failure_still_shows_its_search_in_html_allure_and_markdown(demo):
+    import html
+
+    demo.runpytest("--driveeval-search-profile=ci", "--html=report.html", "--self-contained-html",
+                   "--alluredir=allure").assert_outcomes(xfailed=1)
+    search = search_record(demo)["details"]["search"]
+    minimal = search["minimal_text"]
+    assert minimal.startswith("lateral=")
+    page = html.unescape(html.unescape((demo.path / "report.html").read_text()))  # extras are escaped twice
+    assert f"smallest failing perturbation: {minimal}" in page and search["replay"] in page
+    assert "data:image/gif;base64," in page  # the failing unroll's animation
+    (result,) = [json.loads(p.read_text()) for p in (demo.path / "allure").glob("*-result.json")]
+    kinds = {a["name"]: a["type"] for a in result["attachments"]}
+    assert kinds["robustness search"] == "text/plain" and kinds["scene_0_gif"] == "image/gif"
+    text = next((demo.path / "allure").glob(
+        next(a["source"] for a in result["attachments"] if a["name"] == "robustness search"))).read_text()
+    assert minimal in text and search["replay"] in text and f"{search['examples']} examples" in text
+    markdown = (demo.path / "driveeval-results" / "summary.md").read_text()
+    assert f"**{minimal}**" in markdown and "--driveeval-replay" in markdown
