@@ -64,7 +64,7 @@ class SearchSettings:
     seed: int = 0
     database: ExampleDatabase | None = None
     key: bytes = b""
-    max_shrink_evaluations: int = 200
+    max_shrink_evaluations: int = 64
 
 
 @dataclass

@@ -36,7 +36,6 @@ from pytest_driveeval.sim.blueprints.base import (
     gap_floor,
     place_along,
     positive,
-    scaled_gap,
     span,
 )
 from pytest_driveeval.sim.blueprints.road import Lane, Road
@@ -98,7 +97,7 @@ def intersection(params: IntersectionParams) -> Blueprint:
     road = Road(lanes, areas=_kerbs(w, params.kerb_radius))
 
     def spawn(rng: np.random.Generator, agent_limit: int, gap_scale: float = 1.0) -> Spawn:
-        gap, floor = scaled_gap(params, gap_scale), gap_floor(params)
+        floor = gap_floor(params)
         ego_s = arm - w - 0.5 * params.vehicle_length - rng.uniform(*params.ego_distance)
         ego_speed = rng.uniform(*params.ego_speed)
         goal_s = arm + w + rng.uniform(*params.goal_distance)

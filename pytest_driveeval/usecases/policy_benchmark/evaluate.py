@@ -9,17 +9,17 @@ comparisons are paired.
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from pytest_driveeval.deadline import TimeLimitExceeded, guarded_call, note
 from pytest_driveeval.errors import ModelError
+from pytest_driveeval.sim.torch_threads import one_torch_thread
 from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, OUTCOME_NAMES, STEP_LIMIT
 
-__all__ = ["PolicyRun", "observe", "observer", "one_torch_thread", "run_policy", "seeds_for"]
+__all__ = ["PolicyRun", "observe", "observer", "run_policy", "seeds_for"]
 
 #: called after every step with the episodes, for pictures of an episode
 StepSink = Callable[[Any], None]
@@ -114,22 +114,6 @@ def _actions(out: Any, episodes: Any, policy: str, step: int) -> np.ndarray:
                          + (f", and non-finite actions for {bad.size - 1} more episode(s)" if bad.size > 1 else ""))
     # Finished episodes ignore their action; keep whatever the policy said there from tripping the engine.
     return np.where(running[:, None], actions, 0.0)
-
-
-@contextmanager
-def one_torch_thread() -> Iterator[None]:
-    """torch on one thread while episodes run, then as it was.  A batch of tens
-    of observations gains nothing from intra-op threads, and on a loaded 2-core
-    machine their spinning made the shipped GNN's 64 merging episodes take 16 s
-    instead of 0.5 s (the same outcomes and returns, bit for bit)."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
 
 
 def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str, *, strata: Sequence[int] | None = None,

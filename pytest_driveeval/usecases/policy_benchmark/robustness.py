@@ -6,7 +6,7 @@ that episode ends in one of the section's ``FailOn`` outcomes.  A generation
 of examples is one batch of episodes: one ``reset`` with each example's seed
 and perturbation row, one policy call per step for all of them, so the cost
 of a generation is close to that of its longest episode (and torch runs on
-one thread: see :func:`~pytest_driveeval.usecases.policy_benchmark.evaluate.one_torch_thread`).
+one thread: see :func:`~pytest_driveeval.sim.torch_threads.one_torch_thread`).
 """
 from __future__ import annotations
 
