@@ -77,7 +77,8 @@ def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenar
     _, case = _binding(request)
     settings = get_settings(request.config)
     search = SearchOptions(examples=settings.search_examples, replay=settings.replay,
-                           profile=settings.search_profile, database=settings.search_database)
+                           profile=settings.search_profile, database=settings.search_database,
+                           seed=settings.seed)
     return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
                       output_dir=driveeval_output_dir, seed=driveeval_seed,
                       allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search)

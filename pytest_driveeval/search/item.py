@@ -76,7 +76,8 @@ def run_item(use_case: str, searchable: Searchable, spec: SearchSpec, ctx: Any) 
     example, verdict = result.minimal, result.verdict
     shown = searchable.show(example)
     command = f"pytest {shlex.quote(getattr(ctx, 'nodeid', '') or str(scenario.path))} " \
-              f"--driveeval-replay {shlex.quote(replay_text(searchable, example))}"
+              f"--driveeval-replay {shlex.quote(replay_text(searchable, example))}" + \
+              (f" --driveeval-seed {options.seed}" if options.seed else "")  # random draws of a case use it
     where = ", ".join(f"{k} {v}" for k, v in verdict.where.items())
     message = (f"{describe(example.perturbation)} breaks it ({where}: {verdict.reason}); shrunk from "
                f"{describe(result.shrunk.perturbation)}; {result.examples} examples, {result.failures} failing, "

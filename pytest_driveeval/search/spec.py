@@ -43,6 +43,7 @@ class SearchOptions:
     replay: str | None = None        # --driveeval-replay 'scene=0,lateral=1.73'
     profile: str = "default"         # "ci": derandomised, no example database
     database: Path | None = None     # folder of the example database
+    seed: int = 0                    # the session's --driveeval-seed, which a replay must repeat
 
 
 class SearchSpec(BaseModel):

@@ -160,3 +160,8 @@ def test_an_expected_failure_still_shows_its_search_in_html_allure_and_markdown(
     assert minimal in text and search["replay"] in text and f"{search['examples']} examples" in text
     markdown = (demo.path / "driveeval-results" / "summary.md").read_text()
     assert f"**{minimal}**" in markdown and "--driveeval-replay" in markdown
+
+
+def test_the_replay_line_repeats_a_session_seed_that_is_not_the_default(demo):
+    demo.runpytest("--driveeval-search-profile=ci", "--driveeval-seed", "7")
+    assert search_record(demo)["details"]["search"]["replay"].endswith(" --driveeval-seed 7")
