@@ -15,12 +15,14 @@ CamelCase names map to the perturbation's fields (``SpeedScale`` ->
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, model_validator
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 __all__ = ["SearchOptions", "SearchSpec", "field_name", "key_name", "parse_replay"]
 
@@ -51,6 +53,8 @@ class SearchSpec(BaseModel):
 
     #: keys of the subclass that are ranges, with their no-change value
     NEUTRAL: ClassVar[dict[str, float]] = {}
+    #: keys whose values are bounded: (lowest, highest, what to say when a range leaves them)
+    BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {}
 
     Examples: PositiveInt = 100
     Batch: PositiveInt = Field(32, le=4096)
@@ -60,22 +64,31 @@ class SearchSpec(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _ranges_hold_no_change(cls, data: Any):
+        """Each range is a [low, high] pair within the key's bounds holding its no-change value;
+        a bad one is reported at its own key, so at its own YAML line."""
         if not isinstance(data, dict):
             return data
         for key, neutral in cls.NEUTRAL.items():
-            bounds = data.get(key)
-            if bounds is None:
+            given = data.get(key)
+            if given is None:
                 continue
-            if isinstance(bounds, (int, float)) and not isinstance(bounds, bool):
-                bounds = [bounds, bounds]
-            if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(
-                    isinstance(b, (int, float)) and not isinstance(b, bool) for b in bounds):
-                raise ValueError(f"{key}: a range [low, high] is needed, got {bounds!r}")
+            bounds = [given, given] if _number(given) else given
+            if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(map(_number, bounds)):
+                raise _located(key, given, f"a range [low, high] is needed, got {given!r}")
             low, high = sorted(float(b) for b in bounds)
             if not low <= neutral <= high:
-                raise ValueError(f"{key}: the range [{low:g}, {high:g}] must contain {neutral:g} (no change), "
-                                 "which is what a failure shrinks towards")
+                raise _located(key, given, f"the range [{low:g}, {high:g}] must contain {neutral:g} (no change), "
+                                           "which is what a failure shrinks towards")
+            lowest, highest, what = cls.BOUNDS.get(key, (-math.inf, math.inf, ""))
+            if low < lowest or high > highest:
+                raise _located(key, given, f"{what}, got [{low:g}, {high:g}]")
         return data
+
+    @model_validator(mode="after")
+    def _something_to_search(self):
+        if not self.ranges() and self.Replay is None:
+            raise ValueError(f"give at least one range to search ({', '.join(self.NEUTRAL)})")
+        return self
 
     def ranges(self) -> dict[str, tuple[float, float]]:
         """{field name: (low, high)} of the ranges given."""
@@ -89,6 +102,16 @@ class SearchSpec(BaseModel):
 
     def widths(self) -> dict[str, float]:
         return {name: high - low for name, (low, high) in self.ranges().items()}
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _located(key: str, value: Any, message: str) -> ValidationError:
+    """An error at ``key`` of the section (pydantic then names the key, and the scenario its line)."""
+    return ValidationError.from_exception_data("Perturbation", [InitErrorDetails(
+        type=PydanticCustomError("perturbation_range", "{message}", {"message": message}), loc=(key,), input=value)])
 
 
 def parse_replay(text: str) -> dict[str, float]:

@@ -32,6 +32,8 @@
 """
 from __future__ import annotations
 
+import math
+
 from typing import ClassVar, Literal
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
@@ -145,23 +147,15 @@ class ClosedLoopPerturbation(SearchSpec):
 
     NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
                                            "AgentsSpeedScale": 1.0}
+    BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
+        "SpeedScale": (1e-3, math.inf, "a speed scale must stay above 0"),
+        "AgentsSpeedScale": (1e-3, math.inf, "a speed scale must stay above 0")}
 
     Lateral: Range = None
     Longitudinal: Range = None
     Heading: Range = None
     SpeedScale: Range = None
     AgentsSpeedScale: Range = None
-
-    @model_validator(mode="after")
-    def _scales_stay_positive(self):
-        for key in ("SpeedScale", "AgentsSpeedScale"):
-            bounds = getattr(self, key)
-            if bounds is not None and min(bounds) <= 0:
-                raise ValueError(f"{key}: a speed scale must stay above 0, got [{min(bounds):g}, {max(bounds):g}]")
-        if not self.ranges() and self.Replay is None:
-            raise ValueError("give at least one range to search (Lateral, Longitudinal, Heading, SpeedScale, "
-                             "AgentsSpeedScale)")
-        return self
 
 
 class ClosedLoopConfig(ConditionsModel):

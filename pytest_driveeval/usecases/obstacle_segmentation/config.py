@@ -205,22 +205,15 @@ class ObstaclePerturbation(SearchSpec):
     """What a robustness search may do to each raw cloud (strategies.CloudPerturbation)."""
 
     NEUTRAL: ClassVar[dict[str, float]] = {"Dropout": 0.0, "RangeNoise": 0.0, "GhostPoints": 0}
+    BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
+        "Dropout": (0.0, 1.0, "a fraction of the points, within [0, 1]"),
+        "RangeNoise": (0.0, float("inf"), "a standard deviation (m) cannot be negative")}
 
     Dropout: tuple[float, float] | None = None
     RangeNoise: tuple[float, float] | None = None
     GhostPoints: tuple[NonNegativeInt, NonNegativeInt] | None = None
     # Each searched frame's raw cloud is read once and kept: this bounds the memory of a long bag.
     Frames: PositiveInt = 200
-
-    @model_validator(mode="after")
-    def _sensible(self):
-        if self.Dropout is not None and not 0.0 <= min(self.Dropout) <= max(self.Dropout) <= 1.0:
-            raise ValueError(f"Dropout: a fraction of the points, within [0, 1]; got {list(self.Dropout)}")
-        if self.RangeNoise is not None and min(self.RangeNoise) < 0:
-            raise ValueError(f"RangeNoise: a standard deviation (m) cannot be negative; got {list(self.RangeNoise)}")
-        if not self.ranges() and self.Replay is None:
-            raise ValueError("give at least one range to search (Dropout, RangeNoise, GhostPoints)")
-        return self
 
     def strategy_ranges(self) -> dict[str, tuple]:
         """The ranges as ``cloud_perturbations`` takes them (ghost points as whole numbers)."""

@@ -177,7 +177,7 @@ def test_serial_and_two_workers_give_the_same_search(project):
     ("    Lateral: [0.5, 1.0]\n", "*search.scenario.yaml:11: Evaluation.Perturbation.Lateral: the range [[]0.5, 1[]] "
                                   "must contain 0 (no change)*"),
     ("    Lateral: [-1, 1]\n    GapScale: [0, 2]\n", "*search.scenario.yaml:12: Evaluation.Perturbation.GapScale: "
-                                                     "a scale must stay > 0*"),
+                                                     "a gap scale must stay above 0*"),
     ("    Lateral: [-1, 1]\n    Latteral: [-1, 1]\n", "*search.scenario.yaml:12: Evaluation.Perturbation.Latteral*"),
     ("    Lateral: [-1, 1]\n    FailOn: [crash]\n", "*search.scenario.yaml:12: Evaluation.Perturbation.FailOn*"),
     ("    Examples: 50\n", "*give at least one range to search*"),
