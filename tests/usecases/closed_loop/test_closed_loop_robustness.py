@@ -96,12 +96,15 @@ def test_the_replay_line_reproduces_the_failure_and_the_edge_next_to_it_passes(d
 def test_serial_and_two_workers_give_the_same_search_and_a_stored_failure_comes_first(demo):
     runs = {}
     for name, extra in (("serial", []), ("xdist", ["-n", "2"])):
-        demo.runpytest_subprocess("--driveeval-output", name, *extra).assert_outcomes(xfailed=1)
+        # The default profile, also under CI=true (whose default is the ci profile, without the database).
+        demo.runpytest_subprocess("--driveeval-output", name, "--driveeval-search-profile=default", *extra
+                                  ).assert_outcomes(xfailed=1)
         runs[name] = search_record(demo, name)["details"]["search"]
     keys = ("examples", "failures", "generations", "evaluations", "shrunk", "minimal", "edge", "where")
     assert {k: runs["serial"][k] for k in keys} == {k: runs["xdist"][k] for k in keys}
     assert runs["serial"]["replayed_from_database"] == 0
-    demo.runpytest_subprocess("--driveeval-output", "serial").assert_outcomes(xfailed=1)
+    demo.runpytest_subprocess("--driveeval-output", "serial", "--driveeval-search-profile=default"
+                              ).assert_outcomes(xfailed=1)
     again = search_record(demo, "serial")["details"]["search"]
     assert again["replayed_from_database"] >= 1 and again["generations"] == 1
     assert again["minimal"] == runs["serial"]["minimal"]
@@ -111,8 +114,11 @@ def test_two_scenarios_on_the_same_data_never_share_examples(demo):
     other = (demo.path / "scenarios" / DEMO.name).read_text().replace(
         "ScenarioName: real-scene-planning-model-lateral-offset", "ScenarioName: another-search")
     (demo.path / "scenarios" / "another.scenario.yaml").write_text(other)
-    demo.runpytest("scenarios/" + DEMO.name)
-    demo.runpytest("scenarios/another.scenario.yaml", "--driveeval-output", "second")
+    demo.runpytest("scenarios/" + DEMO.name, "--driveeval-search-profile=default")
+    assert search_record(demo)["details"]["search"]["replayed_from_database"] == 0
+    demo.runpytest("scenarios/" + DEMO.name, "--driveeval-search-profile=default")
+    assert search_record(demo)["details"]["search"]["replayed_from_database"] >= 1
+    demo.runpytest("scenarios/another.scenario.yaml", "--driveeval-output", "second", "--driveeval-search-profile=default")
     assert search_record(demo, "second")["details"]["search"]["replayed_from_database"] == 0
 
 
