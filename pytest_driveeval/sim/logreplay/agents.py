@@ -41,11 +41,16 @@ class LogCells:
       32-byte rows several times faster than 24-byte ones);
     * ``feat`` (cells, 7), for the features: track id where available
       (``_NO_TRACK`` elsewhere), x, y, yaw, length, width, label.
+
+    A robustness search unrolls many copies of the same scenes: :meth:`rows_of`
+    shares one packing among them (``row_of`` maps an unroll's rows to the
+    packed ones) instead of packing every copy again.
     """
 
-    __slots__ = ("shape", "sel", "feat")
+    __slots__ = ("shape", "sel", "feat", "row_of")
 
     def __init__(self, log: LogArrays):
+        self.row_of = None
         self.shape = log.available.shape
         n = log.available.size
         track = log.track_id.reshape(-1)
@@ -60,6 +65,18 @@ class LogCells:
         feat_f[:, 3] = log.agent_yaw.reshape(-1)
         feat_f[:, 4:6] = log.agent_extent.reshape((n, -1))[:, :2]
         self.feat[:, 6] = log.label.reshape(-1)
+
+    def rows_of(self, rows: np.ndarray) -> "LogCells":
+        """These cells for ``log.take(rows)`` of the log they were packed from, without packing again."""
+        out = LogCells.__new__(LogCells)
+        out.shape, out.sel, out.feat = self.shape, self.sel, self.feat
+        rows = np.asarray(rows, dtype=np.int64)
+        out.row_of = rows if self.row_of is None else self.row_of[rows]
+        return out
+
+    def base(self, rows: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """Flat index of the (rows, frames, column 0) cells (rows of the log being unrolled)."""
+        return _row_base(self.shape, rows if self.row_of is None else self.row_of[rows], frames)
 
 
 def _row_base(log_shape: tuple, rows: np.ndarray, frames: np.ndarray) -> np.ndarray:
@@ -102,7 +119,7 @@ def _select_agents_cells(cells: LogCells, rows: np.ndarray, hist: np.ndarray, hi
     unused ones it may differ, and nothing reads it there)."""
     t0 = hist[:, 0]
     cand, cand_ok = candidates[0][rows, t0], candidates[1][rows, t0]  # (B, K)
-    idx = _row_base(cells.shape, rows[:, None], hist)[:, :, None] + cand[:, None, :]  # (B, H+1, K)
+    idx = cells.base(rows[:, None], hist)[:, :, None] + cand[:, None, :]  # (B, H+1, K)
     # Track id where relevant: on relevant cells it is the track id, so the
     # most recent relevant one and the same-track test come from this one gather.
     rec = np.take(cells.sel, idx, axis=0)  # (B, H+1, K, 4)
@@ -195,7 +212,9 @@ def agent_histories(log: LogArrays, rows: np.ndarray, hist: np.ndarray, hist_ok:
         cols, used, track = _select_agents_cells(cells, rows, hist, hist_ok, centre, max_agents, radius, candidates)
     else:
         cols, used, track = select_agents(log, rows, hist, hist_ok, centre, max_agents, radius, candidates)
-    idx = _row_base(log.available.shape, rows[:, None], hist)[:, None, :] + cols[:, :, None]  # (B, N, H+1)
+    base = cells.base(rows[:, None], hist) if cells is not None else _row_base(log.available.shape, rows[:, None],
+                                                                                 hist)
+    idx = base[:, None, :] + cols[:, :, None]  # (B, N, H+1)
     if cells is not None:
         rec = np.take(cells.feat, idx, axis=0)  # (B, N, H+1, 7)
         a_ok = rec[..., 0] == track[..., None]

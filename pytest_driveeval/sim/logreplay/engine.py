@@ -184,12 +184,15 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
 
 
 def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
-           config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None) -> UnrollResult:
+           config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None,
+           cells: LogCells | None = None) -> UnrollResult:
     """Drive ``policy`` through all ``scenes`` together; see the module doc.
 
     ``start_perturbation`` (S, 4): each scene's start moved off the log, its
     past moved with it (:func:`~pytest_driveeval.sim.logreplay.perturb.perturb_history`);
-    the log stays the reference that drift is measured against.
+    the log stays the reference that drift is measured against.  ``cells``:
+    the log's :class:`~.agents.LogCells` when the caller has them already
+    (packed once for many unrolls of the same scenes).
     """
     t_begin = time.perf_counter()
     log = scenes if isinstance(scenes, LogArrays) else stack_scenes(scenes)
@@ -218,7 +221,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     model_time, forwards, scene_steps = 0.0, 0, 0
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=window_columns(log, cfg.history_frames), cells=LogCells(log))
+                   candidates=window_columns(log, cfg.history_frames), cells=cells or LogCells(log))
     coarse2 = _coarse_reach_squared(log, ext) if cfg.freeze_on_collision else None
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 

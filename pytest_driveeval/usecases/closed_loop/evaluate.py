@@ -103,8 +103,12 @@ def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float
 
 
 def unroll_log(log: Any, model: Callable, config: Any,
-               perturbations: Sequence[StartPerturbation] | None = None) -> Unroll:
-    """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given."""
+               perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None) -> Unroll:
+    """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given.
+
+    ``cells``: the log's packed cells (sim.logreplay.LogCells), when the caller
+    has them; unused when agents are replayed at another speed (the log changes).
+    """
     from pytest_driveeval.sim.logreplay import scale_agent_time, unroll
 
     start = None
@@ -112,8 +116,9 @@ def unroll_log(log: Any, model: Callable, config: Any,
         if len(perturbations) != log.ego_xy.shape[0]:
             raise ValueError(f"{len(perturbations)} perturbations for {log.ego_xy.shape[0]} scenes")
         start = np.array([[p.lateral, p.longitudinal, p.heading, p.speed_scale] for p in perturbations])
-        log = scale_agent_time(log, config.start_frame, np.array([p.agents_speed_scale for p in perturbations]))
-    return Unroll(unroll(log, model, config, start_perturbation=start), log, config.drift_threshold,
+        scaled = scale_agent_time(log, config.start_frame, np.array([p.agents_speed_scale for p in perturbations]))
+        cells, log = (cells if scaled is log else None), scaled
+    return Unroll(unroll(log, model, config, start_perturbation=start, cells=cells), log, config.drift_threshold,
                   config.step_time)
 
 
