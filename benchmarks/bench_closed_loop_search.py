@@ -15,9 +15,9 @@ torch on one thread:
   included.
 
 Target: batched >= 10x one at a time.  Nothing is asserted; figures are printed.
-On a 2-core machine (2026-11-24): 2.9-3.0x with the shipped model, whose
+On a 2-core machine (2026-11-24): 3.2x with the shipped model, whose
 arithmetic per example hardly shrinks with the batch (model time 2.3x; the
-harness's own time 4.9-5.5x); 6.2x with ``--model constant_velocity``.
+harness's own time 6.6-7.4x); 7.2x with ``--model constant_velocity``.
 
     python benchmarks/bench_closed_loop_search.py [--batch 32] [--generations 4]
 """

@@ -120,14 +120,17 @@ def test_unroll_with_no_change_is_bit_identical_and_rows_do_not_see_each_other(l
     assert both.displacement_error[0, 10] == pytest.approx(1.0)
 
 
-def test_cells_packed_once_and_shared_by_copies_unroll_bit_identically(log):
+def test_cells_and_window_columns_computed_once_and_shared_by_copies_unroll_bit_identically(log):
+    from pytest_driveeval.sim.logreplay import window_columns
     from pytest_driveeval.sim.logreplay.agents import LogCells
 
     policy, cfg = ConstantVelocityPolicy(), UnrollConfig(start_frame=10, drift_threshold=5.0, freeze_on_collision=True)
     rows = np.array([1, 0, 1, 1])
     p = np.array([[0.5, 0.0, 0.05, 1.0], NO_CHANGE, [-1.0, 0.5, 0.0, 0.9], NO_CHANGE])
     own = unroll(log.take(rows), policy, cfg, start_perturbation=p)
-    shared = unroll(log.take(rows), policy, cfg, start_perturbation=p, cells=LogCells(log).rows_of(rows))
+    columns, ok = window_columns(log, cfg.history_frames)
+    shared = unroll(log.take(rows), policy, cfg, start_perturbation=p, cells=LogCells(log).rows_of(rows),
+                    candidates=(columns[rows], ok[rows]))
     for name in ("driven_xy", "driven_yaw", "collision_kind", "collision_track_id", "displacement_error", "reset"):
         np.testing.assert_array_equal(getattr(shared, name), getattr(own, name), err_msg=name)
     # Shared, not copied: the copies read the packing of the two scenes.

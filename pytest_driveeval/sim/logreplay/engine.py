@@ -185,14 +185,15 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
 
 def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
            config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None,
-           cells: LogCells | None = None) -> UnrollResult:
+           cells: LogCells | None = None, candidates: tuple[np.ndarray, np.ndarray] | None = None) -> UnrollResult:
     """Drive ``policy`` through all ``scenes`` together; see the module doc.
 
     ``start_perturbation`` (S, 4): each scene's start moved off the log, its
     past moved with it (:func:`~pytest_driveeval.sim.logreplay.perturb.perturb_history`);
     the log stays the reference that drift is measured against.  ``cells``:
     the log's :class:`~.agents.LogCells` when the caller has them already
-    (packed once for many unrolls of the same scenes).
+    (packed once for many unrolls of the same scenes), and ``candidates`` its
+    :func:`~.logarrays.window_columns` for ``config.history_frames``.
     """
     t_begin = time.perf_counter()
     log = scenes if isinstance(scenes, LogArrays) else stack_scenes(scenes)
@@ -221,7 +222,8 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     model_time, forwards, scene_steps = 0.0, 0, 0
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=window_columns(log, cfg.history_frames), cells=cells or LogCells(log))
+                   candidates=candidates or window_columns(log, cfg.history_frames),
+                   cells=cells or LogCells(log))
     coarse2 = _coarse_reach_squared(log, ext) if cfg.freeze_on_collision else None
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 
@@ -295,9 +297,19 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
     first = min(start, driven_xy.shape[1] - 1)  # a start past every scene's end has no valid frame
     step[:, : first + 1] = (past_xy[:, 1:2] - past_xy[:, 0:1]) if first == 0 else \
         (past_xy[:, first:first + 1] - past_xy[:, first - 1:first])
-    col = detect_collisions(driven_xy, driven_yaw, ext, log.agent_xy, log.agent_yaw, log.agent_extent,
-                            log.available & valid[..., None], log.agent_velocity, step / dt,
-                            track_ids=log.track_id, agent_order=log.frame_row)
+    # Only the unrolled frames can hold a collision: judging the others too (a scene's
+    # frames before StartFrame or after Steps) would cost up to the whole log's length.
+    used = np.flatnonzero(valid.any(axis=0))
+    kind = np.zeros(valid.shape, np.int8)
+    track = np.full(valid.shape, -1, np.int64)
+    fault = np.zeros(valid.shape, bool)
+    if used.size:
+        t = slice(int(used[0]), int(used[-1]) + 1)
+        col = detect_collisions(driven_xy[:, t], driven_yaw[:, t], ext, log.agent_xy[:, t], log.agent_yaw[:, t],
+                                log.agent_extent[:, t], log.available[:, t] & valid[:, t, None],
+                                log.agent_velocity[:, t], step[:, t] / dt, track_ids=log.track_id[:, t],
+                                agent_order=log.frame_row[:, t])
+        kind[:, t], track[:, t], fault[:, t] = col.kind, col.track_id, col.at_fault
     disp = np.where(reset, proposed, displacement_error(driven_xy, log.ego_xy))
     frame_ok = np.arange(log.ego_yaw.shape[1]) < log.num_frames[:, None]
     to_ref = distance_to_reference(driven_xy, log.ego_xy, frame_ok)
@@ -307,8 +319,8 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
     return UnrollResult(
         scene_ids=log.scene_ids.copy(), start_frame=start, valid=valid,
         driven_xy=driven_xy, driven_yaw=driven_yaw, logged_xy=log.ego_xy, logged_yaw=log.ego_yaw,
-        collision_kind=np.where(valid, col.kind, 0).astype(np.int8),
-        collision_track_id=np.where(valid, col.track_id, -1), collision_at_fault=valid & col.at_fault,
+        collision_kind=np.where(valid, kind, 0).astype(np.int8),
+        collision_track_id=np.where(valid, track, -1), collision_at_fault=valid & fault,
         displacement_error=np.where(valid, disp, nan), distance_to_reference=np.where(valid, to_ref, nan),
         speed_difference=np.where(valid, dspeed, nan), reset=reset & valid, frozen=frozen & valid,
         errors=errors, model_time=model_time, total_time=total + time.perf_counter() - t_metrics,

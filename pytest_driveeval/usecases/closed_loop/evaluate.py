@@ -103,11 +103,13 @@ def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float
 
 
 def unroll_log(log: Any, model: Callable, config: Any,
-               perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None) -> Unroll:
+               perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None,
+               candidates: Any = None) -> Unroll:
     """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given.
 
-    ``cells``: the log's packed cells (sim.logreplay.LogCells), when the caller
-    has them; unused when agents are replayed at another speed (the log changes).
+    ``cells``, ``candidates``: the log's packed cells and window columns
+    (sim.logreplay), when the caller has them; unused when agents are
+    replayed at another speed (the log changes).
     """
     from pytest_driveeval.sim.logreplay import scale_agent_time, unroll
 
@@ -117,9 +119,11 @@ def unroll_log(log: Any, model: Callable, config: Any,
             raise ValueError(f"{len(perturbations)} perturbations for {log.ego_xy.shape[0]} scenes")
         start = np.array([[p.lateral, p.longitudinal, p.heading, p.speed_scale] for p in perturbations])
         scaled = scale_agent_time(log, config.start_frame, np.array([p.agents_speed_scale for p in perturbations]))
-        cells, log = (cells if scaled is log else None), scaled
-    return Unroll(unroll(log, model, config, start_perturbation=start, cells=cells), log, config.drift_threshold,
-                  config.step_time)
+        if scaled is not log:
+            cells = candidates = None
+        log = scaled
+    return Unroll(unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates), log,
+                  config.drift_threshold, config.step_time)
 
 
 @dataclass

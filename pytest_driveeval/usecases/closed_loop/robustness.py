@@ -15,6 +15,7 @@ import numpy as np
 
 from pytest_driveeval.outcome import Outcome
 from pytest_driveeval.sim.logreplay.agents import LogCells
+from pytest_driveeval.sim.logreplay.logarrays import window_columns
 from pytest_driveeval.search.engine import Example, Verdict
 from pytest_driveeval.search.item import Searchable
 from pytest_driveeval.strategies import StartPerturbation, start_perturbations
@@ -48,11 +49,12 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
 
     # Packed once: every generation's rows are copies of these scenes.
     cells = LogCells(log)
+    columns, columns_ok = window_columns(log, spec.HistoryFrames)
 
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
         rows = np.array([e.case for e in examples], dtype=np.int64)
         unrolled = unroll_log(log.take(rows), model, settings, [e.perturbation for e in examples],
-                              cells=cells.rows_of(rows))
+                              cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
         return [example_verdict(judge_scene(unrolled, i, config.Conditions)) for i in range(len(examples))]
 
     return Searchable(case_name="scene", case_labels=[int(i) for i in ids], perturbation_type=StartPerturbation,
