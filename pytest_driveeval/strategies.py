@@ -12,7 +12,7 @@ and what tests written with ``@given`` use:
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Callable, TypeVar
 
 from hypothesis import strategies as st
@@ -86,15 +86,17 @@ def _around(name: str, bounds: Range, neutral: float) -> st.SearchStrategy[float
         lambda d: neutral + d)
 
 
+def _within(kind: type, ranges: dict[str, Range]) -> st.SearchStrategy:
+    """``kind`` drawn with each field in its range, shrinking towards the field's default (no change)."""
+    return st.builds(kind, **{f.name: _around(f.name, ranges[f.name], f.default) for f in fields(kind)})
+
+
 def start_perturbations(lateral: Range = (0.0, 0.0), longitudinal: Range = (0.0, 0.0), heading: Range = (0.0, 0.0),
                         speed_scale: Range = (1.0, 1.0), agents_speed_scale: Range = (1.0, 1.0)
                         ) -> st.SearchStrategy[StartPerturbation]:
     """Start perturbations within the ranges (each must contain its no-change value)."""
-    return st.builds(StartPerturbation, lateral=_around("lateral", lateral, 0.0),
-                     longitudinal=_around("longitudinal", longitudinal, 0.0),
-                     heading=_around("heading", heading, 0.0),
-                     speed_scale=_around("speed_scale", speed_scale, 1.0),
-                     agents_speed_scale=_around("agents_speed_scale", agents_speed_scale, 1.0))
+    return _within(StartPerturbation, dict(lateral=lateral, longitudinal=longitudinal, heading=heading,
+                                           speed_scale=speed_scale, agents_speed_scale=agents_speed_scale))
 
 
 def episode_perturbations(lateral: Range = (0.0, 0.0), longitudinal: Range = (0.0, 0.0),
@@ -102,12 +104,9 @@ def episode_perturbations(lateral: Range = (0.0, 0.0), longitudinal: Range = (0.
                           agents_speed_scale: Range = (1.0, 1.0), gap_scale: Range = (1.0, 1.0)
                           ) -> st.SearchStrategy[EpisodePerturbation]:
     """Episode perturbations within the ranges (each must contain its no-change value)."""
-    return st.builds(EpisodePerturbation, lateral=_around("lateral", lateral, 0.0),
-                     longitudinal=_around("longitudinal", longitudinal, 0.0),
-                     heading=_around("heading", heading, 0.0),
-                     speed_scale=_around("speed_scale", speed_scale, 1.0),
-                     agents_speed_scale=_around("agents_speed_scale", agents_speed_scale, 1.0),
-                     gap_scale=_around("gap_scale", gap_scale, 1.0))
+    return _within(EpisodePerturbation, dict(lateral=lateral, longitudinal=longitudinal, heading=heading,
+                                             speed_scale=speed_scale, agents_speed_scale=agents_speed_scale,
+                                             gap_scale=gap_scale))
 
 
 def cloud_perturbations(dropout: Range = (0.0, 0.0), range_noise: Range = (0.0, 0.0),

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-__all__ = ["SearchOptions", "SearchSpec", "field_name", "key_name", "parse_replay"]
+__all__ = ["SearchOptions", "SearchSpec", "StartSearchSpec", "field_name", "key_name", "parse_replay"]
 
 
 def field_name(key: str) -> str:
@@ -102,6 +102,27 @@ class SearchSpec(BaseModel):
 
     def widths(self) -> dict[str, float]:
         return {name: high - low for name, (low, high) in self.ranges().items()}
+
+
+Range = tuple[float, float] | None
+_POSITIVE_SCALE = (1e-3, math.inf, "a speed scale must stay above 0")
+
+
+class StartSearchSpec(SearchSpec):
+    """Ranges of a start moved off its log or lane (strategies.StartPerturbation):
+    ``Lateral``, ``Longitudinal`` (m, in the ego's frame), ``Heading`` (rad),
+    ``SpeedScale`` (the ego's), ``AgentsSpeedScale`` (the others')."""
+
+    NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
+                                           "AgentsSpeedScale": 1.0}
+    BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {"SpeedScale": _POSITIVE_SCALE,
+                                                             "AgentsSpeedScale": _POSITIVE_SCALE}
+
+    Lateral: Range = None
+    Longitudinal: Range = None
+    Heading: Range = None
+    SpeedScale: Range = None
+    AgentsSpeedScale: Range = None
 
 
 def _number(value: Any) -> bool:

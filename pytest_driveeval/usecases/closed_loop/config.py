@@ -32,14 +32,12 @@
 """
 from __future__ import annotations
 
-import math
-
-from typing import ClassVar, Literal
+from typing import Literal
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
                       ValidationInfo, field_validator, model_validator)
 
-from pytest_driveeval.search.spec import SearchSpec
+from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.usecase import ConditionsModel
 
 
@@ -139,23 +137,8 @@ class ConstantVelocitySpec(_Strict):
     FirstStep: Literal["heading", "logged_next"] = "heading"
 
 
-Range = tuple[float, float] | None
-
-
-class ClosedLoopPerturbation(SearchSpec):
+class ClosedLoopPerturbation(StartSearchSpec):
     """What a robustness search may change about a scene's start (strategies.StartPerturbation)."""
-
-    NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
-                                           "AgentsSpeedScale": 1.0}
-    BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
-        "SpeedScale": (1e-3, math.inf, "a speed scale must stay above 0"),
-        "AgentsSpeedScale": (1e-3, math.inf, "a speed scale must stay above 0")}
-
-    Lateral: Range = None
-    Longitudinal: Range = None
-    Heading: Range = None
-    SpeedScale: Range = None
-    AgentsSpeedScale: Range = None
 
 
 class ClosedLoopConfig(ConditionsModel):

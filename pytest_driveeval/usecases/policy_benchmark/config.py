@@ -47,7 +47,7 @@ from typing import Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, ValidationError, model_validator
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
-from pytest_driveeval.search.spec import SearchSpec
+from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.usecase import ConditionsModel
 
 BASELINES = ("random", "constant", "idm_expert")
@@ -108,25 +108,17 @@ class BenchmarkArtefacts(_Strict):
 
 
 FAILURES = ("collision", "off_road", "step_limit")
-Range = tuple[float, float] | None
 
 
-class PolicyPerturbation(SearchSpec):
-    """What a robustness search may change about an episode's start (strategies.EpisodePerturbation)."""
+class PolicyPerturbation(StartSearchSpec):
+    """What a robustness search may change about an episode's start (strategies.EpisodePerturbation):
+    the start's ranges and ``GapScale``, the spawn gaps (below 1 denser traffic)."""
 
-    NEUTRAL: ClassVar[dict[str, float]] = {"Lateral": 0.0, "Longitudinal": 0.0, "Heading": 0.0, "SpeedScale": 1.0,
-                                           "AgentsSpeedScale": 1.0, "GapScale": 1.0}
+    NEUTRAL: ClassVar[dict[str, float]] = {**StartSearchSpec.NEUTRAL, "GapScale": 1.0}
     BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
-        "SpeedScale": (0.0, math.inf, "a speed scale cannot be negative"),
-        "AgentsSpeedScale": (0.0, math.inf, "a speed scale cannot be negative"),
-        "GapScale": (1e-3, math.inf, "a gap scale must stay above 0")}
+        **StartSearchSpec.BOUNDS, "GapScale": (1e-3, math.inf, "a gap scale must stay above 0")}
 
-    Lateral: Range = None
-    Longitudinal: Range = None
-    Heading: Range = None
-    SpeedScale: Range = None
-    AgentsSpeedScale: Range = None
-    GapScale: Range = None
+    GapScale: tuple[float, float] | None = None
     FailOn: list[Literal["collision", "off_road", "step_limit"]] = Field(default_factory=lambda: list(FAILURES),
                                                                           min_length=1)
 
