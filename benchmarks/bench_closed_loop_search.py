@@ -9,7 +9,10 @@ torch on one thread:
 * batched: the examples of the search's generations (``--batch`` at a time,
   one unroll each), the way the search evaluates them;
 * one at a time, the reference: the same examples, each unrolled alone (what
-  a search that runs the simulator once per example would cost);
+  a search that runs the simulator once per example would cost), with the
+  scene stacked and packed once, as the search has it;
+* one at a time through the Python API (``unroll_scenes`` per example, the
+  scene read and stacked each time, as a replay or a ``@given`` test does);
 * the whole search: distinct examples over its wall time, hypothesis,
   shrinking and tightening (whose steps are partly one example at a time)
   included.
@@ -48,6 +51,7 @@ from pytest_driveeval.scenario import load_scenario  # noqa: E402
 from pytest_driveeval.search.engine import Example, SearchSettings, search  # noqa: E402
 from pytest_driveeval.strategies import StartPerturbation  # noqa: E402
 from pytest_driveeval.usecases.closed_loop import replayed_agents  # noqa: E402
+from pytest_driveeval.usecases.closed_loop.evaluate import judge_scene, unroll_scenes  # noqa: E402
 from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable  # noqa: E402
 
 SCENARIO = ROOT / "scenario_tests" / "robustness" / "real_scene_lateral.scenario.yaml"
@@ -125,12 +129,24 @@ def main() -> None:
     tic = time.perf_counter()
     alone = [searchable.evaluate_many([e])[0] for e in examples]
     t_alone, m_alone = time.perf_counter() - tic, model.seconds
-    same = [v.failed for v in batched] == [v.failed for v in alone]
+    # The same examples as a user would run them without the search: one unroll_scenes call each
+    # (the Python API, and what --driveeval-replay does), the scene read and stacked every time.
+    spec = config.Unroll
+    model.seconds = 0.0
+    tic = time.perf_counter()
+    api = [judge_scene(unroll_scenes(dataset, model, [0], start_frame=spec.StartFrame, steps=spec.Steps,
+                                     drift_threshold=spec.DriftThreshold, agents=replayed_agents(spec.Agents),
+                                     perturbation=e.perturbation), 0, config.Conditions).passed for e in examples]
+    t_api, m_api = time.perf_counter() - tic, model.seconds
+    same = [v.failed for v in batched] == [v.failed for v in alone] == [not ok for ok in api]
     rate_batched, rate_alone = len(examples) / t_batched, len(examples) / t_alone
     print(f"{len(examples)} examples ({sum(v.failed for v in batched)} failing), verdicts identical batched and "
           f"alone: {same}")
     print(f"batched by {args.batch}: {rate_batched:8.1f} examples/s ({t_batched:.2f} s, model {m_batched:.2f} s)")
     print(f"one at a time:  {rate_alone:8.1f} examples/s ({t_alone:.2f} s, model {m_alone:.2f} s)  <- reference")
+    rate_api = len(examples) / t_api
+    print(f"one at a time through unroll_scenes: {rate_api:8.1f} examples/s ({t_api:.2f} s, model {m_api:.2f} s): "
+          f"batched is {rate_batched / rate_api:.1f}x")
     print(f"ratio: {rate_batched / rate_alone:.1f}x (target >= {TARGET:g}x: "
           f"{'met' if rate_batched / rate_alone >= TARGET else 'NOT met'}); model time alone "
           f"{m_alone / m_batched:.1f}x, harness time alone {(t_alone - m_alone) / (t_batched - m_batched):.1f}x")
