@@ -21,7 +21,7 @@ Target: batched >= 10x one at a time.  Nothing is asserted; figures are printed.
 On a 2-core machine (2026-11-24): 3.1-3.2x with the shipped model, whose
 arithmetic per example hardly shrinks with the batch (model time 2.3x; the
 harness's own time 6.6-6.9x), 3.5-3.7x against ``unroll_scenes``; with
-``--model constant_velocity`` 7.4x and 10.9x.
+``--model constant_velocity`` 7.4-8.5x and 10.9-11.0x.
 
     python benchmarks/bench_closed_loop_search.py [--batch 32] [--generations 4]
 """
