@@ -1,6 +1,7 @@
 """The GNN actor and critic: the message passing they claim, invariances, padding, SAC sampling, loading."""
 from __future__ import annotations
 
+import copy
 import functools
 import math
 
@@ -125,7 +126,7 @@ def outputs(actor: GNNActor, flat: torch.Tensor) -> torch.Tensor:
         return torch.cat([actor(flat), actor.distribution(flat)[0]], dim=-1)
 
 
-ACTOR64 = spread_actor(12).double()
+ACTOR64 = copy.deepcopy(ACTOR).double()  # .double() converts in place: ACTOR stays float32
 # In float64 a different order of summation moves the result by ~1e-15, so the bound can be tight
 # (in float32, terms up to ~10 summed in another order drift past 1e-4 on some graphs).
 REORDERED64 = {"rtol": 1e-9, "atol": 1e-9}
