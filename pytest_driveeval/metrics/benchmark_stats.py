@@ -253,7 +253,7 @@ def compare(
     improvement = Estimate(float(wins.mean() / 2), low, high, len(a), confidence, method,
                            paired=True, note=note)
     low, high = _percentile_interval(dist[:, 1], confidence)
-    is_rate = a.dtype == bool and b.dtype == bool
+    is_rate = a.dtype == bool  # _paired gave both the same dtype
     difference = Estimate(point, low, high, len(a), confidence, method, percent=is_rate,
                           paired=True, note=note)
     return Comparison(improvement, difference, statistic)

@@ -35,6 +35,7 @@ from .graph import (
     NODE_FEATURES,
     SEED_AGENT_LIMIT,
     check_agent_limit,
+    observation_size,
     split_flat,
 )
 
@@ -104,7 +105,7 @@ class GraphEncoder(nn.Module):
                              f"(edge features read x, y, theta, vel), got {num_features}")
         self.agent_limit = agent_limit
         self.num_features = num_features
-        self.observation_size = 3 + agent_limit * num_features + agent_limit * agent_limit
+        self.observation_size = observation_size(agent_limit, num_features)
         self.hidden = hidden
         self.embed = nn.Linear(num_features, hidden)
         self.inner = nn.ModuleList([MessageRound(hidden, message_hidden) for _ in range(rounds - 1)])

@@ -88,7 +88,7 @@ def _turn_route(a: Lane, b: Lane, radius: float) -> tuple[np.ndarray, float, flo
     arc = centre + radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
     arc[0], arc[-1] = start, end
     line = np.concatenate([a.centre[:-1], arc, b.centre[1:]])
-    arc_start = float(np.linalg.norm(np.diff(a.centre, axis=0), axis=1).sum()) - (len_a - t + tangent)
+    arc_start = a.length - (len_a - t + tangent)
     return line, arc_start, arc_start + abs(angle) * radius
 
 

@@ -134,12 +134,13 @@ def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarr
     lane = traffic.lane
     own_s = traffic.s
     end_s = road.end_s[lane]
-    target = np.where(np.isfinite(end_s) & (own_s > end_s - model.merge_zone), np.asarray(road.left)[lane], -1)
+    left_of = road.left_of[lane]
+    target = np.where(np.isfinite(end_s) & (own_s > end_s - model.merge_zone), left_of, -1)
     wishes = is_vehicle[..., None] & (target[..., None] == lanes)
     wishes[:, 0] = ~occupies[:, 0] & (clearance[:, 0] < model.yield_margin)
 
     # The lanes each vehicle looks at: its own, then left and right (-1: none).
-    looked = np.stack([lane, np.asarray(road.left)[lane], np.asarray(road.right)[lane]], axis=-1)  # (E, A, 3)
+    looked = np.stack([lane, left_of, road.right_of[lane]], axis=-1)  # (E, A, 3)
     exists = looked >= 0
     looked = np.where(exists, looked, 0)
     v_along = speed[..., None] * cos_rel

@@ -127,7 +127,7 @@ class Episodes:
         settled = traffic_model.lane_change_duration + traffic_model.lane_change_cooldown
         self._traffic = Traffic(lane, s, np.zeros((e_n, a_n)), speed, desired, np.zeros((e_n, a_n)),
                                 np.full((e_n, a_n), settled), np.full((e_n, a_n), -1), valid)
-        self.xy, self.yaw, self.speed, self.valid = xy, heading, speed.copy(), valid.copy()
+        self.xy, self.yaw, self.speed = xy, heading, speed.copy()
         self._ego = AgentState(xy[:, 0] - self._half_wheelbase(heading[:, 0]), heading[:, 0], speed[:, 0])
 
         self.goal_centre = np.stack([sp.goal.centre for sp in spawns])
@@ -157,6 +157,11 @@ class Episodes:
         np.maximum(desired, 0.1, out=desired)
         overlaps = oriented_boxes_overlap(xy[:, :1], heading[:, :1], self.size, xy[:, 1:], heading[:, 1:], self.size)
         valid[:, 1:] &= ~overlaps
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(E, A) bool: the ego, and the vehicles still on the map."""
+        return self._traffic.valid
 
     def _half_wheelbase(self, yaw: np.ndarray) -> np.ndarray:
         # The bicycle's pose is the rear axle; boxes are centred half a wheelbase ahead of it.
@@ -209,12 +214,13 @@ class Episodes:
         self._ego = AgentState(np.where(run, ego.xy, self._ego.xy), np.where(active, ego.yaw, self._ego.yaw),
                                np.where(active, ego.speed, self._ego.speed))
         old = self._traffic
-        self._traffic = Traffic(*(np.where(run, getattr(traffic, f.name), getattr(old, f.name))
+        # Desired speeds are the spawn's for the whole episode: nothing to merge.
+        self._traffic = Traffic(*(old.desired_speed if f.name == "desired_speed" else
+                                  np.where(run, getattr(traffic, f.name), getattr(old, f.name))
                                   for f in fields(Traffic)))
         self.xy = np.where(run[..., None], xy, self.xy)
         self.yaw = np.where(run, yaw, self.yaw)
         self.speed = np.where(run, speed, self.speed)
-        self.valid = np.where(run, valid, self.valid)
         self.steps = steps
         ended = np.where(active, outcome, RUNNING)
         self.outcome = np.where(active, outcome, self.outcome).astype(np.int8)

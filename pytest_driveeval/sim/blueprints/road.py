@@ -185,6 +185,9 @@ class Road:
         object.__setattr__(self, "widths", np.array([l.width for l in self.lanes]))
         # Where each lane's vehicles must have left it (inf: never).
         object.__setattr__(self, "end_s", np.where(self.ends, self.lengths, np.inf))
+        # left / right as index arrays, for the per-step gathers of the traffic model.
+        object.__setattr__(self, "left_of", np.asarray(self.left, dtype=np.int64))
+        object.__setattr__(self, "right_of", np.asarray(self.right, dtype=np.int64))
 
     @property
     def num_lanes(self) -> int:
