@@ -17,7 +17,8 @@ from typing import Any, Callable, TypeVar
 
 from hypothesis import strategies as st
 
-__all__ = ["CloudPerturbation", "EpisodePerturbation", "StartPerturbation", "cloud_perturbations", "describe",
+__all__ = ["CloudPerturbation", "EpisodePerturbation", "StartPerturbation", "changed_fields", "cloud_perturbations",
+           "describe",
            "episode_perturbations", "start_perturbations", "tighten"]
 
 Range = tuple[float, float]
@@ -37,7 +38,7 @@ class StartPerturbation:
     agents_speed_scale: float = 1.0
 
     def is_identity(self) -> bool:
-        return self == StartPerturbation()
+        return self == type(self)()
 
     def to_json(self) -> dict[str, float]:
         return asdict(self)
@@ -51,9 +52,6 @@ class EpisodePerturbation(StartPerturbation):
     traffic and ``gap_scale > 1`` sparser."""
 
     gap_scale: float = 1.0
-
-    def is_identity(self) -> bool:
-        return self == EpisodePerturbation()
 
 
 @dataclass(frozen=True)
@@ -126,11 +124,15 @@ def _int_range(name: str, bounds: tuple[int, int]) -> tuple[int, int]:
     return low, high
 
 
+def changed_fields(perturbation: Any) -> dict[str, Any]:
+    """The fields of ``perturbation`` that differ from no change, in field order."""
+    neutral = type(perturbation)()
+    return {k: v for k, v in asdict(perturbation).items() if v != getattr(neutral, k)}
+
+
 def describe(perturbation: Any) -> str:
     """``lateral=1.25, heading=-0.05``: the fields that differ from no change, for messages."""
-    neutral = type(perturbation)()
-    changed = {k: v for k, v in asdict(perturbation).items() if v != getattr(neutral, k)}
-    return ", ".join(f"{k}={v:.4g}" for k, v in changed.items()) or "no perturbation"
+    return ", ".join(f"{k}={v:.4g}" for k, v in changed_fields(perturbation).items()) or "no perturbation"
 
 
 def tighten(perturbation: P, fails: Callable[[P], bool], tolerance: float = 1e-3) -> P:

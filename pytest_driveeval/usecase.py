@@ -14,7 +14,8 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from .errors import DataError, ModelError
 
@@ -37,6 +38,14 @@ class ConditionsModel(BaseModel):
     """Base for use-case models: unknown keys are errors, so typos are caught."""
 
     model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+
+
+def located_error(loc: str | tuple, value: Any, message: str) -> ValidationError:
+    """A validation error at ``loc`` of the model being validated, raised from a validator of
+    it, so that the scenario names the line of that key rather than of the whole mapping."""
+    loc = loc if isinstance(loc, tuple) else (loc,)
+    return ValidationError.from_exception_data("Evaluation", [InitErrorDetails(
+        type=PydanticCustomError("located", "{message}", {"message": message}), loc=loc, input=value)])
 
 
 @dataclass

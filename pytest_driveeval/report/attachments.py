@@ -73,9 +73,10 @@ def html_extras(outcome: Outcome) -> list[dict]:
     from pytest_html import extras
 
     out = [extras.html(_figures_table(outcome))]
-    if search_lines(outcome):
-        out.append(extras.html("<div class='driveeval-search'>" + "".join(
-            f"<p>{escape(line)}</p>" for line in search_lines(outcome)) + "</div>"))
+    lines = search_lines(outcome)
+    if lines:
+        out.append(extras.html("<div class='driveeval-search'>" + "".join(f"<p>{escape(line)}</p>" for line in lines)
+                               + "</div>"))
     # pytest-html shows images one at a time: animations first, they say the most.
     ordered = sorted(outcome.artefacts.items(), key=lambda item: Path(item[1]).suffix.lower() != ".gif")
     for name, path in ordered:
@@ -114,8 +115,9 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
     for key, value in scalar_figures(outcome).items():
         # Excluded from allure's history id: a figure changing is the news, not a new test.
         allure.dynamic.parameter(key, value, excluded=True)
-    if search_lines(outcome):
-        allure.attach("\n".join(search_lines(outcome)), name="robustness search", attachment_type=AttachmentType.TEXT)
+    lines = search_lines(outcome)
+    if lines:
+        allure.attach("\n".join(lines), name="robustness search", attachment_type=AttachmentType.TEXT)
     for name, path in outcome.artefacts.items():
         path = Path(path)
         if path.is_file():

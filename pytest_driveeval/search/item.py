@@ -20,6 +20,7 @@ from hypothesis.database import DirectoryBasedExampleDatabase
 from pytest_driveeval.errors import DataError
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.search.engine import EvaluateMany, Example, SearchResult, SearchSettings, database_key, search
+from pytest_driveeval.strategies import changed_fields
 from pytest_driveeval.search.spec import SearchOptions, SearchSpec, key_name, parse_replay
 
 __all__ = ["SearchOptions", "Searchable", "describe", "replay_text", "run_item"]
@@ -39,9 +40,7 @@ class Searchable:
 
 def describe(perturbation: Any) -> str:
     """The fields that differ from no change, exactly (``lateral=1.734``)."""
-    neutral = type(perturbation)()
-    changed = [f"{k}={v!r}" for k, v in asdict(perturbation).items() if v != getattr(neutral, k)]
-    return ",".join(changed) or "no change"
+    return ",".join(f"{k}={v!r}" for k, v in changed_fields(perturbation).items()) or "no change"
 
 
 def replay_text(searchable: Searchable, example: Example) -> str:
@@ -139,8 +138,5 @@ def _figures(result: SearchResult) -> dict[str, Any]:
     figures: dict[str, Any] = {"search_examples": result.examples, "search_failures": result.failures,
                                "search_seconds": round(result.seconds, 2)}
     if result.minimal is not None:
-        neutral = type(result.minimal.perturbation)()
-        for name, value in asdict(result.minimal.perturbation).items():
-            if value != getattr(neutral, name):
-                figures[f"minimal_{name}"] = value
+        figures.update({f"minimal_{k}": v for k, v in changed_fields(result.minimal.perturbation).items()})
     return figures

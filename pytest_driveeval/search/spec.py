@@ -21,8 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, model_validator
-from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
+
+from pytest_driveeval.usecase import located_error
 
 __all__ = ["SearchOptions", "SearchSpec", "StartSearchSpec", "field_name", "key_name", "parse_replay"]
 
@@ -74,14 +75,14 @@ class SearchSpec(BaseModel):
                 continue
             bounds = [given, given] if _number(given) else given
             if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(map(_number, bounds)):
-                raise _located(key, given, f"a range [low, high] is needed, got {given!r}")
+                raise located_error(key, given, f"a range [low, high] is needed, got {given!r}")
             low, high = sorted(float(b) for b in bounds)
             if not low <= neutral <= high:
-                raise _located(key, given, f"the range [{low:g}, {high:g}] must contain {neutral:g} (no change), "
+                raise located_error(key, given, f"the range [{low:g}, {high:g}] must contain {neutral:g} (no change), "
                                            "which is what a failure shrinks towards")
             lowest, highest, what = cls.BOUNDS.get(key, (-math.inf, math.inf, ""))
             if low < lowest or high > highest:
-                raise _located(key, given, f"{what}, got [{low:g}, {high:g}]")
+                raise located_error(key, given, f"{what}, got [{low:g}, {high:g}]")
         return data
 
     @model_validator(mode="after")
@@ -99,9 +100,6 @@ class SearchSpec(BaseModel):
                 low, high = sorted(float(b) for b in bounds)
                 out[field_name(key)] = (low, high)
         return out
-
-    def widths(self) -> dict[str, float]:
-        return {name: high - low for name, (low, high) in self.ranges().items()}
 
 
 Range = tuple[float, float] | None
@@ -127,12 +125,6 @@ class StartSearchSpec(SearchSpec):
 
 def _number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _located(key: str, value: Any, message: str) -> ValidationError:
-    """An error at ``key`` of the section (pydantic then names the key, and the scenario its line)."""
-    return ValidationError.from_exception_data("Perturbation", [InitErrorDetails(
-        type=PydanticCustomError("perturbation_range", "{message}", {"message": message}), loc=(key,), input=value)])
 
 
 def parse_replay(text: str) -> dict[str, float]:

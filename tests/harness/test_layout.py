@@ -34,7 +34,7 @@ ALLOWED = {
     "settings": {"runs"},
     "runs": {"atomic", "report"},
     "strategies": set(),
-    "search": {"errors", "outcome", "strategies"},
+    "search": {"errors", "outcome", "strategies", "usecase"},
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
     # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).

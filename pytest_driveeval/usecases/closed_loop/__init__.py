@@ -121,12 +121,8 @@ class ClosedLoop(UseCase):
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
         spec = config.Unroll
         findings = list(problems)
-        unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, start_frame=spec.StartFrame,
-                               steps=spec.Steps, drift_threshold=spec.DriftThreshold,
-                               freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
-                               history_frames=spec.HistoryFrames, future_frames=spec.FutureFrames,
-                               max_agents=spec.MaxAgents, agents=replayed_agents(spec.Agents),
-                               perturbation=perturbation) if ids else None
+        unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, **spec.unroll_options(),
+                               agents=replayed_agents(spec.Agents), perturbation=perturbation) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         for verdict in verdicts:
             findings.extend(verdict.findings)

@@ -85,6 +85,12 @@ class UnrollSpec(_Strict):
     MaxAgents: PositiveInt = 30
     Agents: AgentsSpec = Field(default_factory=AgentsSpec)
 
+    def unroll_options(self) -> dict:
+        """The keyword arguments of evaluate.unroll_scenes / unroll_config these keys set."""
+        return dict(start_frame=self.StartFrame, steps=self.Steps, drift_threshold=self.DriftThreshold,
+                    freeze_on_collision=self.FreezeOnCollision, kinematic=self.Kinematic,
+                    history_frames=self.HistoryFrames, future_frames=self.FutureFrames, max_agents=self.MaxAgents)
+
     @model_validator(mode="after")
     def _one_selection(self):
         if self.Scenes is not None and self.SceneStride is not None:

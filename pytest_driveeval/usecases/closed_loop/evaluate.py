@@ -166,14 +166,16 @@ def reference_distance(unroll: Unroll, row: int, measure: str = "polyline") -> n
     raise ValueError(f"measure must be 'polyline' or 'l5kit', not {measure!r}")
 
 
-def scene_figures(unroll: Unroll, row: int, reference: str = "polyline") -> dict[str, float | int]:
-    """The figures of scene ``row``; ``reference``: the measure of the distance to it."""
+def scene_figures(unroll: Unroll, row: int, reference: str = "polyline", *,
+                  distances: np.ndarray | None = None) -> dict[str, float | int]:
+    """The figures of scene ``row``; ``reference``: the measure of the distance to it
+    (``distances``: that measure's :func:`reference_distance`, when the caller has it)."""
     r = unroll.result
     valid = r.valid[row]
     kinds = r.collision_kind[row][valid]
     at_fault = r.collision_at_fault[row][valid]
     disp = r.displacement_error[row][valid]
-    ref = reference_distance(unroll, row, reference)[valid]
+    ref = (reference_distance(unroll, row, reference) if distances is None else distances)[valid]
     ref = ref[~np.isnan(ref)]
     figures: dict[str, float | int] = {f: int((kinds == KIND_CODE[f]).sum()) for f in KINDS}
     figures["at_fault"] = int((at_fault & (kinds > 0)).sum())
@@ -192,7 +194,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
     scene = int(r.scene_ids[row])
     to_reference = conditions.DistanceToReference
     measure = to_reference.Measure if to_reference is not None else "polyline"
-    figures = scene_figures(unroll, row, measure)
+    distances = reference_distance(unroll, row, measure)  # l5kit's measure costs a search per frame: once
+    figures = scene_figures(unroll, row, measure, distances=distances)
     findings: list[Finding | None] = []  # a rule that holds adds None
     if r.errors[row]:  # the engine's messages already name the scene(s) and frame
         findings.append(Finding(r.errors[row], scene=scene))
@@ -213,7 +216,7 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
             continue
         measured = r.valid[row]
         if values is None:  # l5kit's measure leaves the last 20 % of the frames out (NaN)
-            values = reference_distance(unroll, row, measure)
+            values = distances
             measured = measured & ~np.isnan(values)
         frames = np.flatnonzero(measured)
         findings.append(within(np.abs(values[frames]), figure=key, max=limit.Max, frames=frames, unit=unit,

@@ -43,10 +43,7 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
     evaluation of one scene, with its animation."""
     spec = config.Unroll
     log = stack_log(dataset, ids, spec.StartFrame, agents)
-    settings = unroll_config(start_frame=spec.StartFrame, steps=spec.Steps, drift_threshold=spec.DriftThreshold,
-                             freeze_on_collision=spec.FreezeOnCollision, kinematic=spec.Kinematic,
-                             history_frames=spec.HistoryFrames, future_frames=spec.FutureFrames,
-                             max_agents=spec.MaxAgents)
+    settings = unroll_config(**spec.unroll_options())
 
     # Packed once: every generation's rows are copies of these scenes.
     cells = LogCells(log)

@@ -83,13 +83,14 @@ def perturb_cloud(points: np.ndarray, perturbation: CloudPerturbation, rng: np.r
         raise ValueError("ghost points need a GhostRegion (the non-detection area) to be placed in")
     drop_rng, noise_rng, centre_rng, offset_rng, donor_rng = (
         np.random.default_rng(s) for s in rng.integers(0, 2**63, size=5))
+    # One generator per effect, seeded up front: an effect left at no change draws nothing
+    # and the others draw the same numbers.
     n = len(points)
-    uniform, normal = drop_rng.random(n), noise_rng.standard_normal(n)
     out = points
     if p.range_noise:
-        out = _range_noise(out, normal * p.range_noise, np.asarray(origin, dtype=np.float64))
+        out = _range_noise(out, noise_rng.standard_normal(n) * p.range_noise, np.asarray(origin, dtype=np.float64))
     if p.dropout:
-        out = out[uniform >= p.dropout]
+        out = out[drop_rng.random(n) >= p.dropout]
     if p.ghost_points:
         out = _add_ghosts(out, points, p.ghost_points, ghost, centre_rng, offset_rng, donor_rng)
     return out

@@ -44,11 +44,10 @@ import math
 
 from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, ValidationError, model_validator
-from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, model_validator
 
 from pytest_driveeval.search.spec import StartSearchSpec
-from pytest_driveeval.usecase import ConditionsModel
+from pytest_driveeval.usecase import ConditionsModel, located_error
 
 BASELINES = ("random", "constant", "idm_expert")
 METRICS = ("goal_rate", "collision_rate", "return")
@@ -71,9 +70,7 @@ class BlueprintSpec(_Strict):
         except ParameterError as exc:
             # Point at the parameter's own line, not at the Blueprint mapping.
             message = str(exc).split(": ", 2)[-1]
-            raise ValidationError.from_exception_data("Blueprint", [InitErrorDetails(
-                type=PydanticCustomError("blueprint_parameter", "{message}", {"message": message}),
-                loc=("Params", exc.parameter), input=self.Params.get(exc.parameter))]) from None
+            raise located_error(("Params", exc.parameter), self.Params.get(exc.parameter), message) from None
         return self
 
 
@@ -125,7 +122,7 @@ class PolicyPerturbation(StartSearchSpec):
     @model_validator(mode="after")
     def _each_outcome_once(self):
         if len(set(self.FailOn)) != len(self.FailOn):
-            raise _located("FailOn", self.FailOn, "each outcome once")
+            raise located_error("FailOn", self.FailOn, "each outcome once")
         return self
 
 
@@ -145,15 +142,15 @@ class PolicyBenchmarkConfig(ConditionsModel):
     @model_validator(mode="after")
     def _consistent(self):
         if self.AgentLimit < 1:
-            raise _located("AgentLimit", self.AgentLimit,
+            raise located_error("AgentLimit", self.AgentLimit,
                            "the agent limit counts the ego, so it is at least 1")
         for index, name in enumerate(self.Judged or ()):
             if name not in self.Policies:
-                raise _located(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
+                raise located_error(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
                                                         f"({', '.join(self.Policies)})")
         for index, beats in enumerate(self.Conditions.Beats):
             if beats.Baseline not in self.Policies:
-                raise _located(("Conditions", "Beats", index, "Baseline"), beats.Baseline,
+                raise located_error(("Conditions", "Beats", index, "Baseline"), beats.Baseline,
                                f"'{beats.Baseline}' is not one of this scenario's Policies "
                                f"({', '.join(self.Policies)})")
         return self
@@ -163,9 +160,3 @@ class PolicyBenchmarkConfig(ConditionsModel):
             return self.Judged
         learnt = [name for name, spec in self.Policies.items() if spec not in BASELINES]
         return learnt or list(self.Policies)
-
-
-def _located(loc: str | tuple, value: Any, message: str) -> ValidationError:
-    loc = loc if isinstance(loc, tuple) else (loc,)
-    return ValidationError.from_exception_data("PolicyBenchmark", [InitErrorDetails(
-        type=PydanticCustomError("policy_benchmark", "{message}", {"message": message}), loc=loc, input=value)])

@@ -9,7 +9,7 @@ comparisons are paired.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -36,7 +36,6 @@ class PolicyRun:
     outcome: np.ndarray  # codes of metrics.episode_outcomes
     returns: np.ndarray
     steps: np.ndarray
-    notes: dict[str, Any] = field(default_factory=dict)
 
     def rate_of(self, code: int) -> np.ndarray:
         return self.outcome == code
