@@ -127,11 +127,23 @@ def detect_collisions(
             x = np.broadcast_to(x, lead + tail)
         return x.reshape((frames,) + tail)
 
-    def per_pair(x, tail, dtype=None):  # -> (F * A, *tail), same rule
-        x = np.asarray(x, dtype=dtype)
-        if x.shape != lead + (num_agents,) + tail:
-            x = np.broadcast_to(x, lead + (num_agents,) + tail)
-        return x.reshape((frames * num_agents,) + tail)
+    pair_shape = lead + (num_agents,)
+
+    def at_pairs(x, tail, pairs, dtype=None):  # x's values at flat (frame, agent) indices -> (P, *tail)
+        # Gathered from the caller's (possibly sliced or broadcast) table as it is:
+        # flattening a sliced (scenes, frames, agents) table first would copy all of it.
+        x = np.asarray(x)
+        if x.shape != pair_shape + tail:
+            x = np.broadcast_to(x, pair_shape + tail)
+        if x.flags.c_contiguous:
+            v = np.take(x.reshape((-1,) + tail), pairs, axis=0)
+        else:
+            v = x[np.unravel_index(pairs, pair_shape)]
+        return v if dtype is None else v.astype(dtype, copy=False)
+
+    def as_pairs(x, tail):  # a read-only view shaped (..., A, *tail)
+        x = np.asarray(x)
+        return x if x.shape == pair_shape + tail else np.broadcast_to(x, pair_shape + tail)
 
     e_xy = per_frame(ec, (2,))
     e_yaw = per_frame(eyaw, ())
@@ -139,38 +151,38 @@ def detect_collisions(
     const_ext = e_ext.ndim == 1  # one ego box for every frame: per-frame terms are scalars
     if not const_ext:
         e_ext = per_frame(e_ext, (2,))
-    a_xy = per_pair(ac, (2,))
+    a_xy = as_pairs(ac, (2,))
     a_ext_raw = np.asarray(agent_extent)
-    a_ext = per_pair(a_ext_raw[..., :2] if a_ext_raw.shape[-1] != 2 else a_ext_raw, (2,))  # dtype kept; exact
+    a_ext = as_pairs(a_ext_raw[..., :2] if a_ext_raw.shape[-1] != 2 else a_ext_raw, (2,))  # dtype kept; exact
 
     # 1. Coarse range test on every pair, against the largest possible
     # reach: the fewest passes over the (frames x agents) table.
-    agent_diag = float(np.hypot(max_or_zero(a_ext[:, 0]), max_or_zero(a_ext[:, 1])))
+    agent_diag = float(np.hypot(max_or_zero(a_ext[..., 0]), max_or_zero(a_ext[..., 1])))
     max_reach = 0.5 * (max_or_zero(norm2d(e_ext)) + agent_diag)
-    a_xy3 = a_xy.reshape(frames, num_agents, 2)
-    dx = a_xy3[..., 0] - e_xy[:, None, 0]
-    dy = a_xy3[..., 1] - e_xy[:, None, 1]
+    e_grid = e_xy.reshape(lead + (1, 2))
+    dx = a_xy[..., 0] - e_grid[..., 0]
+    dy = a_xy[..., 1] - e_grid[..., 1]
     dx *= dx
     dy *= dy
     dx += dy
     near = dx < max_reach * max_reach
     if agent_available is not None:
-        near &= per_pair(agent_available, (), bool).reshape(frames, num_agents)
+        near &= as_pairs(np.asarray(agent_available, dtype=bool), ())
     pair = np.flatnonzero(near)  # row-major: by frame, then agent index
     f_idx = pair // num_agents
 
     # 2. l5kit's own within_range (strict, per pair), then the exact
     # separating-axis test on the pairs left.  l5kit's range test only drops
     # boxes touching corner to corner exactly along the diagonal.
-    ext_p = np.take(a_ext, pair, axis=0).astype(np.float64)  # (P, 2)
+    ext_p = at_pairs(a_ext, (2,), pair, np.float64)  # (P, 2)
     e_norm = norm2d(e_ext) if const_ext else np.take(norm2d(e_ext), f_idx)
     r = 0.5 * (e_norm + norm2d(ext_p))
     r *= r
     keep = np.take(dx, pair) < r
     pair, f_idx, ext_p = pair[keep], f_idx[keep], ext_p[keep]
     e_cos, e_sin = np.cos(e_yaw), np.sin(e_yaw)
-    hit = _sat_overlap(e_xy, e_cos, e_sin, e_ext, const_ext, f_idx, np.take(a_xy, pair, axis=0),
-                       np.take(per_pair(ayaw, ()), pair).astype(np.float64), ext_p)
+    hit = _sat_overlap(e_xy, e_cos, e_sin, e_ext, const_ext, f_idx, at_pairs(a_xy, (2,), pair),
+                       at_pairs(ayaw, (), pair, np.float64), ext_p)
     hit_pair = pair[hit]
     overlap = np.zeros(frames * num_agents, dtype=bool)
     overlap[hit_pair] = True
@@ -181,7 +193,7 @@ def detect_collisions(
     # partner first.
     hf = f_idx[hit]
     if agent_order is not None and hit_pair.size:
-        by_row = np.lexsort((np.take(per_pair(agent_order, (), np.int64), hit_pair), hf))
+        by_row = np.lexsort((at_pairs(agent_order, (), hit_pair, np.int64), hf))
         hit_pair, hf = hit_pair[by_row], hf[by_row]
     first = np.ones(hf.shape, dtype=bool)
     first[1:] = hf[1:] != hf[:-1]
@@ -192,8 +204,7 @@ def detect_collisions(
     side = _contact_side(
         np.take(e_xy, cf, axis=0), np.take(e_cos, cf), np.take(e_sin, cf),
         e_ext if const_ext else np.take(e_ext, cf, axis=0),
-        np.take(a_xy, cp, axis=0), np.take(per_pair(ayaw, ()), cp).astype(np.float64),
-        np.take(a_ext, cp, axis=0).astype(np.float64),
+        at_pairs(a_xy, (2,), cp), at_pairs(ayaw, (), cp, np.float64), at_pairs(a_ext, (2,), cp, np.float64),
     )
 
     kind = np.zeros(frames, dtype=np.int8)
@@ -204,11 +215,11 @@ def detect_collisions(
     if track_ids is None:
         track[cf] = ca
     else:
-        track[cf] = np.take(per_pair(track_ids, ()), cp)
+        track[cf] = at_pairs(track_ids, (), cp)
 
     at_fault = np.zeros(frames, dtype=bool)
     at_fault[cf] = _blame(side, np.take(e_cos, cf), np.take(e_sin, cf), cf, cp, lead, frames, num_agents,
-                          ego_velocity, ego_speed, agent_velocity, speed_tol, per_pair)
+                          ego_velocity, ego_speed, agent_velocity, speed_tol, at_pairs)
     return CollisionResult(
         kind.reshape(lead),
         agent_index.reshape(lead),
@@ -323,7 +334,7 @@ def max_or_zero(x: np.ndarray) -> float:
 
 
 def _blame(side, c, s, cf, cp, lead, frames, num_agents, ego_velocity, ego_speed, agent_velocity, speed_tol,
-           per_pair):
+           at_pairs):
     """At-fault flag for the K colliding frames (rules in the module doc);
     ``c``/``s``: cos/sin of the ego yaw, ``cp``: flat (frame, agent) pair index."""
     kind = _KIND_OF_L5KIT_SIDE[side]
@@ -345,7 +356,7 @@ def _blame(side, c, s, cf, cp, lead, frames, num_agents, ego_velocity, ego_speed
     if agent_velocity is None:
         agent_closing = np.zeros_like(ego_closing)
     else:
-        av = np.take(per_pair(agent_velocity, (2,)), cp, axis=0).astype(np.float64)
+        av = at_pairs(agent_velocity, (2,), cp, np.float64)
         agent_closing = av[:, 0] * nx
         agent_closing += av[:, 1] * ny
         np.negative(agent_closing, out=agent_closing)

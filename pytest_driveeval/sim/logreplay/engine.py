@@ -142,33 +142,37 @@ def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
     return reach * reach
 
 
-def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray,
-                 extent: np.ndarray, coarse2: float | None = None) -> np.ndarray:
-    """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion).
-
-    A coarse range test (``coarse2``, :func:`_coarse_reach_squared` of the
-    log, computed here when not given) leaves the few agents near the ego;
-    those get the exact per-pair range and separating-axis tests."""
-    if coarse2 is None:
-        coarse2 = _coarse_reach_squared(log, extent)
-    all_rows = rows.size == log.ego_xy.shape[0]  # rows is sorted and unique: all scenes, in order
-    a_xy = log.agent_xy[:, t] if all_rows else log.agent_xy[rows, t]
+def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse2: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The (row position, column) pairs of agents within ``coarse2`` (squared) of
+    the ego at frame t, and their squared distances: the only pairs that can
+    overlap the ego.  ``xy`` (B, 2) is the ego of each of ``rows`` at t."""
+    a_xy = log.agent_xy[rows, t]
     dx = a_xy[..., 0] - xy[:, 0, None]
     dy = a_xy[..., 1] - xy[:, 1, None]
     dx *= dx
     dy *= dy
     dx += dy
     near = dx < coarse2
-    near &= log.available[:, t] if all_rows else log.available[rows, t]
+    near &= log.available[rows, t]
     f, a = np.nonzero(near)
+    return f, a, dx[f, a]
+
+
+def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray, extent: np.ndarray,
+                 pairs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
+    """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion),
+    judged on the :func:`_near_pairs` of these rows: the exact per-pair range
+    test, then the separating-axis test."""
+    f, a, d2 = pairs
     out = np.zeros(rows.size, dtype=bool)
     if f.size:
         r = rows[f]
         a_ext = log.agent_extent[r, t, a, :2].astype(np.float64)
         reach = 0.5 * (norm2d(extent[:2]) + norm2d(a_ext))
-        close = dx[f, a] < reach * reach
+        close = d2 < reach * reach
         f, a, r, a_ext = f[close], a[close], r[close], a_ext[close]
-        hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], a_xy[f, a], log.agent_yaw[r, t, a], a_ext)
+        hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], log.agent_xy[r, t, a], log.agent_yaw[r, t, a], a_ext)
         out[f[hit]] = True
     return out
 
@@ -224,13 +228,19 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
                    candidates=candidates or window_columns(log, cfg.history_frames),
                    cells=cells or LogCells(log))
-    coarse2 = _coarse_reach_squared(log, ext) if cfg.freeze_on_collision else None
+    coarse2 = _coarse_reach_squared(log, ext)
+    near: list[tuple[np.ndarray, int, np.ndarray]] = []  # (rows, frame, columns) that may collide, per frame
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 
     with torch.no_grad():
         for t in range(start, int(end.max(initial=start))):
             active = alive & (t < end)
             valid[active, t] = True
+            # Which agents are near enough to touch the ego in this frame: collisions are judged on those
+            # only, at the end; a pass over every agent column of the table would cost more than the loop.
+            act = np.flatnonzero(active)
+            pairs = _near_pairs(log, act, t, driven_xy[act, t], coarse2)
+            near.append((act[pairs[0]], t, pairs[1]))
             rows = np.flatnonzero(active & (t + 1 < end))  # the last frame needs no forward
             if rows.size == 0:
                 continue
@@ -273,7 +283,9 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                 reset[rows[back], t + 1] = True
                 speed[rows[back]] = norm2d(log.ego_xy[rows[back], t + 1] - log.ego_xy[rows[back], t]) / cfg.step_time
             if cfg.freeze_on_collision:
-                hold = _overlapping(log, rows, t, xy, yaw, ext, coarse2)
+                mine = np.isin(act[pairs[0]], rows)  # the pairs of the rows that moved
+                f = np.searchsorted(rows, act[pairs[0][mine]])
+                hold = _overlapping(log, rows, t, xy, yaw, ext, (f, pairs[1][mine], pairs[2][mine]))
                 nxt[hold], nyaw[hold] = xy[hold], yaw[hold]
                 reset[rows[hold], t + 1] = False
                 frozen[rows[hold], t + 1] = True
@@ -281,11 +293,12 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             driven_xy[rows, t + 1], driven_yaw[rows, t + 1] = nxt, nyaw
 
     return _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
-                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext, past_xy=past_xy)
+                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext, past_xy=past_xy,
+                   near=near)
 
 
 def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors, timing, ext,
-            past_xy) -> UnrollResult:
+            past_xy, near) -> UnrollResult:
     """Per-frame metrics over the whole table in one pass each."""
     t_metrics = time.perf_counter()
     start = cfg.start_frame
@@ -297,19 +310,7 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
     first = min(start, driven_xy.shape[1] - 1)  # a start past every scene's end has no valid frame
     step[:, : first + 1] = (past_xy[:, 1:2] - past_xy[:, 0:1]) if first == 0 else \
         (past_xy[:, first:first + 1] - past_xy[:, first - 1:first])
-    # Only the unrolled frames can hold a collision: judging the others too (a scene's
-    # frames before StartFrame or after Steps) would cost up to the whole log's length.
-    used = np.flatnonzero(valid.any(axis=0))
-    kind = np.zeros(valid.shape, np.int8)
-    track = np.full(valid.shape, -1, np.int64)
-    fault = np.zeros(valid.shape, bool)
-    if used.size:
-        t = slice(int(used[0]), int(used[-1]) + 1)
-        col = detect_collisions(driven_xy[:, t], driven_yaw[:, t], ext, log.agent_xy[:, t], log.agent_yaw[:, t],
-                                log.agent_extent[:, t], log.available[:, t] & valid[:, t, None],
-                                log.agent_velocity[:, t], step[:, t] / dt, track_ids=log.track_id[:, t],
-                                agent_order=log.frame_row[:, t])
-        kind[:, t], track[:, t], fault[:, t] = col.kind, col.track_id, col.at_fault
+    kind, track, fault = _judge_near(log, near, driven_xy, driven_yaw, step / dt, ext)
     disp = np.where(reset, proposed, displacement_error(driven_xy, log.ego_xy))
     frame_ok = np.arange(log.ego_yaw.shape[1]) < log.num_frames[:, None]
     to_ref = distance_to_reference(driven_xy, log.ego_xy, frame_ok)
@@ -326,3 +327,43 @@ def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, err
         errors=errors, model_time=model_time, total_time=total + time.perf_counter() - t_metrics,
         forwards=forwards, scene_steps=scene_steps,
     )
+
+
+def _judge_near(log: LogArrays, near: list, driven_xy: np.ndarray, driven_yaw: np.ndarray, ego_velocity: np.ndarray,
+                ext: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S, T) collision kind, partner track and blame from the near pairs the loop
+    recorded: :func:`~pytest_driveeval.metrics.collisions.detect_collisions` on one
+    row per frame that has any, holding only its near agents (the rest cannot
+    touch the ego, and the partner is chosen by the log's row order, not by slot)."""
+    shape = driven_yaw.shape
+    kind = np.zeros(shape, np.int8)
+    track = np.full(shape, -1, np.int64)
+    fault = np.zeros(shape, bool)
+    s = np.concatenate([n[0] for n in near]) if near else np.zeros(0, np.int64)
+    if s.size == 0:
+        return kind, track, fault
+    t = np.concatenate([np.full(n[0].size, n[1], np.int64) for n in near])
+    c = np.concatenate([n[2] for n in near])
+    key = s * shape[1] + t
+    order = np.argsort(key, kind="stable")
+    s, t, c, key = s[order], t[order], c[order], key[order]
+    first = np.ones(key.size, bool)
+    first[1:] = key[1:] != key[:-1]
+    frame = np.cumsum(first) - 1  # which judged frame each pair belongs to
+    starts = np.flatnonzero(first)
+    slot = np.arange(key.size) - starts[frame]
+    fs, ft = s[starts], t[starts]
+    grid = (starts.size, int(slot.max()) + 1)
+    available = np.zeros(grid, bool)
+    available[frame, slot] = True
+
+    def table(x: np.ndarray, fill=0) -> np.ndarray:
+        out = np.full(grid + x.shape[3:], fill, x.dtype)
+        out[frame, slot] = x[s, t, c]
+        return out
+
+    col = detect_collisions(driven_xy[fs, ft], driven_yaw[fs, ft], ext, table(log.agent_xy), table(log.agent_yaw),
+                            table(log.agent_extent), available, table(log.agent_velocity), ego_velocity[fs, ft],
+                            track_ids=table(log.track_id, -1), agent_order=table(log.frame_row, -1))
+    kind[fs, ft], track[fs, ft], fault[fs, ft] = col.kind, col.track_id, col.at_fault
+    return kind, track, fault
