@@ -18,10 +18,10 @@ torch on one thread:
   included.
 
 Target: batched >= 10x one at a time.  Nothing is asserted; figures are printed.
-On a 2-core machine (2026-11-24): 3.1-3.2x with the shipped model, whose
-arithmetic per example hardly shrinks with the batch (model time 2.3x; the
-harness's own time 6.6-6.9x), 3.5-3.7x against ``unroll_scenes``; with
-``--model constant_velocity`` 7.4-8.5x and 10.9-11.0x.
+On a 2-core machine (2026-11-24): 3.6-3.7x with the shipped model, whose
+arithmetic per example hardly shrinks with the batch (model time 2.5x; the
+harness's own time 9.3-9.7x), 4.1-4.3x against ``unroll_scenes``; with
+``--model constant_velocity`` 12.3x and 17.6-18.4x.
 
     python benchmarks/bench_closed_loop_search.py [--batch 32] [--generations 4]
 """

@@ -134,9 +134,12 @@ def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
     """Square of a range no ego-agent pair of the log exceeds (detect_collisions'
     reach with the largest agent extents), widened a little so that rounding
     cannot make it smaller than a pair's own reach."""
-    if log.agent_extent.size == 0:
+    agents = log.agent_extent
+    if agents.size == 0:
         return 0.0
-    longest = [max_or_zero(log.agent_extent[..., i]) for i in (0, 1)]
+    if agents.strides[0] == 0:  # copies of one scene (a broadcast view): read it once
+        agents = agents[:1]
+    longest = [max_or_zero(agents[..., i]) for i in (0, 1)]
     reach = 0.5 * (float(norm2d(extent[:2])) + float(np.hypot(longest[0], longest[1])))
     reach *= 1.0 + 1e-9
     return reach * reach

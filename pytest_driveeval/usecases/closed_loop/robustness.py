@@ -16,7 +16,7 @@ import numpy as np
 
 from pytest_driveeval.outcome import Outcome
 from pytest_driveeval.sim.logreplay.agents import LogCells
-from pytest_driveeval.sim.logreplay.logarrays import window_columns
+from pytest_driveeval.sim.logreplay.logarrays import LogArrays, window_columns
 from pytest_driveeval.search.engine import Example, Verdict
 from pytest_driveeval.search.item import Searchable
 from pytest_driveeval.strategies import StartPerturbation, start_perturbations
@@ -54,6 +54,9 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
         # A generation's rows repeat (a one-scene item's are all 0): copying the
         # stacked scenes for each generation was 40 % of a batch's harness time.
         # The engine never writes into the log it is given; read-only arrays make sure of it.
+        if len(set(rows)) == 1:  # one scene (a one-scene item): views, no copy at all
+            return LogArrays(*(np.broadcast_to(getattr(log, name)[rows[0]], (len(rows),) + getattr(log, name).shape[1:])
+                               for name in log.__dataclass_fields__))
         taken = log.take(np.array(rows, dtype=np.int64))
         for name in taken.__dataclass_fields__:
             getattr(taken, name).flags.writeable = False
