@@ -23,6 +23,7 @@ Public API::
     scene.frames / .agents / .traffic_light_faces   # structured arrays, re-based
     scene.ego_positions(); scene.ego_yaws(); scene.agents_of_frame(t)
     scene.agent_tensor()                 # AgentTensor, dense (T, A, ...) view
+    scene.agent_rows()                   # AgentRows, the rows as stored, with their tracks
     ds.read_all()                        # L5Arrays of the four whole arrays
     write_l5_zarr(path, scenes, frames, agents, traffic_light_faces)
 """
@@ -43,6 +44,7 @@ from .zarr_v2 import ZarrArray1D, ZarrFormatError, describe_dtype, dtype_mismatc
 __all__ = [
     "AGENT_DTYPE",
     "ARRAY_NAMES",
+    "AgentRows",
     "AgentTensor",
     "EXPECTED_DTYPES",
     "FRAME_DTYPE",
@@ -158,6 +160,22 @@ class AgentTensor(NamedTuple):
     available: np.ndarray  # (T, A) bool
 
 
+class AgentRows(NamedTuple):
+    """A scene's agent rows as they are stored (R rows), with their tracks (A)."""
+
+    frame: np.ndarray  # (R,) int64
+    rank: np.ndarray  # (R,) int64, the row's position among its frame's rows
+    track: np.ndarray  # (R,) int64, index into track_ids
+    track_ids: np.ndarray  # (A,) uint64, sorted
+    first: np.ndarray  # (A,) int64, each track's first frame
+    last: np.ndarray  # (A,) int64, and its last
+    label: np.ndarray  # (A,) int64, index into PERCEPTION_LABELS, most probable over the track's rows
+    centroid: np.ndarray  # (R, 2) float64
+    yaw: np.ndarray  # (R,) float32
+    extent: np.ndarray  # (R, 3) float32
+    velocity: np.ndarray  # (R, 2) float32
+
+
 def _concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row indices of all ``[start, end)`` ranges and the range each row came from."""
     counts = ends - starts
@@ -226,45 +244,52 @@ class L5Scene:
         start, end = self.frames["traffic_light_faces_index_interval"][t]
         return self.traffic_light_faces[start:end]
 
-    def agent_tensor(self) -> AgentTensor:
-        """Dense ``(T, A, ...)`` arrays, one column per distinct track id."""
-        intervals = self.frames["agent_index_interval"]
+    def agent_rows(self) -> AgentRows:
+        """The scene's agent rows, frame by frame in stored order, with each row's
+        track (an index into the sorted track ids) and place in its frame."""
+        intervals = self.frames["agent_index_interval"].astype(np.int64)
         counts = intervals[:, 1] - intervals[:, 0]
         if _is_partition(intervals, len(self.agents)):  # the usual layout: no gather copy needed
-            agents, frame_of_row = self.agents, np.repeat(np.arange(self.num_frames), counts)
+            agents, frame = self.agents, np.repeat(np.arange(self.num_frames), counts)
         else:
-            rows, frame_of_row = _concat_ranges(intervals[:, 0], intervals[:, 1])
+            rows, frame = _concat_ranges(intervals[:, 0], intervals[:, 1])
             agents = self.agents[rows]
-        track_ids, column = np.unique(agents["track_id"], return_inverse=True)
-        num_frames, num_tracks = self.num_frames, track_ids.size
-        flat = frame_of_row * num_tracks + column
-        available = np.zeros((num_frames, num_tracks), dtype=bool)
-        available.reshape(-1)[flat] = True
-        if np.count_nonzero(available) != flat.size:
+        rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
+        track_ids, track = np.unique(agents["track_id"], return_inverse=True)
+        track = track.astype(np.int64, copy=False)
+        # Rows come frame by frame, so a stable sort by track keeps each track's frames in order.
+        by_track = np.argsort(track, kind="stable")
+        ordered = frame[by_track]
+        same = np.flatnonzero(track[by_track][1:] == track[by_track][:-1])
+        if same.size and (ordered[same + 1] == ordered[same]).any():
+            first_dup = same[ordered[same + 1] == ordered[same]][0]
             raise L5FormatError(f"{self.source}: scene {self.index}: a track id occurs twice in one frame "
-                                f"(first at frame {self._first_duplicate_frame(flat, frame_of_row)})")
-
-        def dense(field: str, dtype: np.dtype) -> np.ndarray:
-            values = agents[field]
-            out = np.zeros((num_frames, num_tracks) + values.shape[1:], dtype=dtype)
-            out.reshape((num_frames * num_tracks,) + values.shape[1:])[flat] = values
-            return out
-
-        return AgentTensor(
-            track_id=track_ids,
-            centroid=dense("centroid", np.float64),
-            yaw=dense("yaw", np.float32),
-            extent=dense("extent", np.float32),
-            velocity=dense("velocity", np.float32),
-            label=_track_labels(agents["label_probabilities"], column, num_tracks),
-            available=available,
+                                f"(first at frame {int(ordered[first_dup])})")
+        starts = np.searchsorted(track[by_track], np.arange(track_ids.size))
+        ends = np.append(starts[1:], track.size)
+        return AgentRows(
+            frame=frame, rank=rank, track=track, track_ids=track_ids,
+            first=ordered[starts], last=ordered[ends - 1],
+            label=_track_labels(agents["label_probabilities"], track, track_ids.size),
+            centroid=agents["centroid"].astype(np.float64), yaw=agents["yaw"].astype(np.float32),
+            extent=agents["extent"].astype(np.float32), velocity=agents["velocity"].astype(np.float32),
         )
 
-    @staticmethod
-    def _first_duplicate_frame(flat: np.ndarray, frame_of_row: np.ndarray) -> int:
-        order = np.argsort(flat, kind="stable")
-        dup = np.flatnonzero(np.diff(flat[order]) == 0)
-        return int(frame_of_row[order[dup[0]]])
+    def agent_tensor(self) -> AgentTensor:
+        """Dense ``(T, A, ...)`` arrays, one column per distinct track id."""
+        rows = self.agent_rows()
+        shape = (self.num_frames, rows.track_ids.size)
+        available = np.zeros(shape, dtype=bool)
+        available[rows.frame, rows.track] = True
+
+        def dense(values: np.ndarray) -> np.ndarray:
+            out = np.zeros(shape + values.shape[1:], dtype=values.dtype)
+            out[rows.frame, rows.track] = values
+            return out
+
+        return AgentTensor(track_id=rows.track_ids, centroid=dense(rows.centroid), yaw=dense(rows.yaw),
+                           extent=dense(rows.extent), velocity=dense(rows.velocity), label=rows.label,
+                           available=available)
 
 
 class L5Dataset:

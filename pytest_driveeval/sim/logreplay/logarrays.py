@@ -75,12 +75,9 @@ def scenes_from_arrays(arrays: L5Arrays) -> list[L5Scene]:
     return scenes
 
 
-def _assign_columns(available: np.ndarray, gap: int) -> tuple[np.ndarray, int]:
-    """Column of each track (greedy interval partitioning, optimal for intervals) and the column count."""
-    if available.shape[1] == 0:
-        return np.zeros(0, np.int64), 0
-    first = available.argmax(axis=0)
-    last = available.shape[0] - 1 - available[::-1].argmax(axis=0)
+def _assign_columns(first: np.ndarray, last: np.ndarray, gap: int) -> tuple[np.ndarray, int]:
+    """Column of each track, given its first and last frame (greedy interval
+    partitioning, optimal for intervals), and the column count."""
     column = np.empty(first.size, np.int64)
     free: list[tuple[int, int]] = []  # (last busy frame, column), earliest first
     count = 0
@@ -96,14 +93,16 @@ def _assign_columns(available: np.ndarray, gap: int) -> tuple[np.ndarray, int]:
 
 def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = None, *,
                  track_gap: int = 10) -> LogArrays:
-    """Dense padded arrays of several scenes (one ``agent_tensor()`` each).
+    """Dense padded arrays of several scenes.
 
     ``track_gap`` (frames) keeps a column's consecutive tracks apart so an
     agent history window never has to choose between two tracks of a column;
     the default matches the default history length.
     """
-    tensors = [s.agent_tensor() for s in scenes]
-    columns = [_assign_columns(at.available, track_gap) for at in tensors]
+    # Straight from the stored rows into the packed columns: a dense (frames x tracks)
+    # table per scene first (thousands of tracks) cost more than unrolling the scene.
+    agent_rows = [s.agent_rows() for s in scenes]
+    columns = [_assign_columns(r.first, r.last, track_gap) for r in agent_rows]
     n_frames = np.array([s.num_frames for s in scenes], dtype=np.int64)
     t_max = int(n_frames.max(initial=1))
     c_max = max((n for _, n in columns), default=0)
@@ -116,18 +115,18 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
         available=np.zeros(shape, bool), track_id=np.full(shape, -1, np.int64), label=np.zeros(shape, np.int16),
         relevant=np.zeros(shape, bool), frame_row=np.full(shape, -1, np.int32),
     )
-    for i, (scene, at, (column, _)) in enumerate(zip(scenes, tensors, columns)):
+    for i, (scene, rows, (column, _)) in enumerate(zip(scenes, agent_rows, columns)):
         t = scene.num_frames
         log.ego_xy[i, :t], log.ego_yaw[i, :t] = scene.ego_positions(), scene.ego_yaws()
         log.ego_xy[i, t:], log.ego_yaw[i, t:] = log.ego_xy[i, t - 1], log.ego_yaw[i, t - 1]
-        f, a = np.nonzero(at.available)
+        f, a = rows.frame, rows.track
         c = column[a]
-        log.agent_xy[i, f, c], log.agent_yaw[i, f, c] = at.centroid[f, a], at.yaw[f, a]
-        log.agent_extent[i, f, c], log.agent_velocity[i, f, c] = at.extent[f, a], at.velocity[f, a]
+        log.agent_xy[i, f, c], log.agent_yaw[i, f, c] = rows.centroid, rows.yaw
+        log.agent_extent[i, f, c], log.agent_velocity[i, f, c] = rows.extent, rows.velocity
         log.available[i, f, c] = True
-        log.track_id[i, f, c], log.label[i, f, c] = at.track_id[a].astype(np.int64), at.label[a]
-        log.relevant[i, f, c] = _KEEP_LABEL[at.label[a]]
-        log.frame_row[i, f, c] = _frame_rows(scene, at.track_id)[f, a]
+        log.track_id[i, f, c], log.label[i, f, c] = rows.track_ids[a].astype(np.int64), rows.label[a]
+        log.relevant[i, f, c] = _KEEP_LABEL[rows.label[a]]
+        log.frame_row[i, f, c] = rows.rank
     return log
 
 
@@ -139,17 +138,6 @@ def rows_by_frame(scene: L5Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     frame = np.repeat(np.arange(counts.size), counts)
     rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
     return intervals[frame, 0] + rank, frame, rank
-
-
-def _frame_rows(scene: L5Scene, track_ids: np.ndarray) -> np.ndarray:
-    """(T, A) position of each track's row among its frame's agent rows (A:
-    ``track_ids``, sorted): the order l5kit looks at a frame's agents in, which
-    the columns, sorted by track id, do not keep."""
-    rows, frame, rank = rows_by_frame(scene)
-    track = np.searchsorted(track_ids, scene.agents["track_id"][rows])
-    out = np.full((scene.num_frames, track_ids.size), -1, np.int32)
-    out[frame, track] = rank
-    return out
 
 
 def window_columns(log: LogArrays, history_frames: int) -> tuple[np.ndarray, np.ndarray]:
