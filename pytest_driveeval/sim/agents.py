@@ -44,7 +44,7 @@ import numpy as np
 from pytest_driveeval.sim.blueprints.base import Parameters, positive
 from pytest_driveeval.sim.blueprints.road import Road
 
-__all__ = ["Traffic", "TrafficModel", "idm_free", "idm_interaction", "step_traffic"]
+__all__ = ["Traffic", "TrafficModel", "idm_advance", "idm_free", "idm_interaction", "step_traffic"]
 
 # Gaps are floored here so the interaction stays finite (and huge) for overlapping vehicles.
 _MIN_GAP = 0.01
@@ -109,6 +109,20 @@ def idm_interaction(model: TrafficModel, speed: np.ndarray, lead_speed: np.ndarr
     wanted = model.min_gap + np.maximum(
         0.0, speed * model.time_headway + speed * dv / (2.0 * np.sqrt(model.max_accel * model.comfort_decel)))
     return (wanted / np.maximum(gap, _MIN_GAP)) ** 2
+
+
+def idm_advance(model: TrafficModel, speed: np.ndarray, accel: np.ndarray, dt: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(distance travelled, speed after ``dt``) under ``accel`` clipped to
+    [-max_brake, max_accel]: a ballistic update that stops at zero speed
+    instead of reversing.  The traffic here and the closed loop's reactive
+    agents (sim.logreplay.reactive) both move by it."""
+    a = np.clip(accel, -model.max_brake, model.max_accel)
+    v_next = speed + a * dt
+    stops = v_next < 0.0
+    travel = np.where(stops, speed * speed / (2.0 * np.maximum(-a, 1e-9)),
+                      0.5 * (speed + np.maximum(v_next, 0.0)) * dt)
+    return travel, np.maximum(v_next, 0.0)
 
 
 def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarray, yaw: np.ndarray,
@@ -193,11 +207,7 @@ def step_traffic(road: Road, model: TrafficModel, traffic: Traffic, xy: np.ndarr
     starts = (np.arange(a_n) == first[:, None]) & np.isfinite(best)
 
     # Longitudinal motion on the lane the vehicle ends the step on.
-    a = np.clip(accel[..., 0], -model.max_brake, model.max_accel)
-    v_next = v + a * dt
-    stops = v_next < 0.0
-    travel = np.where(stops, v * v / (2.0 * np.maximum(-a, 1e-9)), 0.5 * (v + np.maximum(v_next, 0.0)) * dt)
-    v_next = np.maximum(v_next, 0.0)
+    travel, v_next = idm_advance(model, v, accel[..., 0], dt)
     new_lane = np.where(starts, np.take_along_axis(looked, side[..., None], axis=2)[..., 0], lane)
     start_d = np.take_along_axis(proj.d, new_lane[..., None], axis=2)[..., 0]
     s_next = np.where(starts, np.take_along_axis(self_s, side[..., None], axis=2)[..., 0], own_s) + travel
