@@ -41,6 +41,8 @@ ALLOWED = {
     "policies": {"errors", "sim"},
     "sim": FOUNDATION | {"io", "metrics"},
     "synth": FOUNDATION | {"io"},
+    # Reads LogArrays only for annotations, so sim may import raster later without a cycle.
+    "raster": {"errors", "geometry", "io"},
     "report": FOUNDATION,
     "usecase": {"errors", "outcome"},
     "scenario": {"errors", "usecase"},
