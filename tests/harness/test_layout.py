@@ -35,6 +35,8 @@ ALLOWED = {
     "runs": {"atomic", "report"},
     "strategies": set(),
     "search": {"errors", "outcome", "strategies", "usecase"},
+    # Runs chunks of an item locally or on Ray; the use cases call it, never the other way round.
+    "execute": {"errors"},
     "io": {"errors", "geometry"},
     "metrics": {"errors", "geometry"},
     # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
@@ -47,7 +49,7 @@ ALLOWED = {
     "usecase": {"errors", "outcome"},
     "scenario": {"errors", "usecase"},
     "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario",
-                             "search", "strategies"},
+                             "search", "strategies", "execute"},
     # Stable import paths of the Python API, onto their use case's package.
     "closed_loop": {"usecases"},
     "obstacle": {"usecases"},

@@ -1,0 +1,155 @@
+"""The Ray path of :func:`run_chunks`: chunks as Ray tasks, a bounded number in flight,
+collected as they finish, a chunk whose worker or node died submitted again.
+
+Ray is imported here only, so the rest of the package loads without it.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+import socket
+import time
+from collections import deque
+from typing import Any, Callable
+
+from pytest_driveeval.execute.chunks import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
+                                             describe_chunk, failure_message)
+from pytest_driveeval.execute.spec import ExecutorSpec
+
+__all__ = ["default_in_flight", "disconnect", "run_on_ray", "run_one"]
+
+# Whether this process called ray.init(); a cluster someone else connected to is theirs to close.
+_connected_here = False
+_COLOURS = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise ExecutorError("Executor Kind: ray needs Ray in this environment: "
+                            "pip install 'pytest-driveeval[ray]'") from None
+    return ray
+
+
+def connect(spec: ExecutorSpec) -> None:
+    global _connected_here
+    ray = _ray()
+    if ray.is_initialized():
+        return
+    try:
+        ray.init(address=spec.Address, logging_level=logging.WARNING)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = spec.Address or "Ray's default address (RAY_ADDRESS, or a local cluster)"
+        raise ExecutorError(f"cannot reach a Ray cluster at {where}: {exc}") from None
+    _connected_here = True
+
+
+def disconnect() -> None:
+    """Close the connection this process opened (and the private local cluster ``ray.init``
+    started, if it started one); a connection made by someone else is left alone."""
+    global _connected_here
+    if _connected_here:
+        import ray
+
+        if ray.is_initialized():
+            ray.shutdown()
+        _connected_here = False
+
+
+def run_one(task_fn: Callable, chunk: Any, *shared: Any) -> tuple[Any, str, str, int, float]:
+    """One chunk on a Ray worker: its result and where it ran."""
+    import ray
+
+    begun = time.perf_counter()
+    result = task_fn(chunk, *shared)
+    seconds = time.perf_counter() - begun
+    return result, ray.get_runtime_context().get_node_id(), socket.gethostname(), os.getpid(), seconds
+
+
+def _worker_and_traceback(exc: BaseException) -> tuple[str, str]:
+    """Which worker raised, and its traceback, from Ray's text of a task's error: its first
+    line names the task and ``(pid=..., ip=...)``, in terminal colours."""
+    lines = _COLOURS.sub("", str(exc)).splitlines()
+    found = re.search(r"\((pid=\d+, ip=[^)]*)\)", lines[0]) if lines else None
+    return (f"a Ray worker ({found.group(1)})" if found else "a Ray worker"), "\n".join(lines[1:])
+
+
+def default_in_flight(spec: ExecutorSpec) -> int:
+    """Twice the tasks the cluster can run at once: each worker has its next chunk waiting
+    while the driver collects the last one, and no more, so a failure wastes little."""
+    if spec.MaxInFlight:
+        return spec.MaxInFlight
+    cpus = _ray().cluster_resources().get("CPU", 1.0)
+    return max(1, int(2 * cpus / spec.NumCpus))
+
+
+def run_on_ray(spec: ExecutorSpec, work: list, task_fn: Callable, shared: Any,
+               progress: Progress | None) -> ChunkRun:
+    ray = _ray()
+    from ray.exceptions import RayError, RayTaskError, TaskCancelledError
+
+    connect(spec)
+    started = time.perf_counter()
+    total = len(work)
+    tally = Tally(total)
+    in_flight = default_in_flight(spec)
+    # Each chunk's attempts are counted here, not by Ray's max_retries: Ray tells neither the
+    # task nor its caller how many attempts it took, and the report says which chunks were
+    # retried.  A result lost with its node after it finished is resubmitted the same way.
+    remote = ray.remote(run_one)
+    options = dict(num_cpus=spec.NumCpus, max_retries=0, retry_exceptions=False,
+                   **({"runtime_env": spec.RuntimeEnv} if spec.RuntimeEnv else {}))
+    # Put once, sent by reference: the function (by name) and the data every chunk reads.
+    task_ref = ray.put(task_fn)
+    extra = () if shared is None else (ray.put(shared),)
+
+    queue = deque(range(total))
+    attempts = [0] * total
+    pending: dict[Any, tuple[int, float]] = {}
+    failures: dict[int, str] = {}
+    cause: BaseException | None = None
+
+    def submit(index: int) -> None:
+        attempts[index] += 1
+        ref = remote.options(name=f"driveeval chunk {index}", **options).remote(task_ref, work[index], *extra)
+        pending[ref] = (index, time.perf_counter())
+
+    if progress is not None:
+        progress(0, total)
+    try:
+        while pending or (queue and not failures):
+            # After a failure nothing new starts; what is running finishes and is kept.
+            while queue and not failures and len(pending) < in_flight:
+                submit(queue.popleft())
+            [ref], _ = ray.wait(list(pending), num_returns=1)
+            index, submitted = pending.pop(ref)
+            try:
+                result, node_id, host, pid, seconds = ray.get(ref)
+            except RayTaskError as exc:
+                own = exc.cause if isinstance(getattr(exc, "cause", None), BaseException) else exc
+                where, tb = _worker_and_traceback(exc)
+                failures[index] = failure_message(index, total, work[index], where, own, tb)
+                cause = cause or own
+            except TaskCancelledError as exc:
+                failures[index] = f"{describe_chunk(index, total, work[index])} was cancelled: {exc}"
+            except RayError as exc:
+                # The worker, its node or the object holding the result is gone: not the chunk's fault.
+                if attempts[index] <= spec.Retries:
+                    queue.appendleft(index)
+                    continue
+                failures[index] = (f"{describe_chunk(index, total, work[index])} failed: its worker died "
+                                   f"{attempts[index]} times (Retries: {spec.Retries}); last: "
+                                   f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
+            else:
+                wall = time.perf_counter() - submitted
+                tally.done(index, result, Placement(index, node_id, host, pid, attempts[index], seconds, wall),
+                           progress)
+    finally:
+        # Interrupted (Ctrl-C, a failure in progress()): leave no task running on the cluster.
+        for ref in pending:
+            ray.cancel(ref)
+    if failures:
+        raise ChunkError(total, failures, tally.results, tally.placements, cause)
+    return tally.finished(spec.describe(), started)

@@ -1,0 +1,170 @@
+"""The Ray path on a real local cluster: a head and two worker nodes on this machine.
+
+The head has no CPUs, so every task runs on a worker node, and each worker node has two:
+four tasks in flight cannot all fit on one node.  The cluster is torn down by
+``Cluster.shutdown()`` (never ``ray stop``, which kills every Ray process on the machine).
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from pytest_driveeval.execute import ChunkError, ExecutorSpec, disconnect, run_chunks, split
+
+ray = pytest.importorskip("ray")
+from ray.cluster_utils import Cluster  # noqa: E402
+
+pytestmark = pytest.mark.ray
+
+WORKER_CPUS = 2
+# Node deaths noticed within ~1.5 s instead of Ray's default ~30 s.
+FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_threshold": 3}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    # The workers cannot import this test module by name (it is not on their path):
+    # its task functions travel by value instead.
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    cluster = Cluster(initialize_head=True, connect=True,
+                      head_node_args={"num_cpus": 0, "_system_config": FAST_HEALTH_CHECKS})
+    try:
+        for _ in range(2):
+            cluster.add_node(num_cpus=WORKER_CPUS)
+        cluster.wait_for_nodes()
+        yield cluster
+    finally:
+        ray.shutdown()       # the driver first: the head cannot be removed under it
+        cluster.shutdown()
+        ray.cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+
+
+def worker_nodes(cluster) -> set[str]:
+    return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
+
+
+def seeded_scenes(chunk):
+    """Deterministic numpy work that also takes a chunk-dependent time, so chunks finish
+    out of order: the first chunk is the slowest."""
+    seed, scenes, pause = chunk
+    time.sleep(pause)
+    values = np.stack([np.random.default_rng((seed, s)).normal(size=(32, 4)).cumsum(axis=0) for s in scenes])
+    return values, time.time()
+
+
+def timed(chunk):
+    begun = time.time()
+    time.sleep(chunk)
+    return begun, time.time()
+
+
+def fails_on_three(chunk):
+    time.sleep(0.05 * chunk)
+    if chunk == 3:
+        raise ValueError("scene 3 has no ego track")
+    return chunk
+
+
+def scaled(chunk, shared):
+    return shared * chunk
+
+
+def work(pauses):
+    return [(11, scenes, pause) for scenes, pause in zip(split(len(pauses) * 3, 3), pauses)]
+
+
+def test_results_match_a_local_run_in_chunk_order_across_both_nodes(cluster):
+    chunks = work([0.9, 0.2, 0.5, 0.3, 0.4, 0.2, 0.3, 0.2])
+    progress = []
+    spec = ExecutorSpec(Kind="ray", MaxInFlight=4)
+    run = run_chunks(spec, chunks, seeded_scenes, progress=lambda done, total: progress.append(done))
+    local = run_chunks(ExecutorSpec(), chunks, seeded_scenes)
+
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(run.results, local.results))
+    finished = [r[1] for r in run.results]
+    assert finished[0] > finished[1], "the slow first chunk should have finished after the second"
+    assert progress == list(range(len(chunks) + 1))
+    # four tasks at once need both two-CPU nodes; placements name them
+    assert run.nodes == worker_nodes(cluster) and len(run.nodes) == 2
+    assert all(p.attempts == 1 and p.seconds >= 0.2 and p.wall_seconds >= p.seconds for p in run.placements)
+    assert "2 node(s)" in run.summary()
+    disconnect()
+    assert ray.is_initialized(), "a connection this package did not open is not its to close"
+
+
+def test_no_more_tasks_in_flight_than_allowed(cluster):
+    run = run_chunks(ExecutorSpec(Kind="ray", MaxInFlight=2), [0.3] * 8, timed)
+    events = sorted([(start, 1) for start, _ in run.results] + [(end, -1) for _, end in run.results],
+                    key=lambda e: (e[0], e[1]))
+    running = peak = 0
+    for _, step in events:
+        running += step
+        peak = max(peak, running)
+    # the cluster has four CPUs free: only the bound keeps it at two
+    assert peak == 2
+
+
+def test_shared_data_travels_through_the_object_store(cluster):
+    run = run_chunks(ExecutorSpec(Kind="ray"), [1, 2, 3], scaled, shared=np.arange(4.0))
+    assert [r.tolist() for r in run.results] == [[0, 1, 2, 3], [0, 2, 4, 6], [0, 3, 6, 9]]
+
+
+def test_a_failing_chunk_is_named_and_the_others_are_kept(cluster):
+    with pytest.raises(ChunkError) as caught:
+        run_chunks(ExecutorSpec(Kind="ray", MaxInFlight=3), list(range(8)), fails_on_three)
+    error = caught.value
+    assert error.chunk == 3 and list(error.failures) == [3]
+    assert isinstance(error.cause, ValueError)
+    assert "chunk 3 of 8 (3) failed on a Ray worker" in str(error) and "scene 3 has no ego track" in str(error)
+    # nothing new starts after the failure; what was running finishes and is kept
+    assert {0, 1, 2} <= set(error.results) and 3 not in error.results
+    assert all(error.results[i] == i for i in error.results)
+
+
+def seeded_scenes_marked(chunk):
+    """seeded_scenes that first leaves a mark naming the node it runs on."""
+    marks, index, inner = chunk
+    if marks is not None:
+        node = ray.get_runtime_context().get_node_id()
+        (marks / f"{node}-{index}-{os.getpid()}").touch()
+    return seeded_scenes(inner)[0]
+
+
+def test_a_worker_node_killed_mid_run_costs_a_retry_not_the_run(cluster, tmp_path):
+    doomed = cluster.add_node(num_cpus=WORKER_CPUS)
+    cluster.wait_for_nodes()
+    inner = work([1.2] * 7)
+    killed = threading.Event()
+
+    def kill_once_a_chunk_runs_there():
+        # Killed as soon as a chunk is under way on it, with most of its 1.2 s still to go: its
+        # raylet and the worker running the chunk (a worker outlives its raylet for a while
+        # and could still deliver; a machine that dies takes its workers with it).
+        while not killed.is_set():
+            running = [p.name for p in tmp_path.iterdir() if p.name.startswith(doomed.node_id)]
+            if running:
+                cluster.remove_node(doomed, allow_graceful=False)
+                os.kill(int(running[0].rsplit("-", 1)[1]), signal.SIGKILL)
+                killed.set()
+            time.sleep(0.02)
+
+    killer = threading.Thread(target=kill_once_a_chunk_runs_there, daemon=True)
+    killer.start()
+    try:
+        run = run_chunks(ExecutorSpec(Kind="ray", MaxInFlight=6, Retries=2),
+                         [(tmp_path, i, c) for i, c in enumerate(inner)], seeded_scenes_marked)
+    finally:
+        killed.set()
+        killer.join()
+    local = run_chunks(ExecutorSpec(), [(None, i, c) for i, c in enumerate(inner)], seeded_scenes_marked)
+    assert not any(n["NodeID"] == doomed.node_id and n["Alive"] for n in ray.nodes())
+    assert all(np.array_equal(a, b) for a, b in zip(run.results, local.results))
+    assert run.retried, "a chunk was running on the killed node: it needed a second attempt"
+    assert all(run.placements[i].node_id != doomed.node_id for i in run.retried)
+    assert "retried" in run.summary()
