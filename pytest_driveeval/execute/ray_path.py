@@ -76,6 +76,19 @@ def _worker_and_traceback(exc: BaseException) -> tuple[str, str]:
     return (f"a Ray worker ({found.group(1)})" if found else "a Ray worker"), "\n".join(lines[1:])
 
 
+def _lost_worker_errors(ray) -> tuple[type[BaseException], ...]:
+    """Ray's errors for a task whose worker, node or result died under it (some are missing
+    from older Ray releases)."""
+    names = ("WorkerCrashedError", "NodeDiedError", "LocalRayletDiedError", "ObjectLostError",
+             "OutOfMemoryError", "RaySystemError")
+    return tuple(getattr(ray.exceptions, name) for name in names if hasattr(ray.exceptions, name))
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = _COLOURS.sub("", str(exc)).strip().splitlines()
+    return lines[0] if lines else ""
+
+
 def default_in_flight(spec: ExecutorSpec) -> int:
     """Twice the tasks the cluster can run at once: each worker has its next chunk waiting
     while the driver collects the last one, and no more, so a failure wastes little."""
@@ -88,7 +101,7 @@ def default_in_flight(spec: ExecutorSpec) -> int:
 def run_on_ray(spec: ExecutorSpec, work: list, task_fn: Callable, shared: Any,
                progress: Progress | None) -> ChunkRun:
     ray = _ray()
-    from ray.exceptions import RayError, RayTaskError, TaskCancelledError
+    from ray.exceptions import RayError, RayTaskError
 
     connect(spec)
     started = time.perf_counter()
@@ -109,7 +122,8 @@ def run_on_ray(spec: ExecutorSpec, work: list, task_fn: Callable, shared: Any,
     attempts = [0] * total
     pending: dict[Any, tuple[int, float]] = {}
     failures: dict[int, str] = {}
-    cause: BaseException | None = None
+    causes: dict[int, BaseException] = {}
+    lost = _lost_worker_errors(ray)
 
     def submit(index: int) -> None:
         attempts[index] += 1
@@ -131,17 +145,20 @@ def run_on_ray(spec: ExecutorSpec, work: list, task_fn: Callable, shared: Any,
                 own = exc.cause if isinstance(getattr(exc, "cause", None), BaseException) else exc
                 where, tb = _worker_and_traceback(exc)
                 failures[index] = failure_message(index, total, work[index], where, own, tb)
-                cause = cause or own
-            except TaskCancelledError as exc:
-                failures[index] = f"{describe_chunk(index, total, work[index])} was cancelled: {exc}"
-            except RayError as exc:
+                causes[index] = own
+            except lost as exc:
                 # The worker, its node or the object holding the result is gone: not the chunk's fault.
                 if attempts[index] <= spec.Retries:
                     queue.appendleft(index)
                     continue
                 failures[index] = (f"{describe_chunk(index, total, work[index])} failed: its worker died "
                                    f"{attempts[index]} times (Retries: {spec.Retries}); last: "
-                                   f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
+                                   f"{type(exc).__name__}: {_first_line(exc)}")
+            except RayError as exc:
+                # Cancelled, unschedulable, a RuntimeEnv that cannot be set up: another attempt
+                # would meet the same fate.
+                failures[index] = (f"{describe_chunk(index, total, work[index])} could not run: "
+                                   f"{type(exc).__name__}: {_first_line(exc)}")
             else:
                 wall = time.perf_counter() - submitted
                 tally.done(index, result, Placement(index, node_id, host, pid, attempts[index], seconds, wall),
@@ -151,5 +168,5 @@ def run_on_ray(spec: ExecutorSpec, work: list, task_fn: Callable, shared: Any,
         for ref in pending:
             ray.cancel(ref)
     if failures:
-        raise ChunkError(total, failures, tally.results, tally.placements, cause)
+        raise ChunkError(total, failures, tally.results, tally.placements, causes.get(min(failures)))
     return tally.finished(spec.describe(), started)

@@ -2,13 +2,14 @@
 from __future__ import annotations
 
 import io
+import sys
 
 import numpy as np
 import pytest
 from pydantic import ValidationError
 
 from pytest_driveeval.errors import DataError, DriveEvalError
-from pytest_driveeval.execute import (ChunkError, ExecutorSpec, executor_from_option, run_chunks, split,
+from pytest_driveeval.execute import (ChunkError, ExecutorError, ExecutorSpec, executor_from_option, run_chunks, split,
                                       terminal_progress)
 
 LOCAL = ExecutorSpec()
@@ -135,3 +136,9 @@ def test_the_progress_bar_draws_only_on_a_terminal():
     assert text.count("\r") == 5 and text.endswith("\n")
     assert "scenes 2/4 [" + "#" * 15 + "." * 15 + "]" in text
     assert "scenes 4/4 [" + "#" * 30 + "]" in text
+
+
+def test_kind_ray_without_ray_says_how_to_install_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)   # as if not installed
+    with pytest.raises(ExecutorError, match=r"pip install 'pytest-driveeval\[ray\]'"):
+        run_chunks(ExecutorSpec(Kind="ray"), [1], scaled, shared={"scale": 1})

@@ -168,3 +168,17 @@ def test_a_worker_node_killed_mid_run_costs_a_retry_not_the_run(cluster, tmp_pat
     assert run.retried, "a chunk was running on the killed node: it needed a second attempt"
     assert all(run.placements[i].node_id != doomed.node_id for i in run.retried)
     assert "retried" in run.summary()
+
+
+def dies(chunk):
+    if chunk == 1:
+        os._exit(1)   # the worker process goes, as if killed by the kernel
+    return chunk
+
+
+def test_a_chunk_whose_worker_always_dies_fails_after_its_retries(cluster):
+    with pytest.raises(ChunkError) as caught:
+        run_chunks(ExecutorSpec(Kind="ray", Retries=1), [0, 1, 2], dies)
+    error = caught.value
+    assert list(error.failures) == [1] and error.results == {0: 0, 2: 2}
+    assert "chunk 1 of 3 (1) failed: its worker died 2 times (Retries: 1)" in str(error)
