@@ -1,7 +1,9 @@
 """Batched closed-loop unroll of a planning policy through logged scenes.
 
 Semantics are l5kit's closed loop (``ClosedLoopSimulator`` and the seed
-notebook): the policy fully controls the ego, other agents replay the log.
+notebook): the policy fully controls the ego, other agents replay the log
+(or, with ``reactive_agents``, follow their logged paths but brake by IDM for
+what is in their way: :mod:`.reactive`).
 At each frame t every active scene gets the inputs of :mod:`.inputs` built
 from its *driven* ego history, all of them go through ONE ``policy(batch)``
 call, and the ego of each scene moves to the first predicted pose, taken from
@@ -44,6 +46,7 @@ from pytest_driveeval.sim.logreplay.inputs import build_batch
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
 from pytest_driveeval.sim.logreplay.outputs import BadPolicyOutput, first_pose, format_scenes
 from pytest_driveeval.sim.logreplay.perturb import perturb_history
+from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents, ReactiveReplay
 from pytest_driveeval.sim.state import AgentState
 
 __all__ = ["UnrollConfig", "UnrollResult", "unroll"]
@@ -62,6 +65,8 @@ class UnrollConfig:
     agent, the ego holds its pose for the next frame.  ``kinematic``: move the
     ego as a :class:`~pytest_driveeval.sim.dynamics.Unicycle` with ``limits``
     instead of onto the requested pose (:class:`~pytest_driveeval.sim.dynamics.PoseTarget`).
+    ``reactive_agents``: None, the agents replay the log; else the options of
+    :mod:`.reactive` agents, which brake for what the simulation puts in their way.
     """
 
     start_frame: int = 0
@@ -77,6 +82,7 @@ class UnrollConfig:
     step_time: float = STEP_TIME
     ego_extent: tuple[float, float, float] = tuple(EGO_EXTENT)
     device: str = "cpu"
+    reactive_agents: ReactiveAgents | None = None
 
 
 @dataclass
@@ -90,6 +96,9 @@ class UnrollResult:
     marks frames where the ego held its pose after a collision.
     ``errors[s]`` is None or why scene s stopped early; everything before is
     kept.  ``total_time - model_time`` is the harness overhead (s).
+    ``agents`` is the agents' side as the loop saw it (a LogArrays): the log
+    itself, or with reactive agents a copy holding where they were, and
+    ``reacted`` (S, T, C) then marks the cells whose agent was off its log.
     """
 
     scene_ids: np.ndarray
@@ -112,6 +121,8 @@ class UnrollResult:
     total_time: float = 0.0
     forwards: int = 0
     scene_steps: int = 0
+    agents: LogArrays | None = None
+    reacted: np.ndarray | None = None
 
     @property
     def harness_time(self) -> float:
@@ -227,6 +238,11 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                      f"({log.num_frames[s]} frames, num_steps {cfg.num_steps})")
     speed = _backward_speed(past_xy, start, past_xy, cfg.step_time)[:, min(start, n_frames - 1)]
     model_time, forwards, scene_steps = 0.0, 0, 0
+    reactive = None
+    if cfg.reactive_agents is not None:
+        # The agents move: the loop reads and writes its own copy of their poses, and its own packing of them.
+        reactive = ReactiveReplay(log, cfg.reactive_agents, cfg.step_time)
+        log, cells = reactive.sim, None
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
                    candidates=candidates or window_columns(log, cfg.history_frames),
@@ -294,10 +310,16 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                 frozen[rows[hold], t + 1] = True
                 speed[rows[hold]] = 0.0
             driven_xy[rows, t + 1], driven_yaw[rows, t + 1] = nxt, nyaw
+            if reactive is not None:
+                reactive.step(rows, t, driven_xy, driven_yaw, ext, options["cells"])
 
-    return _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
-                   timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext, past_xy=past_xy,
-                   near=near)
+    result = _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
+                     timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext,
+                     past_xy=past_xy, near=near)
+    result.agents = log
+    if reactive is not None:
+        result.reacted = reactive.reacted
+    return result
 
 
 def _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors, timing, ext,

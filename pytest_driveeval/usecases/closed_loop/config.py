@@ -15,6 +15,7 @@
         FreezeOnCollision: true
         Kinematic: false
         Agents: {Labels: [CAR], LabelThreshold: 0.5, WithinAtStart: 50.0}   # default: every agent replays
+        # Agents: reactive     # or {Mode: reactive, TimeHeadway: 1.5, ...}: vehicles brake by IDM (AgentsSpec)
       Conditions:
         Collisions: {Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}
         Displacement: {Max: 4.0, Duration: 0.5}   # metres; seconds above tolerated
@@ -32,12 +33,13 @@
 """
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
                       ValidationInfo, field_validator, model_validator)
 
 from pytest_driveeval.search.spec import StartSearchSpec
+from pytest_driveeval.sim.agents import TrafficModel
 from pytest_driveeval.usecase import ConditionsModel
 
 
@@ -45,16 +47,63 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+_IDM = TrafficModel()
+# The YAML's IDM keys and the TrafficModel fields they set.
+IDM_KEYS = {"TimeHeadway": "time_headway", "MinGap": "min_gap", "ComfortAccel": "max_accel",
+            "ComfortDecel": "comfort_decel", "MaxBrake": "max_brake", "Delta": "delta"}
+
+
 class AgentsSpec(_Strict):
     """Which logged agents replay (and can be hit); see sim.logreplay.selection.
+    And how they move: ``Mode: log`` replays them (l5kit's closed loop),
+    ``Mode: reactive`` lets vehicles brake by IDM for what is in their way
+    (sim.logreplay.reactive); ``Agents: log`` / ``Agents: reactive`` say just
+    that.  The IDM keys (reactive only) default to the policy benchmark's
+    traffic model; ``Corridor`` (m) is how far sideways from an agent's path
+    something is still in its way.
 
     l5kit's ``disable_new_agents`` set-up is ``{Labels: [CAR], WithinAtStart: 50.0}``
     (its notebook's ``distance_th_close``; the threshold is its 0.5).
     """
 
+    Mode: Literal["log", "reactive"] = "log"
     Labels: list[str] | None = Field(None, min_length=1)
     LabelThreshold: float = Field(0.5, ge=0.0, lt=1.0)
     WithinAtStart: PositiveFloat | None = None
+    TimeHeadway: PositiveFloat = _IDM.time_headway
+    MinGap: PositiveFloat = _IDM.min_gap
+    ComfortAccel: PositiveFloat = _IDM.max_accel
+    ComfortDecel: PositiveFloat = _IDM.comfort_decel
+    MaxBrake: PositiveFloat = _IDM.max_brake
+    Delta: PositiveFloat = _IDM.delta
+    Corridor: PositiveFloat = 1.75
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, data: Any) -> Any:
+        if isinstance(data, str):
+            if data not in ("log", "reactive"):
+                raise ValueError("expected log, reactive or a mapping")
+            return {"Mode": data}
+        return data
+
+    @model_validator(mode="after")
+    def _idm_needs_reactive(self):
+        given = [k for k in (*IDM_KEYS, "Corridor") if k in self.model_fields_set]
+        if given and self.Mode != "reactive":
+            raise ValueError(f"{', '.join(given)} applies to Mode: reactive; give Mode: reactive too")
+        if self.MaxBrake < self.ComfortDecel:
+            raise ValueError(f"MaxBrake ({self.MaxBrake:g}) must be >= ComfortDecel ({self.ComfortDecel:g})")
+        return self
+
+    def reactive(self):
+        """The engine's ReactiveAgents for ``Mode: reactive``, None for ``log``."""
+        if self.Mode != "reactive":
+            return None
+        from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents
+
+        idm = TrafficModel(**{field: getattr(self, key) for key, field in IDM_KEYS.items()})
+        return ReactiveAgents(idm=idm, corridor=self.Corridor)
 
     @field_validator("Labels")
     @classmethod
@@ -89,7 +138,8 @@ class UnrollSpec(_Strict):
         """The keyword arguments of evaluate.unroll_scenes / unroll_config these keys set."""
         return dict(start_frame=self.StartFrame, steps=self.Steps, drift_threshold=self.DriftThreshold,
                     freeze_on_collision=self.FreezeOnCollision, kinematic=self.Kinematic,
-                    history_frames=self.HistoryFrames, future_frames=self.FutureFrames, max_agents=self.MaxAgents)
+                    history_frames=self.HistoryFrames, future_frames=self.FutureFrames, max_agents=self.MaxAgents,
+                    reactive=self.Agents.reactive())
 
     @model_validator(mode="after")
     def _one_selection(self):

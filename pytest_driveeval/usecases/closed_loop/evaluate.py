@@ -21,6 +21,7 @@ from pytest_driveeval.verdict import violations, within
 if TYPE_CHECKING:  # the reader imports numcodecs, the engine torch; a dataset arrives already open
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay import ReplayedAgents
+    from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents
     from pytest_driveeval.strategies import StartPerturbation
 
 KINDS = ("front", "side", "rear")
@@ -32,7 +33,7 @@ class Unroll:
     """An unroll with what is needed to judge and draw it."""
 
     result: Any          # sim.logreplay.UnrollResult
-    log: Any             # sim.logreplay.LogArrays (the replayed agents)
+    log: Any             # sim.logreplay.LogArrays: the agents where they were (the log, or the reactive agents' moves)
     drift_threshold: float | None
     step_time: float
 
@@ -62,10 +63,13 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                   start_frame: int = 0, steps: int | None = None, drift_threshold: float | None = 10.0,
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
                   future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None,
-                  perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None) -> Unroll:
+                  perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None,
+                  reactive: ReactiveAgents | None = None) -> Unroll:
     """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
 
     ``agents`` says which logged agents replay (default: all of them);
+    ``reactive``: None, they replay the log; else their vehicles brake by IDM
+    for what is in their way (sim.logreplay.reactive.ReactiveAgents);
     ``perturbation`` moves every scene's start off the log (one for all, or
     one per scene; see :mod:`pytest_driveeval.strategies`).
     """
@@ -79,7 +83,8 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     log = stack_log(dataset, ids, start_frame, agents)
     config = unroll_config(start_frame=start_frame, steps=steps, drift_threshold=drift_threshold,
                            freeze_on_collision=freeze_on_collision, kinematic=kinematic,
-                           history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
+                           history_frames=history_frames, future_frames=future_frames, max_agents=max_agents,
+                           reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
     return unroll_log(log, model, config, perturbation)
@@ -94,12 +99,14 @@ def stack_log(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: 
 
 
 def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float | None, freeze_on_collision: bool,
-                  kinematic: bool, history_frames: int, future_frames: int, max_agents: int):
+                  kinematic: bool, history_frames: int, future_frames: int, max_agents: int,
+                  reactive: ReactiveAgents | None = None):
     from pytest_driveeval.sim.logreplay import UnrollConfig
 
     return UnrollConfig(start_frame=start_frame, num_steps=steps, drift_threshold=drift_threshold,
                         freeze_on_collision=freeze_on_collision, kinematic=kinematic,
-                        history_frames=history_frames, future_frames=future_frames, max_agents=max_agents)
+                        history_frames=history_frames, future_frames=future_frames, max_agents=max_agents,
+                        reactive_agents=reactive)
 
 
 def unroll_log(log: Any, model: Callable, config: Any,
@@ -122,8 +129,9 @@ def unroll_log(log: Any, model: Callable, config: Any,
         if scaled is not log:
             cells = candidates = None
         log = scaled
-    return Unroll(unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates), log,
-                  config.drift_threshold, config.step_time)
+    result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates)
+    # Drawn and judged where the agents were: the log, or where reactive agents went.
+    return Unroll(result, result.agents, config.drift_threshold, config.step_time)
 
 
 @dataclass
