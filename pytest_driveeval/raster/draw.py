@@ -140,6 +140,29 @@ def _end_index(count):
 
 
 @_compiled
+def _end_weight(index, slope, i, j):
+    """OpenCV's end-point correction table, entry ``index`` (3 x start position + end
+    position, each 0 at the end pixel, 1 next to it, 2 inside), without building it."""
+    if index == 8:
+        return slope
+    if index == 0:
+        return 0
+    if index == 1 or index == 3:
+        return ((((j - i) & 0x78) | 4) * slope >> 8) & 0x1FF
+    if index == 4:
+        return ((((j - i) + 0x80) | 4) * slope >> 8) & 0x1FF
+    t1 = ((0x78 - i) | 4) * slope
+    t2 = (j | 4) * slope
+    if index == 2:
+        return (t1 >> 8) & 0x1FF
+    if index == 5:
+        return ((t1 + (slope << 7)) >> 8) & 0x1FF
+    if index == 6:
+        return (t2 >> 8) & 0x1FF
+    return ((t2 + (slope << 7)) >> 8) & 0x1FF
+
+
+@_compiled
 def line_aa(img, x1, y1, x2, y2, colour):
     """An anti-aliased line between two 16.16 fixed-point points (OpenCV's LineAA)."""
     height, width = img.shape[0], img.shape[1]
@@ -168,23 +191,10 @@ def line_aa(img, x1, y1, x2, y2, colour):
     # End-point weights from the 4-bit fractions of both ends.
     i = (major1 >> (XY_SHIFT - 7)) & 0x78
     j = (major2 >> (XY_SHIFT - 7)) & 0x78
-    t0 = slope << 7
-    t1 = ((0x78 - i) | 4) * slope
-    t2 = (j | 4) * slope
-    ends = np.empty(9, np.int64)
-    ends[0] = 0
-    ends[1] = ((((j - i) & 0x78) | 4) * slope >> 8) & 0x1FF
-    ends[2] = (t1 >> 8) & 0x1FF
-    ends[3] = ends[1]
-    ends[4] = ((((j - i) + 0x80) | 4) * slope >> 8) & 0x1FF
-    ends[5] = ((t1 + t0) >> 8) & 0x1FF
-    ends[6] = (t2 >> 8) & 0x1FF
-    ends[7] = ((t2 + t0) >> 8) & 0x1FF
-    ends[8] = slope
     along = major1 >> XY_SHIFT
     done = 0
     while count >= 0:
-        weight = ends[_end_index(done) * 3 + _end_index(count)]
+        weight = _end_weight(_end_index(done) * 3 + _end_index(count), slope, i, j)
         dist = (minor >> (XY_SHIFT - 5)) & 31
         first = (minor >> XY_SHIFT) - 1  # the first of the three pixels across
         a0 = (weight * GAUSSIAN[dist + 32] >> 8) & 0xFF
