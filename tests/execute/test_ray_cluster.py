@@ -182,3 +182,16 @@ def test_a_chunk_whose_worker_always_dies_fails_after_its_retries(cluster):
     error = caught.value
     assert list(error.failures) == [1] and error.results == {0: 0, 2: 2}
     assert "chunk 1 of 3 (1) failed: its worker died 2 times (Retries: 1)" in str(error)
+
+
+def test_a_connection_it_opens_is_closed_and_the_cluster_stays_up(cluster):
+    ray.shutdown()
+    try:
+        run = run_chunks(ExecutorSpec(Kind="ray", Address=cluster.address), [1, 2], scaled, shared=np.ones(2))
+        assert [r.tolist() for r in run.results] == [[1, 1], [2, 2]]
+        assert ray.is_initialized()
+        disconnect()
+        assert not ray.is_initialized()
+    finally:
+        ray.init(address=cluster.address)
+    assert len(worker_nodes(cluster)) >= 2, "disconnecting must not take the cluster down"
