@@ -90,7 +90,8 @@ class ChunkError(DriveEvalError):
         self.chunk = next(iter(self.failures))
         kept = f" ({len(results)} of {total} chunks finished and are kept)" if results else ""
         if len(self.failures) == 1:
-            super().__init__(self.failures[self.chunk] + kept)
+            first, _, rest = self.failures[self.chunk].partition("\n")
+            super().__init__(first + kept + ("\n" + rest if rest else ""))
         else:
             super().__init__(f"{len(self.failures)} chunks failed{kept}:\n" + "\n".join(self.failures.values()))
 
