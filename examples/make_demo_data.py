@@ -1,5 +1,8 @@
 """Write the generated L5-format scenes the demo scenarios use (fixtures/l5kit/generated.zarr).
 
+Beside the zarr go its road as an L5 semantic map (semantic_map.pb) and
+meta.json (the dataset's world-to-ECEF transform), as l5kit lays out its files.
+
     python examples/make_demo_data.py [--scenes 16] [--frames 150] [--seed 0]
 
 Deterministic: the same arguments write the same arrays.
@@ -22,7 +25,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "fixtures" / "l5kit" / "generated.zarr")
     args = parser.parse_args()
     path = generate_zarr(args.out, args.scenes, num_frames=args.frames, seed=args.seed, overwrite=True)
-    print(f"wrote {args.scenes} scenes x {args.frames} frames to {path}")
+    print(f"wrote {args.scenes} scenes x {args.frames} frames to {path}, "
+          f"and semantic_map.pb, meta.json beside it")
 
 
 if __name__ == "__main__":

@@ -46,7 +46,8 @@ from pytest_driveeval.io.protowire import (FIXED32, LENGTH, VARINT, WireError, d
                                            fields, length_field, sfixed32, sfixed32_field, varint_field)
 
 __all__ = ["FACE_COLOUR_NAMES", "GREEN", "RED", "UNKNOWN", "YELLOW", "Polylines", "SemanticMap",
-           "read_meta", "read_semantic_map", "write_meta", "write_semantic_map"]
+           "encode_semantic_map", "read_meta", "read_semantic_map", "write_meta",
+           "write_semantic_map"]
 
 UNKNOWN, RED, YELLOW, GREEN = 0, 1, 2, 3
 FACE_COLOUR_NAMES = ("unknown", "red", "yellow", "green")

@@ -13,8 +13,9 @@ must stop at the junction.
 Public API::
 
     arrays = generate_scenes(num_scenes, num_frames=100, seed=0, **knobs)  # L5Arrays
-    generate_zarr(path, num_scenes, num_frames=100, seed=0, **knobs)       # writes a store
+    generate_zarr(path, num_scenes, num_frames=100, seed=0, **knobs)       # writes a store, its map and meta.json
     road_layout() -> dict of lane name -> (N, 2) centerline, travel direction order
+    semantic_map(num_frames=100, **knobs) -> SemanticMap                    # the layout as an L5 semantic map
     boxes_overlap(...)  # vectorised oriented-box overlap test
 
 Scenes are rejected and redrawn (deterministically) if any agent box overlaps
@@ -29,6 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from pytest_driveeval.geometry import oriented_boxes_overlap, yaw_as_rotation33
+from pytest_driveeval.io.l5_semantic_map import (GREEN, RED, YELLOW, Polylines, SemanticMap, encode_semantic_map,
+                                                  write_semantic_map)
 from pytest_driveeval.io.l5kit_zarr import (
     AGENT_DTYPE,
     FRAME_DTYPE,
@@ -39,13 +42,23 @@ from pytest_driveeval.io.l5kit_zarr import (
     write_l5_zarr,
 )
 
-__all__ = ["EGO_EXTENT", "generate_scenes", "generate_zarr", "road_layout"]
+__all__ = ["EGO_EXTENT", "WORLD_TO_ECEF", "generate_scenes", "generate_zarr", "road_layout", "semantic_map"]
 
 DT = 0.1  # l5kit logs at 10 Hz
 EGO_EXTENT = np.array([4.869, 1.852, 1.61])  # l5kit's ego dimensions (length, width, height)
 LANE_WIDTH = 3.5
 START_TIME_NS = 1_600_000_000_000_000_000
+# The world frame of the Lyft Level 5 dataset (its meta.json, as in l5kit's test
+# artefacts): generated scenes sit in the same frame as the real ones, so one
+# meta.json beside both kinds of zarr is right for either.
+WORLD_TO_ECEF = np.array([
+    [0.846617444, 0.323463078, -0.422623402, -2698767.44],
+    [-0.532201938, 0.514559352, -0.672301845, -4293151.58],
+    [-3.05311332e-16, 0.794103464, 0.6077826, 3855164.76],
+    [0.0, 0.0, 0.0, 1.0],
+])
 _MAX_ATTEMPTS = 20
+_STOP_MARGIN = 2.5  # stop line to the crossing lane's edge, room for a crosswalk
 
 # Signal phases, seconds.
 AMBER, ALL_RED = 3.0, 2.0
@@ -118,7 +131,7 @@ def _build_lanes(length: float, knobs: dict) -> tuple[list[_Lane], float]:
             pts, s = _polyline(pts[::-1])
         kind = _PEDESTRIAN if name.startswith("walk") else _CYCLIST if name.startswith("bike") else _CAR
         # Stop line: just before the crossing lane (plus a margin for the crosswalk).
-        margin = 1.0 if kind is _PEDESTRIAN else 2.5
+        margin = 1.0 if kind is _PEDESTRIAN else _STOP_MARGIN
         stop_x = junction_x - half_cross - margin if eastbound else junction_x + half_cross + margin
         # Junction lies on the straight part, so arclength maps to x linearly there.
         stop_s = stop_x if eastbound else s[-1] - stop_x
@@ -425,11 +438,94 @@ def _faces(states: dict[str, np.ndarray], in_view: np.ndarray) -> tuple[np.ndarr
     return per_frame[in_view].reshape(-1), counts
 
 
-def generate_zarr(path: str | os.PathLike, num_scenes: int, num_frames: int = 100, seed: int = 0,
-                  overwrite: bool = False, **knobs) -> Path:
-    """Generate scenes and write them as an l5kit zarr store.
+# The map's lanes are the drivable ones (sidewalks are not lanes in an L5 map),
+# cut at the stop line and where they leave the junction; the piece across the
+# junction carries its signal's traffic light and faces, so a raster of the map
+# colours the way through the junction by the light's state.
+_MAP_LANE_WIDTH = {"bike_east": 1.5}  # others LANE_WIDTH
+_FACE_COLOURS = {"red": RED, "amber": YELLOW, "green": GREEN}
+_CROSSWALK_WIDTH = _STOP_MARGIN  # between the main road's stop lines and the crossing road
 
-    The lane centerlines go into the group ``.zattrs`` under ``driveeval_layout``.
+
+def _normals(points: np.ndarray) -> np.ndarray:
+    d = np.gradient(points, axis=0)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.stack([-d[:, 1], d[:, 0]], axis=1)  # left of the direction of travel
+
+
+def _piece(lane: _Lane, s0: float, s1: float) -> np.ndarray:
+    """The centerline between arclengths s0 < s1, cut points included."""
+    inside = lane.points[(lane.arclength > s0) & (lane.arclength < s1)]
+    ends = _at(lane, np.array([s0, s1]))[0]
+    return np.vstack([ends[:1], inside, ends[1:]])
+
+
+def semantic_map(num_frames: int = 100, **knobs) -> SemanticMap:
+    """The road layout of :func:`generate_scenes` (same arguments) as an L5 semantic map.
+
+    Lane ids are ``<lane name>/approach``, ``/junction`` and ``/exit``; faces
+    are the ``face_id`` strings of the zarr's traffic_light_faces.
+    """
+    knobs = _knobs(knobs)
+    lanes, junction_x = _build_lanes(_lane_length(num_frames, knobs), knobs)
+    face_ids = [face for ids in _FACE_IDS.values() for face in ids]
+    lights = list(_FACE_IDS)
+    half_cross = LANE_WIDTH / 2
+    ids, lefts, rights, controls = [], [], [], []
+    for lane in lanes:
+        if lane.kind is _PEDESTRIAN:
+            continue
+        # The junction piece runs from the stop line to the far side's stop line (or sidewalk).
+        if lane.light == "cross":
+            across = (_OFFSETS["walk_north"] + 1.5) - (_OFFSETS["walk_south"] - 1.5)
+        else:
+            across = 2 * (half_cross + _STOP_MARGIN)
+        cuts = [0.0, lane.stop_s, lane.stop_s + across, float(lane.arclength[-1])]
+        width = _MAP_LANE_WIDTH.get(lane.name, LANE_WIDTH)
+        for part, s0, s1 in zip(("approach", "junction", "exit"), cuts[:-1], cuts[1:]):
+            centre = _piece(lane, s0, s1)
+            offset = 0.5 * width * _normals(centre)
+            ids.append(f"{lane.name}/{part}")
+            lefts.append(centre + offset)
+            rights.append(centre - offset)
+            controls.append([f"tl_{lane.light}", *_FACE_IDS[lane.light]] if part == "junction" else [])
+    x_in, x_out = junction_x - half_cross, junction_x + half_cross
+    y_south = _OFFSETS["bike_east"] - 0.5 * _MAP_LANE_WIDTH["bike_east"]
+    y_north = _OFFSETS["west_0"] + half_cross
+
+    def box(x0, y0, x1, y1):
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])  # counter-clockwise
+
+    crosswalks = {
+        "crosswalk_west": box(x_in - _CROSSWALK_WIDTH, y_south, x_in, y_north),
+        "crosswalk_east": box(x_out, y_south, x_out + _CROSSWALK_WIDTH, y_north),
+        "crosswalk_south": box(x_in, _OFFSETS["walk_south"] - 1.5, x_out, _OFFSETS["walk_south"] + 1.5),
+        "crosswalk_north": box(x_in, _OFFSETS["walk_north"] - 1.5, x_out, _OFFSETS["walk_north"] + 1.5),
+    }
+    return SemanticMap(
+        lane_ids=np.array(ids),
+        lanes_left=Polylines.from_list(lefts),
+        lanes_right=Polylines.from_list(rights),
+        lane_control_offsets=np.concatenate([[0], np.cumsum([len(c) for c in controls])]).astype(np.int64),
+        lane_control_ids=np.array([c for cs in controls for c in cs]),
+        crosswalk_ids=np.array(list(crosswalks)),
+        crosswalks=Polylines.from_list(list(crosswalks.values())),
+        face_ids=np.array(face_ids),
+        face_colours=np.array([_FACE_COLOURS[f.split("_")[1]] for f in face_ids], np.int8),
+        world_to_ecef=WORLD_TO_ECEF,
+        traffic_light_ids=np.array([f"tl_{light}" for light in lights]),
+        face_light_index=np.repeat(np.arange(len(lights)), 3).astype(np.int64),
+    )
+
+
+def generate_zarr(path: str | os.PathLike, num_scenes: int, num_frames: int = 100, seed: int = 0,
+                  overwrite: bool = False, map_dir: str | os.PathLike | None = None, **knobs) -> Path:
+    """Generate scenes and write them as an l5kit zarr store, with the road as an L5 map.
+
+    The lane centerlines also go into the group ``.zattrs`` under
+    ``driveeval_layout``.  ``semantic_map.pb`` and ``meta.json`` are written into
+    ``map_dir`` (default: beside the zarr, as in l5kit's test artefacts); a map
+    already there that differs is replaced only with ``overwrite``.
     """
     arrays = generate_scenes(num_scenes, num_frames, seed, **knobs)
     layout = road_layout(num_frames, **knobs)
@@ -439,4 +535,12 @@ def generate_zarr(path: str | os.PathLike, num_scenes: int, num_frames: int = 10
         "junction": layout["junction"],
         "generator": {"seed": seed, "num_scenes": num_scenes, "num_frames": num_frames, **knobs},
     }}
-    return write_l5_zarr(path, *arrays, attrs=attrs, overwrite=overwrite)
+    map_dir = Path(path).parent if map_dir is None else Path(map_dir)
+    road = semantic_map(num_frames, **knobs)
+    pb_path, meta_path = map_dir / "semantic_map.pb", map_dir / "meta.json"
+    if not overwrite and pb_path.exists() and pb_path.read_bytes() != encode_semantic_map(road):
+        raise FileExistsError(f"{pb_path} holds another map (another layout or l5kit's); pass overwrite=True "
+                              "to replace it, or map_dir= to write this one elsewhere")
+    written = write_l5_zarr(path, *arrays, attrs=attrs, overwrite=overwrite)
+    write_semantic_map(pb_path, meta_path, road)
+    return written
