@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pytest_driveeval.geometry import norm2d as norm
 from pytest_driveeval.io.l5kit_zarr import label_index
 from pytest_driveeval.sim.agents import TrafficModel, idm_advance, idm_free, idm_interaction
 from pytest_driveeval.sim.logreplay.agents import LogCells
@@ -60,8 +61,8 @@ VEHICLE_LABELS = ("CAR", "VAN", "TRAM", "BUS", "TRUCK", "EMERGENCY_VEHICLE", "OT
 #: how much more IDM interaction (in units of the comfortable acceleration) than in the log makes an agent react:
 #: the ego replaying its log reproduces it only to float32 precision, which must not count as a change
 TOLERANCE = 0.01
-# Beyond this distance (m) nothing is looked at: IDM's interaction is negligible there at road speeds.
-_REACH = 120.0
+# Off its log an agent ignores what is more than this many times its desired gap away (see ReactiveReplay.step).
+_FAR = 4.0
 # How far (m) the path goes on straight past the end of a track, so an agent near its track's end still sees the
 # ego ahead of it.
 _EXTENSION = 60.0
@@ -148,45 +149,70 @@ class ReactiveReplay:
         ego_now = ego_xy[rows, t]
         ego_vel = self._velocity(ego_xy, rows, t)
         a_xy = sim.agent_xy[rows, t]
+        # Every agent's speed now: its state off the log, the log's step into t on it.
+        arc_now = self.arc[rows, t]
+        with np.errstate(invalid="ignore"):  # inf - inf where a run does not go on; those are masked
+            fwd_speed = (self.arc[rows, t + 1] - arc_now) / self.dt
+            back_speed = fwd_speed if t == 0 else np.where(
+                self.run[rows, t - 1] == run_now, (arc_now - self.arc[rows, t - 1]) / self.dt, fwd_speed)
+        speed = np.where(off, self.v[rows], back_speed)
+        extent = log.agent_extent[rows, t].astype(np.float64)
+        half, diag = 0.5 * extent[..., 0], np.hypot(extent[..., 0], extent[..., 1])
+        obstacle_speed = np.hypot(*np.moveaxis(sim.agent_velocity[rows, t].astype(np.float64), -1, 0))
+
+        # Pairs farther apart than IDM's desired gap cannot make an agent leave its log (the
+        # interaction is below 1), and off its log those beyond _FAR times it brake it by less than
+        # a / _FAR^2: both are left out, which saves most of the work.  The gap along the path is at
+        # least the centres' distance less the corridor, the obstacle's diagonal and the follower's
+        # half length; the desired gap is at most s0 + v T + v (v + |v_lead|) / 2 sqrt(ab).
+        def beyond(distance, v, v_lead, obstacle_diag, follower_half, factor):
+            wanted = model.min_gap + v * (model.time_headway + (v + v_lead) / (2.0 * np.sqrt(
+                model.max_accel * model.comfort_decel)))
+            return distance - self.spec.corridor - obstacle_diag - follower_half > factor * wanted
+
         rel = ego_now[:, None, :] - a_xy
         yaw = sim.agent_yaw[rows, t].astype(np.float64)
         ahead = rel[..., 0] * np.cos(yaw) + rel[..., 1] * np.sin(yaw) > 0.0
-        near = (rel[..., 0] ** 2 + rel[..., 1] ** 2 < _REACH ** 2) & ahead
-        ego_b, ego_c = np.nonzero(reacts & (off | near))
+        with np.errstate(invalid="ignore"):
+            far = beyond(np.hypot(rel[..., 0], rel[..., 1]), speed, norm(ego_vel)[:, None],
+                         float(np.hypot(*ego_extent[:2])), half, np.where(off, _FAR, 1.0))
+        ego_pair = reacts & ahead & ~far
+        candidate = reacts & (off | ego_pair)
 
         # Agent-agent pairs: an agent off its log meets everything; one on it only the agents off theirs
         # (the others are where the log has them, and the log did not collide with them).
-        pair_b, pair_i, pair_j = [], [], []
-        busy = np.flatnonzero(off.any(axis=1))
-        if busy.size:
-            xy = a_xy[busy]
-            d = xy[:, :, None, :] - xy[:, None, :, :]
-            close = d[..., 0] ** 2 + d[..., 1] ** 2 < _REACH ** 2
-            close &= sim.available[rows[busy], t][:, None, :]
-            close &= reacts[busy][:, :, None]
-            close &= off[busy][:, :, None] | off[busy][:, None, :]
-            n_cols = close.shape[1]
-            close[:, np.arange(n_cols), np.arange(n_cols)] = False
-            pb, pi, pj = np.nonzero(close)
-            pair_b, pair_i, pair_j = busy[pb], pi, pj
-        agent_b = np.concatenate([ego_b, pair_b]).astype(np.int64)
-        agent_c = np.concatenate([ego_c, pair_i]).astype(np.int64)
-        if agent_b.size == 0:
+        ob, oc = np.nonzero(off)
+        pair_b = pair_i = pair_j = np.zeros(0, np.int64)
+        if ob.size:
+            d = a_xy[ob] - a_xy[ob, oc][:, None, :]  # (off agents, every column)
+            distance = np.hypot(d[..., 0], d[..., 1])
+            others = np.arange(off.shape[1]) != oc[:, None]
+            with np.errstate(invalid="ignore"):
+                follows = others & sim.available[rows[ob], t] & ~beyond(
+                    distance, speed[ob, oc][:, None], obstacle_speed[ob], diag[ob], half[ob, oc][:, None], _FAR)
+                followed = others & reacts[ob] & ~off[ob] & ~beyond(
+                    distance, speed[ob], obstacle_speed[ob, oc][:, None], diag[ob, oc][:, None], half[ob], 1.0)
+            n1, j1 = np.nonzero(follows)  # off agent oc[n1] behind column j1
+            n2, i2 = np.nonzero(followed)  # column i2 behind off agent oc[n2]
+            pair_b = np.concatenate([ob[n1], ob[n2]])
+            pair_i = np.concatenate([oc[n1], i2])
+            pair_j = np.concatenate([j1, oc[n2]])
+            candidate[ob[n2], i2] = True
+        cb, cc = np.nonzero(candidate)  # the candidates: row position, column
+        if cb.size == 0:
             return
-        key = agent_b * off.shape[1] + agent_c
-        uniq, which = np.unique(key, return_inverse=True)
-        cb, cc = np.divmod(uniq, off.shape[1])  # the candidates: row position, column
+        index = np.full(off.shape, -1, np.int64)
+        index[cb, cc] = np.arange(cb.size)
+        ego_b, ego_c = np.nonzero(ego_pair)
         n_ego = ego_b.size
+        which = np.concatenate([index[ego_b, ego_c], index[pair_b, pair_i]])
         r, c = rows[cb], cc
 
-        # Each candidate's state now: on its log, from the log.
         on = ~off[cb, cc]
         k0 = np.where(on, t, self.frame[r, c])
-        s_now = np.where(on, self.arc[r, t, c], self.s[r, c])
-        back = (self.run[r, max(t - 1, 0), c] == run_now[cb, cc]) & (t > 0)
-        fwd_speed = (self.arc[r, t + 1, c] - self.arc[r, t, c]) / self.dt
-        back_speed = np.where(back, (self.arc[r, t, c] - self.arc[r, max(t - 1, 0), c]) / self.dt, fwd_speed)
-        v_now = np.where(on, back_speed, self.v[r, c])
+        s_now = np.where(on, arc_now[cb, cc], self.s[r, c])
+        v_now = speed[cb, cc]
+        fwd_speed = fwd_speed[cb, cc]
         wx, wy, ws = self._window(r, c, run_now[cb, cc], k0)
 
         # Obstacles of each pair, as simulated and as logged.
@@ -205,12 +231,12 @@ class ReactiveReplay:
                     np.where(is_ego, log.ego_yaw[rows[obs_b], t], log.agent_yaw[jr, t, jc]),
                     np.where(is_ego[:, None], self._velocity(log.ego_xy, rows, t)[obs_b],
                              log.agent_velocity[jr, t, jc]))
-        half = 0.5 * log.agent_extent[r, t, c, 0].astype(np.float64)
+        half = half[cb, cc]
         inter = self._interaction(wx[pa], wy[pa], ws[pa], s_now[pa], half[pa], v_now[pa], sim_pose, ext)
-        strongest = np.zeros(uniq.size)
+        strongest = np.zeros(cb.size)
         np.maximum.at(strongest, pa, inter)
         # Leave the log where the simulation asks for more braking than the log did (module doc).
-        trigger = np.zeros(uniq.size, bool)
+        trigger = np.zeros(cb.size, bool)
         ask = on[pa] & (inter > 1.0)
         if ask.any():
             q = pa[ask]
