@@ -34,12 +34,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from pytest_driveeval.atomic import write_bytes_atomic
 from pytest_driveeval.errors import DataError
 from pytest_driveeval.io import wgs84
 from pytest_driveeval.io.protowire import (FIXED32, LENGTH, VARINT, WireError, decode_sint32_spans, encode_sint32,
@@ -186,25 +186,9 @@ def read_meta(meta_path: str | os.PathLike) -> np.ndarray:
     return matrix
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    # Readers see the old file or the new one, never half of one.
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        mask = os.umask(0o022)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def write_meta(meta_path: str | os.PathLike, world_to_ecef: np.ndarray) -> None:
     text = json.dumps({"world_to_ecef": np.asarray(world_to_ecef, np.float64).tolist()}, indent=1)
-    _write_atomic(Path(meta_path), (text + "\n").encode())
+    write_bytes_atomic(Path(meta_path), (text + "\n").encode())
 
 
 # ---------------------------------------------------------------- reading
@@ -520,5 +504,5 @@ def write_semantic_map(pb_path: str | os.PathLike, meta_path: str | os.PathLike,
     plain red/yellow/green faces.
     """
     data = encode_semantic_map(semantic_map, name)
-    _write_atomic(Path(pb_path), data)
+    write_bytes_atomic(Path(pb_path), data)
     write_meta(meta_path, semantic_map.world_to_ecef)

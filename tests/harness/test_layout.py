@@ -37,7 +37,7 @@ ALLOWED = {
     "search": {"errors", "outcome", "strategies", "usecase"},
     # Runs chunks of an item locally or on Ray; the use cases call it, never the other way round.
     "execute": {"errors"},
-    "io": {"errors", "geometry"},
+    "io": {"errors", "geometry", "atomic"},
     "metrics": {"errors", "geometry"},
     # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
     "policies": {"errors", "sim"},
