@@ -49,7 +49,7 @@ ALLOWED = {
     "usecase": {"errors", "outcome"},
     "scenario": {"errors", "usecase"},
     "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario",
-                             "search", "strategies", "execute"},
+                             "search", "strategies", "execute", "raster"},
     # Stable import paths of the Python API, onto their use case's package.
     "closed_loop": {"usecases"},
     "obstacle": {"usecases"},

@@ -121,8 +121,15 @@ class ClosedLoop(UseCase):
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
         spec = config.Unroll
         findings = list(problems)
+        semantic_map = None
+        if ids and spec.Inputs.Kind == "raster" and spec.Inputs.MapType == "py_semantic":
+            from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
+
+            semantic_map = load_semantic_map(dataset.path, spec.Inputs.SemanticMap, spec.Inputs.Meta,
+                                             ctx.scenario.folder)
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, **spec.unroll_options(),
-                               agents=replayed_agents(spec.Agents), perturbation=perturbation) if ids else None
+                               agents=replayed_agents(spec.Agents), perturbation=perturbation,
+                               semantic_map=semantic_map) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         for verdict in verdicts:
             findings.extend(verdict.findings)

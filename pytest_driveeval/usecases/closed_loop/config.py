@@ -16,6 +16,7 @@
         Kinematic: false
         Agents: {Labels: [CAR], LabelThreshold: 0.5, WithinAtStart: 50.0}   # default: every agent replays
         # Agents: reactive     # or {Mode: reactive, TimeHeadway: 1.5, ...}: vehicles brake by IDM (AgentsSpec)
+        Inputs: {Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5]}   # default vector
       Conditions:
         Collisions: {Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}
         Displacement: {Max: 4.0, Duration: 0.5}   # metres; seconds above tolerated
@@ -121,6 +122,57 @@ class AgentsSpec(_Strict):
         return self
 
 
+class InputsSpec(_Strict):
+    """What the policy is given each step.  ``Kind: vector`` (the default): the
+    l5kit-keyed agent and ego histories (sim.logreplay.inputs).  ``Kind:
+    raster``: those plus ``image``, l5kit's bird's-eye raster drawn from the
+    ego's driven history (pytest_driveeval.raster): ``MapType`` ``box_debug``
+    (agent and ego boxes, one channel per history frame) or ``py_semantic``
+    (those plus lanes coloured by traffic-light state and crosswalks, from
+    ``SemanticMap``/``Meta``, by default ``semantic_map.pb`` and ``meta.json``
+    beside the dataset).  The raster's history is ``Unroll.HistoryFrames``.
+    ``Inputs: vector`` / ``Inputs: raster`` say just the kind.
+    """
+
+    Kind: Literal["vector", "raster"] = "vector"
+    MapType: Literal["box_debug", "py_semantic"] = "py_semantic"
+    RasterSize: tuple[PositiveInt, PositiveInt] = (224, 224)
+    PixelSize: tuple[PositiveFloat, PositiveFloat] = (0.5, 0.5)
+    EgoCenter: tuple[float, float] = (0.25, 0.5)
+    FilterAgentsThreshold: float = Field(0.5, ge=0.0, lt=1.0)
+    SemanticMap: str | None = None
+    Meta: str | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, data: Any) -> Any:
+        if isinstance(data, str):
+            if data not in ("vector", "raster"):
+                raise ValueError("expected vector, raster or a mapping")
+            return {"Kind": data}
+        return data
+
+    @model_validator(mode="after")
+    def _raster_keys_need_raster(self):
+        given = sorted(self.model_fields_set - {"Kind"})
+        if given and self.Kind != "raster":
+            raise ValueError(f"{', '.join(given)} applies to Kind: raster; give Kind: raster too")
+        if self.MapType != "py_semantic" and {"SemanticMap", "Meta"} & self.model_fields_set:
+            raise ValueError("SemanticMap and Meta apply to MapType: py_semantic")
+        self.raster_params(1)  # the rasterizer's own checks (e.g. square pixels), at this line of the YAML
+        return self
+
+    def raster_params(self, history_frames: int):
+        """The rasterizer's parameters, or None for vector inputs."""
+        if self.Kind != "raster":
+            return None
+        from pytest_driveeval.raster import RasterParams
+
+        return RasterParams(map_type=self.MapType, raster_size=self.RasterSize, pixel_size=self.PixelSize,
+                            ego_center=self.EgoCenter, history_num_frames=history_frames,
+                            filter_agents_threshold=self.FilterAgentsThreshold)
+
+
 class UnrollSpec(_Strict):
     Scenes: list[NonNegativeInt] | None = None
     SceneStride: PositiveInt | None = None
@@ -133,18 +185,23 @@ class UnrollSpec(_Strict):
     FutureFrames: PositiveInt = 12
     MaxAgents: PositiveInt = 30
     Agents: AgentsSpec = Field(default_factory=AgentsSpec)
+    Inputs: InputsSpec = Field(default_factory=InputsSpec)
 
     def unroll_options(self) -> dict:
         """The keyword arguments of evaluate.unroll_scenes / unroll_config these keys set."""
         return dict(start_frame=self.StartFrame, steps=self.Steps, drift_threshold=self.DriftThreshold,
                     freeze_on_collision=self.FreezeOnCollision, kinematic=self.Kinematic,
                     history_frames=self.HistoryFrames, future_frames=self.FutureFrames, max_agents=self.MaxAgents,
-                    reactive=self.Agents.reactive())
+                    reactive=self.Agents.reactive(), raster=self.Inputs.raster_params(self.HistoryFrames))
 
     @model_validator(mode="after")
     def _one_selection(self):
         if self.Scenes is not None and self.SceneStride is not None:
             raise ValueError("give Scenes or SceneStride, not both")
+        if self.Inputs.Kind == "raster" and self.Agents.Mode == "reactive":
+            # The rasterizer prepares the logged boxes once; reactive agents move off them.
+            raise ValueError("Inputs: raster with Agents: reactive is not supported yet: the raster would "
+                             "draw the agents where the log has them, not where they braked")
         return self
 
 
@@ -211,4 +268,13 @@ class ClosedLoopConfig(ConditionsModel):
         model = info.data.get("Model")
         if spec is not None and model not in (None, "constant_velocity"):
             raise ValueError(f"applies to Model: constant_velocity, not {model!r}")
+        return spec
+
+    @field_validator("Perturbation")
+    @classmethod
+    def _search_needs_vector_inputs(cls, spec, info: ValidationInfo):
+        unroll = info.data.get("Unroll")
+        if spec is not None and unroll is not None and unroll.Inputs.Kind == "raster":
+            raise ValueError("a robustness search with Inputs: raster is not supported yet (its generations "
+                             "unroll copies of the scenes, which the rasterizer does not follow)")
         return spec

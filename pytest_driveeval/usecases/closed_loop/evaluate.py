@@ -64,14 +64,17 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
                   future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None,
                   perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None,
-                  reactive: ReactiveAgents | None = None) -> Unroll:
+                  reactive: ReactiveAgents | None = None, raster: Any = None, semantic_map: Any = None) -> Unroll:
     """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
 
     ``agents`` says which logged agents replay (default: all of them);
     ``reactive``: None, they replay the log; else their vehicles brake by IDM
     for what is in their way (sim.logreplay.reactive.ReactiveAgents);
     ``perturbation`` moves every scene's start off the log (one for all, or
-    one per scene; see :mod:`pytest_driveeval.strategies`).
+    one per scene; see :mod:`pytest_driveeval.strategies`).  ``raster``
+    (raster.RasterParams): the policy also gets ``image``, l5kit's raster of
+    its driven history; ``py_semantic`` needs ``semantic_map``
+    (io.l5_semantic_map.SemanticMap, e.g. from raster_inputs.load_semantic_map).
     """
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
@@ -80,22 +83,41 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     for scene, length in starts_past_end(dataset, ids, start_frame):
         raise DataError(f"{dataset.path}: start_frame {start_frame} is past the end of scene {scene} "
                         f"({length} frames, 0..{length - 1})")
-    log = stack_log(dataset, ids, start_frame, agents)
+    scenes = kept_scenes(dataset, ids, start_frame, agents)
+    log = stack_log(dataset, ids, start_frame, agents, scenes=scenes)
+    extra = None
+    if raster is not None:
+        if perturbation is not None:
+            raise ValueError("unroll_scenes: raster inputs with a start perturbation are not supported yet")
+        from pytest_driveeval.usecases.closed_loop.raster_inputs import raster_inputs
+
+        extra = raster_inputs(raster, log, scenes, semantic_map)
     config = unroll_config(start_frame=start_frame, steps=steps, drift_threshold=drift_threshold,
                            freeze_on_collision=freeze_on_collision, kinematic=kinematic,
                            history_frames=history_frames, future_frames=future_frames, max_agents=max_agents,
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    return unroll_log(log, model, config, perturbation)
+    return unroll_log(log, model, config, perturbation, extra_inputs=extra)
 
 
-def stack_log(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None):
-    """The replayed side of the given scenes, stacked (sim.logreplay.LogArrays)."""
-    from pytest_driveeval.sim.logreplay import ReplayedAgents, keep_agents, stack_scenes
+def kept_scenes(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None
+                ) -> list:
+    """The given scenes with only the agents that replay."""
+    from pytest_driveeval.sim.logreplay import ReplayedAgents, keep_agents
 
     agents = agents or ReplayedAgents()
-    return stack_scenes([keep_agents(dataset.scene(i), agents, start_frame) for i in ids], scene_ids=ids)
+    return [keep_agents(dataset.scene(i), agents, start_frame) for i in ids]
+
+
+def stack_log(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None, *,
+              scenes: Sequence[Any] | None = None):
+    """The replayed side of the given scenes, stacked (sim.logreplay.LogArrays); ``scenes``:
+    their :func:`kept_scenes` when the caller has them."""
+    from pytest_driveeval.sim.logreplay import stack_scenes
+
+    return stack_scenes(scenes if scenes is not None else kept_scenes(dataset, ids, start_frame, agents),
+                        scene_ids=ids)
 
 
 def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float | None, freeze_on_collision: bool,
@@ -111,7 +133,7 @@ def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float
 
 def unroll_log(log: Any, model: Callable, config: Any,
                perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None,
-               candidates: Any = None) -> Unroll:
+               candidates: Any = None, extra_inputs: Any = None) -> Unroll:
     """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given.
 
     ``cells``, ``candidates``: the log's packed cells and window columns
@@ -129,7 +151,8 @@ def unroll_log(log: Any, model: Callable, config: Any,
         if scaled is not log:
             cells = candidates = None
         log = scaled
-    result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates)
+    result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates,
+                    extra_inputs=extra_inputs)
     # Drawn and judged where the agents were: the log, or where reactive agents went.
     return Unroll(result, result.agents, config.drift_threshold, config.step_time)
 

@@ -43,7 +43,9 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
     evaluation of one scene, with its animation."""
     spec = config.Unroll
     log = stack_log(dataset, ids, spec.StartFrame, agents)
-    settings = unroll_config(**spec.unroll_options())
+    options = spec.unroll_options()
+    options.pop("raster")  # the config refuses a search with raster inputs
+    settings = unroll_config(**options)
 
     # Packed once: every generation's rows are copies of these scenes.
     cells = LogCells(log)

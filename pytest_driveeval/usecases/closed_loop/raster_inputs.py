@@ -1,0 +1,52 @@
+"""``Inputs: raster``: l5kit's bird's-eye raster in the policy's batch, drawn each step.
+
+The engine asks for extra inputs at every step (``unroll(extra_inputs=...)``);
+this gives it ``image``, drawn by :class:`pytest_driveeval.raster.Rasterizer`
+from the ego's driven history and the logged agents of the scenes as they
+were stacked (the label filter and the traffic-light faces are read from
+those scenes, so they must be the ones the log was built from).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from pytest_driveeval.errors import DataError
+
+__all__ = ["load_semantic_map", "raster_inputs"]
+
+
+def raster_inputs(params: Any, log: Any, scenes: Sequence[Any], semantic_map: Any = None) -> Callable:
+    """The engine's ``extra_inputs`` for rasters with ``params`` (raster.RasterParams)."""
+    import torch
+
+    from pytest_driveeval.raster import Rasterizer
+
+    if params.map_type == "py_semantic" and semantic_map is None:
+        raise DataError("Inputs: raster with MapType py_semantic needs the dataset's semantic map")
+    raster = Rasterizer(params, log, scenes=scenes, semantic_map=semantic_map)
+
+    def inputs(rows: np.ndarray, t: int, driven_xy: np.ndarray, driven_yaw: np.ndarray) -> dict:
+        return {"image": torch.from_numpy(raster(rows, np.full(rows.size, t), driven_xy, driven_yaw))}
+
+    return inputs
+
+
+def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, meta: str | None = None,
+                      folder: str | os.PathLike | None = None) -> Any:
+    """The semantic map of a dataset: ``pb`` / ``meta`` (relative to ``folder``, the scenario's),
+    by default ``semantic_map.pb`` and ``meta.json`` beside the dataset, as l5kit lays them out."""
+    from pytest_driveeval.io.l5_semantic_map import read_semantic_map
+
+    beside = Path(dataset_path).parent
+    base = Path(folder) if folder is not None else Path.cwd()
+    pb_path = base / pb if pb else beside / "semantic_map.pb"
+    meta_path = base / meta if meta else beside / "meta.json"
+    for path, key in ((pb_path, "SemanticMap"), (meta_path, "Meta")):
+        if not path.is_file():
+            raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
+                            f"MapType py_semantic; give Inputs.{key} to point elsewhere)")
+    return read_semantic_map(pb_path, meta_path)
