@@ -17,6 +17,7 @@ import pytest
 
 from .deadline import time_limit
 from .errors import DriveEvalError
+from .execute import ExecutorSpec, Progress, executor_from_option, terminal_progress
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
@@ -24,6 +25,50 @@ from .search.spec import SearchOptions
 from .runs import start_run
 from .settings import get_settings, item_seed
 from .usecase import Case, RunContext
+
+
+_EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
+
+
+def session_executor(config: pytest.Config) -> ExecutorSpec | None:
+    """The executor --driveeval-executor (or ini driveeval_executor) sets for the session, or None."""
+    if _EXECUTOR_KEY not in config.stash:
+        text = get_settings(config).executor
+        try:
+            config.stash[_EXECUTOR_KEY] = executor_from_option(text) if text else None
+        except ValueError as exc:
+            raise pytest.UsageError(f"--driveeval-executor / driveeval_executor: {exc}") from None
+    return config.stash[_EXECUTOR_KEY]
+
+
+class _LiveTerminal:
+    """pytest's terminal while an item runs: output capture is off for each write, and the bar
+    starts on a line of its own so that the item's name pytest printed stays readable."""
+
+    def __init__(self, config: pytest.Config) -> None:
+        self.reporter = config.pluginmanager.getplugin("terminalreporter")
+        self.capture = config.pluginmanager.getplugin("capturemanager")
+        self.started = False
+
+    def isatty(self) -> bool:
+        return bool(self.reporter is not None and self.reporter.isatty)
+
+    def write(self, text: str) -> None:
+        if not self.started:
+            text, self.started = "\n" + text, True
+        if self.capture is None:
+            self.reporter.write(text, flush=True)
+            return
+        with self.capture.global_and_fixture_disabled():
+            self.reporter.write(text, flush=True)
+
+    def flush(self) -> None:
+        pass
+
+
+def _progress(config: pytest.Config) -> Callable[[str], Progress | None]:
+    """A new bar per call (each run of chunks starts its own line), None when no one watches a terminal."""
+    return lambda label: terminal_progress(_LiveTerminal(config), label)
 
 
 def _binding(request: pytest.FixtureRequest) -> tuple[Scenario, Case]:
@@ -81,7 +126,8 @@ def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenar
                            seed=settings.seed)
     return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
                       output_dir=driveeval_output_dir, seed=driveeval_seed,
-                      allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search)
+                      allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search,
+                      executor=session_executor(request.config), progress=_progress(request.config))
 
 
 @pytest.fixture

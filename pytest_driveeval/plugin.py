@@ -6,6 +6,8 @@ from pathlib import Path
 import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
+from .execute import disconnect
+from .fixtures import session_executor
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 
@@ -23,9 +25,15 @@ def pytest_configure(config: pytest.Config) -> None:
         "so it gets that scenario's driveeval_* fixtures",
     )
     settings = get_settings(config)  # fail early on a bad option value
+    session_executor(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    # Each process (the controller, every xdist worker) closes the Ray connection it opened, if any.
+    disconnect()
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector):

@@ -34,6 +34,8 @@ class Settings:
     search_examples: int | None = None
     replay: str | None = None
     search_profile: str = "default"
+    #: where items run their chunks, as --driveeval-executor gives it (checked by the plugin)
+    executor: str | None = None
 
     @property
     def search_database(self) -> Path:
@@ -97,6 +99,12 @@ def add_options(parser: pytest.Parser) -> None:
     group.addoption("--driveeval-replay", metavar="CASE", default=None,
                     help="evaluate exactly this perturbed case instead of searching, e.g. "
                          "'scene=0,lateral=1.73' (a failing search prints the line)")
+    group.addoption("--driveeval-executor", metavar="SPEC", default=None,
+                    help="run the chunks of every item that has them here, replacing each key a scenario's "
+                         "Executor section sets: local, ray, or a mapping such as "
+                         "'{Kind: ray, Address: ray://head:10001, ChunkSize: 64}' (ini: driveeval_executor)")
+    parser.addini("driveeval_executor", "local | ray | {Kind: ray, Address: ..., ChunkSize: ...} for every item",
+                  default="")
     parser.addini("driveeval_search_examples", "examples a robustness search tries", default="")
     parser.addini("driveeval_search_profile", "default | ci", default="")
     parser.addini("driveeval_output", "where results and artefacts go", default="driveeval-results")
@@ -150,6 +158,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
     profile = profile or ("ci" if os.environ.get("CI", "").lower() not in ("", "0", "false") else "default")
     if profile not in ("default", "ci"):
         raise pytest.UsageError(f"driveeval search profile must be 'default' or 'ci', got {profile!r}")
+    executor, _ = pick("driveeval_executor", "driveeval_executor")
     # Workers take the controller's run, so one session writes one run folder.
     shared = getattr(config, "workerinput", {}).get(RUN_KEY)
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
@@ -167,6 +176,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
         search_examples=int(examples) if examples else None,
         replay=config.getoption("driveeval_replay") or None,
         search_profile=profile,
+        executor=executor,
     )
 
 

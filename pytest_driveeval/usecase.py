@@ -116,6 +116,11 @@ class RunContext:
     nodeid: str = ""
     #: the session's options for robustness searches (search.item.SearchOptions)
     search: Any = None
+    #: the session's executor (execute.ExecutorSpec from --driveeval-executor / ini), or None: each key it
+    #: sets replaces the scenario's own
+    executor: Any = None
+    #: ``progress(label)`` -> a callback drawing chunks done / total where a person watches, or None
+    progress: Any = None
 
     def artefact(self, filename: str) -> Path:
         self.output_dir.mkdir(parents=True, exist_ok=True)

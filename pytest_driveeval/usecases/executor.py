@@ -1,0 +1,90 @@
+"""Which executor an item runs its chunks on, and what the report says about where they ran.
+
+A scenario's use case may carry an ``Executor`` section (``Evaluation.Executor``: the
+use cases that split their work into chunks read it; see :mod:`pytest_driveeval.execute`).
+The session option ``--driveeval-executor`` (ini ``driveeval_executor``) sets the executor
+for every item: each key it gives replaces the scenario's, the keys it leaves out keep the
+scenario's values (``--driveeval-executor ray`` keeps a scenario's ``ChunkSize``).  With
+neither, the item runs locally exactly as it always has: one batch, no chunks.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+from pytest_driveeval.errors import DriveEvalError
+from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, run_chunks
+
+__all__ = ["ChunkLedger", "chunked_executor", "executor_details", "run_item_chunks"]
+
+
+def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSpec | None:
+    """The executor of this item when it runs as chunks on Ray, or None when it runs locally
+    (a local executor keeps the use case's own one-batch path: splitting it would only cost)."""
+    session: ExecutorSpec | None = getattr(ctx, "executor", None)
+    if session is None:
+        spec = scenario_spec
+    elif scenario_spec is None:
+        spec = session
+    else:
+        spec = scenario_spec.model_copy(update={key: getattr(session, key) for key in session.model_fields_set})
+    return None if spec is None or spec.is_local else spec
+
+
+def run_item_chunks(ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: Callable[..., Any], label: str,
+                    *, shared: Any = None, show_progress: bool = True) -> ChunkRun:
+    """``run_chunks`` with the item's progress bar.  A chunk that failed on bad data or a broken
+    model fails the item as the same error would locally (a DataError stays one), the chunk
+    and worker named in its message."""
+    make_progress = getattr(ctx, "progress", None) if show_progress else None
+    progress = make_progress(label) if make_progress is not None else None
+    try:
+        return run_chunks(spec, work, task_fn, shared=shared, progress=progress)
+    except ChunkError as exc:
+        if isinstance(exc.cause, DriveEvalError):
+            try:
+                same_kind = type(exc.cause)(str(exc))
+            except TypeError:  # an error built from more than a message (ScenarioError)
+                raise exc from None
+            raise same_kind from exc
+        raise
+
+
+def _placements(run: ChunkRun, describe: Callable[[int], str]) -> list[dict]:
+    return [{"chunk": p.chunk, "work": describe(p.chunk), "host": p.hostname, "node": p.node_id, "pid": p.pid,
+             "attempts": p.attempts, "seconds": round(p.seconds, 3), "wall_seconds": round(p.wall_seconds, 3)}
+            for p in run.placements]
+
+
+def executor_details(run: ChunkRun, describe: Callable[[int], str]) -> dict:
+    """``details["executor"]`` of an outcome: the one-line summary and where each chunk ran."""
+    return {"executor": run.executor, "summary": run.summary(), "chunks": _placements(run, describe)}
+
+
+class ChunkLedger:
+    """Where the chunks of many runs went, for an item that runs chunks more than once (a search's
+    generations): the report keeps counts per node, not one line per chunk."""
+
+    def __init__(self) -> None:
+        self.runs = 0
+        self.chunks = 0
+        self.seconds = 0.0
+        self.executor = ""
+        self.per_node: dict[str, int] = {}
+        self.retried = 0
+
+    def add(self, run: ChunkRun) -> None:
+        self.runs += 1
+        self.chunks += len(run.placements)
+        self.seconds += run.seconds
+        self.executor = run.executor
+        self.retried += len(run.retried)
+        for p in run.placements:
+            key = p.hostname if p.node_id == "local" else f"{p.hostname}/{p.node_id[:8]}"
+            self.per_node[key] = self.per_node.get(key, 0) + 1
+
+    def details(self) -> dict:
+        hosts = ", ".join(f"{h}: {n}" for h, n in sorted(self.per_node.items()))
+        retried = f"; {self.retried} chunk(s) retried after a worker died" if self.retried else ""
+        summary = (f"{self.chunks} chunks in {self.runs} batch(es) on {self.executor} in {self.seconds:.1f} s, "
+                   f"{len(self.per_node)} node(s) ({hosts}){retried}")
+        return {"executor": self.executor, "summary": summary, "chunks_per_node": dict(sorted(self.per_node.items()))}
