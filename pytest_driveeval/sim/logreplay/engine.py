@@ -41,6 +41,7 @@ from pytest_driveeval.io.l5kit_zarr import L5Scene
 from pytest_driveeval.metrics.collisions import detect_collisions, max_or_zero
 from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
 from pytest_driveeval.sim.dynamics import KinematicLimits, PoseTarget, Unicycle
+from pytest_driveeval.sim.logreplay import agents_jit
 from pytest_driveeval.sim.logreplay.agents import LogCells
 from pytest_driveeval.sim.logreplay.inputs import build_batch
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
@@ -247,10 +248,12 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
         # The agents move: the loop reads and writes its own copy of their poses, and its own packing of them.
         reactive = ReactiveReplay(log, cfg.reactive_agents, cfg.step_time)
         log, cells = reactive.sim, None
+    if cells is None and (reactive is not None or not agents_jit.AVAILABLE):
+        # The compiled inputs read the log itself; the numpy ones and the reactive agents' moves need the packing.
+        cells = LogCells(log)
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=candidates or window_columns(log, cfg.history_frames),
-                   cells=cells or LogCells(log))
+                   candidates=candidates or window_columns(log, cfg.history_frames), cells=cells)
     coarse2 = _coarse_reach_squared(log, ext)
     near: list[tuple[np.ndarray, int, np.ndarray]] = []  # (rows, frame, columns) that may collide, per frame
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)

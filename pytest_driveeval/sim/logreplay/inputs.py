@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from pytest_driveeval.io.l5kit_zarr import L5Scene
+from pytest_driveeval.sim.logreplay import agents_jit
 from pytest_driveeval.sim.logreplay.agents import LogCells, agent_histories
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
 
@@ -99,7 +100,8 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
     had: the driven ones in closed loop, the logged ones for training.  The
     targets always come from the log.  ``candidates`` is
     ``window_columns(log, history_frames)``, computed here when not given.
-    ``cells`` (``LogCells(log)``) only saves work on repeated calls.
+    ``cells`` (``LogCells(log)``) only saves work on repeated calls of the numpy
+    path; with numba the agents come from :mod:`.agents_jit`, which reads the log itself.
 
     Every value is computed with the same float64 operations and rounded to
     float32 once, so the tensors do not depend on the path taken.
@@ -135,14 +137,12 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
 
     if candidates is None:
         candidates = window_columns(log, history_frames)
-    a_ok, ax, ay, a_yaw, a_len, a_wid, a_label = agent_histories(log, rows, hist, hist_ok, centre, max_agents, radius,
-                                                                 candidates, cells)
-    a_pos = _planes_to_ego(ax, ay, centre, cos, sin, a_ok)
-    a_yaw = _wrap_masked(a_yaw - yaw[:, None, None], a_ok)
-    a_ext = np.empty(a_ok.shape + (2,), f32)  # extent * availability, in the log's precision (float32)
-    np.multiply(a_len, a_ok, out=a_ext[..., 0], dtype=a_len.dtype, casting="unsafe")
-    np.multiply(a_wid, a_ok, out=a_ext[..., 1], dtype=a_wid.dtype, casting="unsafe")
-    a_type = (a_label * a_ok).max(axis=-1)  # constant per track; zero for unused slots
+    if agents_jit.AVAILABLE:
+        a_pos, a_yaw, a_ext, a_ok, a_type = _agents_compiled(log, rows, frames, centre, yaw, cos, sin, max_agents,
+                                                             radius, n_hist, candidates)
+    else:
+        a_pos, a_yaw, a_ext, a_ok, a_type = _agents_numpy(log, rows, hist, hist_ok, centre, yaw, cos, sin, max_agents,
+                                                          radius, candidates, cells)
 
     out = {
         "history_positions": h_pos, "history_yaws": h_yaw[..., None], "history_availabilities": hist_ok,
@@ -150,11 +150,38 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
         "centroid": centre, "yaw": yaw, "extent": np.broadcast_to(ego_extent, (b, 3)), "speed": speed,
         "world_from_agent": _world_from_agent32(centre, cos, sin),
         "agent_from_world": _agent_from_world32(centre, cos, sin),
-        "all_other_agents_history_positions": a_pos, "all_other_agents_history_yaws": a_yaw[..., None],
+        "all_other_agents_history_positions": a_pos, "all_other_agents_history_yaws": a_yaw,
         "all_other_agents_history_extents": a_ext, "all_other_agents_history_availability": a_ok,
         "all_other_agents_types": a_type,
     }
     return {k: torch.from_numpy(np.ascontiguousarray(v, dtype=f32)) for k, v in out.items()}
+
+
+def _agents_compiled(log, rows, frames, centre, yaw, cos, sin, max_agents, radius, n_hist, candidates):
+    """The other agents' inputs from :func:`.agents_jit.agent_inputs`, already float32."""
+    b = rows.size
+    pos = np.empty((b, max_agents, n_hist, 2), np.float32)
+    yaws = np.empty((b, max_agents, n_hist, 1), np.float32)
+    ext = np.empty((b, max_agents, n_hist, 2), np.float32)
+    ok = np.empty((b, max_agents, n_hist), np.float32)
+    types = np.empty((b, max_agents), np.float32)
+    agents_jit.agent_inputs(log.agent_xy, log.agent_yaw, log.agent_extent, log.track_id, log.relevant, log.available,
+                            log.label, candidates[0], candidates[1], rows, frames, centre, yaw, cos, sin,
+                            int(max_agents), float(radius), pos, yaws[..., 0], ext, ok, types)
+    return pos, yaws, ext, ok, types
+
+
+def _agents_numpy(log, rows, hist, hist_ok, centre, yaw, cos, sin, max_agents, radius, candidates, cells):
+    """The other agents' inputs by numpy gathers over the log (or its ``cells``)."""
+    a_ok, ax, ay, a_yaw, a_len, a_wid, a_label = agent_histories(log, rows, hist, hist_ok, centre, max_agents, radius,
+                                                                 candidates, cells)
+    a_pos = _planes_to_ego(ax, ay, centre, cos, sin, a_ok)
+    a_yaw = _wrap_masked(a_yaw - yaw[:, None, None], a_ok)
+    a_ext = np.empty(a_ok.shape + (2,), np.float32)  # extent * availability, in the log's precision (float32)
+    np.multiply(a_len, a_ok, out=a_ext[..., 0], dtype=a_len.dtype, casting="unsafe")
+    np.multiply(a_wid, a_ok, out=a_ext[..., 1], dtype=a_wid.dtype, casting="unsafe")
+    a_type = (a_label * a_ok).max(axis=-1)  # constant per track; zero for unused slots
+    return a_pos, a_yaw[..., None], a_ext, a_ok, a_type
 
 
 def _world_from_agent32(centre: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> np.ndarray:

@@ -1,0 +1,100 @@
+"""The compiled agent inputs (numba) against the numpy path, bit for bit, and the numpy path without numba."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
+from pytest_driveeval.sim.logreplay import agents_jit
+from pytest_driveeval.synth.scenegen import generate_scenes
+
+pytestmark = pytest.mark.skipif(not agents_jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
+
+RESULT_FIELDS = ("valid", "driven_xy", "driven_yaw", "collision_kind", "collision_track_id", "collision_at_fault",
+                 "displacement_error", "distance_to_reference", "speed_difference", "reset", "frozen")
+
+
+def _log():
+    return stack_scenes(scenes_from_arrays(generate_scenes(4, 80, seed=7)))
+
+
+def _batches(log) -> dict[str, np.ndarray]:
+    """Inputs at random frames, seen from driven poses off the log: some 2 m away, yaws a
+    turn and more off (the modulo branch of the wrap), few slots (a choice to make) and
+    more slots than candidates (padding)."""
+    rng = np.random.default_rng(3)
+    xy = log.ego_xy + rng.normal(0.0, 2.0, log.ego_xy.shape)
+    yaw = log.ego_yaw + rng.normal(0.0, 1.0, log.ego_yaw.shape)
+    yaw[:, ::5] += 20.0
+    rows = rng.integers(0, log.shape[0], 200)
+    frames = rng.integers(0, log.num_frames[rows])
+    out = {}
+    for name, options in (("default", {}), ("few", dict(max_agents=3, radius=12.0, history_frames=4)),
+                          ("many", dict(max_agents=120))):
+        for key, value in build_batch(log, rows, frames, xy, yaw, **options).items():
+            out[f"{name}.{key}"] = value.numpy()
+    return out
+
+
+def _unrolled(log) -> dict[str, np.ndarray]:
+    policy = torch.jit.script(ConstantVelocityPolicy().eval())
+    result = unroll(log, policy, UnrollConfig(drift_threshold=3.0, freeze_on_collision=True, start_frame=2),
+                    start_perturbation=np.tile([0.6, -0.4, 0.35, 1.3], (log.shape[0], 1)))
+    return {f"unroll.{f}": getattr(result, f) for f in RESULT_FIELDS}
+
+
+def _assert_same_bits(got: dict, expected: dict) -> None:
+    assert got.keys() == expected.keys()
+    for key in expected:
+        assert got[key].dtype == expected[key].dtype and got[key].shape == expected[key].shape, key
+        # Bytes, not values: a masked -0.0 where numpy has +0.0 is a difference too.
+        assert got[key].tobytes() == expected[key].tobytes(), key
+
+
+def test_compiled_inputs_and_unroll_are_the_numpy_ones_bit_for_bit(monkeypatch):
+    log = _log()
+    compiled = {**_batches(log), **_unrolled(log)}
+    assert compiled["default.all_other_agents_history_availability"].any()
+    few_slots_used = compiled["few.all_other_agents_history_availability"].any(2).sum(1)
+    assert (few_slots_used == 3).sum() > 50  # rows where 3 of more agents had to be chosen
+    assert np.signbit(compiled["many.all_other_agents_history_positions"][compiled[
+        "many.all_other_agents_history_availability"] == 0]).any()  # masked zeros of both signs are compared
+    monkeypatch.setattr(agents_jit, "AVAILABLE", False)
+    _assert_same_bits(compiled, {**_batches(log), **_unrolled(log)})
+
+
+def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    log = stack_scenes([L5Dataset.open(shared_data / "l5kit" / "single_scene.zarr").scene(0)] * 2)
+    compiled = _batches(log)
+    assert compiled["default.all_other_agents_history_availability"].sum() > 1000
+    monkeypatch.setattr(agents_jit, "AVAILABLE", False)
+    _assert_same_bits(compiled, _batches(log))
+
+
+WITHOUT_NUMBA = """
+import sys
+sys.modules["numba"] = None  # import numba fails: the numpy path
+sys.path.insert(0, sys.argv[2])
+import numpy as np
+import test_logreplay_agents_jit as t
+from pytest_driveeval.sim.logreplay import agents_jit
+assert not agents_jit.AVAILABLE
+log = t._log()
+np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log))
+"""
+
+
+def test_without_numba_the_inputs_and_the_unroll_are_the_same(tmp_path):
+    out = tmp_path / "plain.npz"
+    subprocess.run([sys.executable, "-c", WITHOUT_NUMBA, str(out), str(Path(__file__).parent)], check=True,
+                   timeout=600)
+    log = _log()
+    with np.load(out) as plain:
+        _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log)})
