@@ -65,6 +65,21 @@ def search_lines(outcome: Outcome) -> list[str]:
     return lines
 
 
+def executor_lines(outcome: Outcome) -> list[str]:
+    """Where an item's chunks ran, when it ran them on an executor (a Ray cluster): the summary,
+    then a line per chunk (host, node, pid, attempts, seconds)."""
+    where = outcome.details.get("executor")
+    if not where:
+        return []
+    lines = [f"executor: {where.get('summary')}"]
+    for chunk in where.get("chunks") or []:
+        node = f" node {chunk['node'][:8]}" if chunk.get("node") not in (None, "local") else ""
+        retried = f", {chunk['attempts']} attempts" if chunk.get("attempts", 1) > 1 else ""
+        lines.append(f"chunk {chunk['chunk']} ({chunk.get('work')}): {chunk.get('host')}{node} pid "
+                     f"{chunk.get('pid')}{retried}, {chunk.get('seconds')} s")
+    return lines
+
+
 def html_extras(outcome: Outcome) -> list[dict]:
     """pytest-html extras: a figures table, images inline (base64, so a
     self-contained report carries them), result files as JSON / text."""
@@ -77,6 +92,10 @@ def html_extras(outcome: Outcome) -> list[dict]:
     if lines:
         out.append(extras.html("<div class='driveeval-search'>" + "".join(f"<p>{escape(line)}</p>" for line in lines)
                                + "</div>"))
+    lines = executor_lines(outcome)
+    if lines:
+        out.append(extras.html("<details class='driveeval-executor'><summary>" + escape(lines[0]) + "</summary>"
+                               + "".join(f"<p>{escape(line)}</p>" for line in lines[1:]) + "</details>"))
     # pytest-html shows images one at a time: animations first, they say the most.
     ordered = sorted(outcome.artefacts.items(), key=lambda item: Path(item[1]).suffix.lower() != ".gif")
     for name, path in ordered:
@@ -118,6 +137,9 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
     lines = search_lines(outcome)
     if lines:
         allure.attach("\n".join(lines), name="robustness search", attachment_type=AttachmentType.TEXT)
+    lines = executor_lines(outcome)
+    if lines:
+        allure.attach("\n".join(lines), name="where the chunks ran", attachment_type=AttachmentType.TEXT)
     for name, path in outcome.artefacts.items():
         path = Path(path)
         if path.is_file():

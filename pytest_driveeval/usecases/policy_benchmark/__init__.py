@@ -10,6 +10,7 @@ With a ``Perturbation`` section the item is a robustness search instead
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from pytest_driveeval.errors import display_path
@@ -55,13 +56,22 @@ class PolicyBenchmark(UseCase):
         return [Case(f"{self.name}[{policy}]", params={"policy": policy}) for policy in scenario.config.Policies]
 
     def load_model(self, ctx: RunContext, spec: str | None) -> Any:
+        from pytest_driveeval.usecases.policy_benchmark.chunked import PolicySource
+
         policy = ctx.case.params["policy"]
         ctx.notes["policy"] = policy
         own = ctx.scenario.config.Policies[policy]
         # --driveeval-model replaces the policy under test, never a baseline.
         if spec is not None and own not in BASELINES:
-            return load_policy(ctx, policy, spec, from_option=True)
-        return load_policy(ctx, policy, own)
+            model = load_policy(ctx, policy, spec, from_option=True)
+            source = PolicySource(spec, str(Path.cwd()))
+        else:
+            model = load_policy(ctx, policy, own)
+            source = PolicySource(own, str(ctx.scenario.folder))
+        # How a Ray worker loads the same policy; kept with the object, so that run() can tell
+        # this model from one a conftest.py fixture built (which has no spec to send).
+        ctx.notes["policy_source"] = (source, model)
+        return model
 
     def run(self, config: PolicyBenchmarkConfig, ctx: RunContext) -> Outcome:
         from pytest_driveeval.sim.blueprints import make_blueprint
@@ -70,17 +80,26 @@ class PolicyBenchmark(UseCase):
         from pytest_driveeval.usecases.policy_benchmark.judge import RATES, judge, rate_intervals
 
         policy = ctx.case.params["policy"]
-        params = dict(config.Blueprint.Params)
-        if config.StepLimit is not None:
-            params["max_steps"] = config.StepLimit
+        params = config.blueprint_params()
         blueprint = make_blueprint(config.Blueprint.Name, **params)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
+        model = ctx.fixtures["driveeval_model"]
+        executor, source, stays_local = self._executor(config, ctx, model)
         if config.Perturbation is not None:
             from pytest_driveeval.search.item import run_item
             from pytest_driveeval.usecases.policy_benchmark.robustness import policy_searchable
 
-            searchable = policy_searchable(config, blueprint, seeds, ctx.fixtures["driveeval_model"], policy, ctx)
-            return run_item(self.name, searchable, config.Perturbation, ctx)
+            from pytest_driveeval.usecases.executor import ChunkLedger
+
+            ledger = ChunkLedger()
+            searchable = policy_searchable(config, blueprint, seeds, model, policy, ctx, executor=executor,
+                                           source=source, ledger=ledger)
+            outcome = run_item(self.name, searchable, config.Perturbation, ctx)
+            if ledger.runs:
+                outcome.details["executor"] = ledger.details()
+            elif stays_local:
+                outcome.details["executor"] = stays_local
+            return outcome
 
         def run(name: str, model: Any, on_step=None):
             return run_policy(blueprint, seeds, model, name, strata=strata, agent_limit=config.AgentLimit,
@@ -89,19 +108,34 @@ class PolicyBenchmark(UseCase):
         judged = policy in config.judged()
         # Only a judged policy's item decides the conditions; the others report their intervals.
         conditions = config.Conditions if judged else BenchmarkConditions(Confidence=config.Conditions.Confidence)
-        recorder = EpisodeRecorder() if config.Artefacts.Animations != "none" else None
-        runs = {policy: run(policy, ctx.fixtures["driveeval_model"], recorder)}
-        for spec in conditions.Beats:
-            if spec.Baseline not in runs:
-                runs[spec.Baseline] = run(spec.Baseline, load_policy(ctx, spec.Baseline,
-                                                                     config.Policies[spec.Baseline]))
+        animated = config.Artefacts.Animations != "none"
+        baselines = [spec.Baseline for spec in conditions.Beats if spec.Baseline != policy]
+        where: dict | None = stays_local or None
+        replay = recorder = None
+        if executor is None:
+            recorder = EpisodeRecorder() if animated else None
+            runs = {policy: run(policy, model, recorder)}
+            for name in baselines:
+                if name not in runs:
+                    runs[name] = run(name, load_policy(ctx, name, config.Policies[name]))
+        else:
+            from pytest_driveeval.usecases.executor import executor_details
+            from pytest_driveeval.usecases.policy_benchmark.chunked import PolicySource, run_policies_chunked
+
+            sources = {policy: source, **{name: PolicySource(config.Policies[name], str(ctx.scenario.folder))
+                                          for name in baselines}}
+            runs, chunk_run, described = run_policies_chunked(ctx, executor, blueprint, params, seeds, strata,
+                                                              sources, config.AgentLimit)
+            where = executor_details(chunk_run, described.__getitem__)
+            if animated:
+                replay = self._replayer(blueprint, runs[policy], model, policy, config.AgentLimit)
         judgement = judge(runs[policy], runs, conditions, seed=config.FirstSeed)
         mine = runs[policy]
         # This item's rates are in its judgement already; the baselines' are for the comparison plot.
         keys = [f"{outcome}_rate" for _, outcome in RATES.values()]
         rates = {name: {k: judgement.intervals[k] for k in keys} if name == policy
                  else rate_intervals(r, conditions.Confidence, config.FirstSeed) for name, r in runs.items()}
-        artefacts = write_artefacts(ctx, mine, recorder, rates, config)
+        artefacts = write_artefacts(ctx, mine, recorder, rates, config, replay=replay)
         figures = mine.figures()
         summary = (f"'{policy}' on {config.Blueprint.Name}: goal {figures['goal_rate']:.1f} %, collision "
                    f"{figures['collision_rate']:.1f} %, off road {figures['off_road_rate']:.1f} % of "
@@ -109,5 +143,36 @@ class PolicyBenchmark(UseCase):
         details = {"policy": policy, "judged": judged, "blueprint": config.Blueprint.Name,
                    "intervals": judgement.intervals,
                    "compared": {name: r.figures() for name, r in runs.items() if name != policy}}
+        if where:
+            details["executor"] = where
         return Outcome(self.name, PASSED if judgement.passed else FAILED, summary, figures=figures,
                        findings=judgement.findings, details=details, artefacts=artefacts)
+
+    @staticmethod
+    def _executor(config: PolicyBenchmarkConfig, ctx: RunContext, model: Any) -> tuple[Any, Any, dict]:
+        """(the Ray executor or None, how a worker loads the policy, why the item stays local
+        although an executor was asked for: details for the report, or {})."""
+        from pytest_driveeval.usecases.executor import chunked_executor
+
+        executor = chunked_executor(ctx, config.Executor)
+        if executor is None:
+            return None, None, {}
+        source, loaded = ctx.notes.get("policy_source", (None, None))
+        if loaded is not model:
+            # A conftest.py fixture's model is a live object: nothing a worker could load safely.
+            return None, None, {"executor": "local", "summary": (
+                f"ran locally, not on {executor.describe()}: the policy is the driveeval_model fixture's "
+                "object (conftest.py), which has no loading spec a worker could use")}
+        return executor, source, {}
+
+    @staticmethod
+    def _replayer(blueprint: Any, run: Any, model: Any, name: str, agent_limit: int):
+        from pytest_driveeval.usecases.policy_benchmark.artefacts import EpisodeRecorder
+        from pytest_driveeval.usecases.policy_benchmark.evaluate import run_policy
+
+        def replay(row: int) -> EpisodeRecorder:
+            recorder = EpisodeRecorder()
+            run_policy(blueprint, run.seeds[row:row + 1], model, name, agent_limit=agent_limit, on_step=recorder)
+            return recorder
+
+        return replay

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -53,7 +53,10 @@ def _chosen(run: PolicyRun, animations: str) -> int | None:
 
 
 def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder | None, intervals: dict,
-                    config: Any) -> dict[str, Path]:
+                    config: Any, replay: Callable[[int], EpisodeRecorder] | None = None) -> dict[str, Path]:
+    """``replay(row)``: that episode run again alone and recorded, for a run whose episodes ran
+    elsewhere (chunks on Ray workers) and were not recorded here; an episode depends on its seed
+    alone, so the GIF is the one a recorded local run draws."""
     out: dict[str, Path] = {}
     result = ctx.artefact("episodes.json")
     write_text_atomic(result, json.dumps({"policy": run.policy, "blueprint": run.blueprint, "episodes": [
@@ -66,10 +69,11 @@ def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder |
         out["comparison"] = interval_chart(ctx.artefact("comparison.png"), intervals,
                                            f"{run.blueprint}: {len(run.seeds)} seeded episodes",
                                            highlight=run.policy)
-    row = _chosen(run, config.Artefacts.Animations) if recorder is not None else None
+    row = _chosen(run, config.Artefacts.Animations) if recorder is not None or replay is not None else None
     if row is not None:
         seed = int(run.seeds[row])
-        out[f"episode_{seed}_gif"] = episode_gif(ctx.artefact(f"episode_seed_{seed}.gif"), recorder, row,
+        shown, shown_row = (recorder, row) if recorder is not None else (replay(row), 0)
+        out[f"episode_{seed}_gif"] = episode_gif(ctx.artefact(f"episode_seed_{seed}.gif"), shown, shown_row,
                                                  config.AgentLimit,
                                                  f"{run.policy} seed {seed}: {run.outcome_names()[row]}")
     return out

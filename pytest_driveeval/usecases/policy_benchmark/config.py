@@ -30,6 +30,9 @@
         GapScale: [0.5, 2.0]          # the blueprint's spawn gaps scaled: below 1 denser traffic
         FailOn: [collision, off_road, step_limit]   # episode outcomes that fail an example (default: all)
         Examples: 200                 # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
+      Executor: {Kind: ray, Address: auto, ChunkSize: 64}   # optional: episodes in chunks of seeds as
+                                      # Ray tasks (pytest_driveeval.execute; --driveeval-executor
+                                      # replaces each key it gives); default: local, one batch
 
 One item per policy.  A judged policy's item decides the conditions and runs
 the baselines it is compared with on the same seeds; the other items report
@@ -46,6 +49,7 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, model_validator
 
+from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.usecase import ConditionsModel, located_error
 
@@ -138,6 +142,7 @@ class PolicyBenchmarkConfig(ConditionsModel):
     Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions)
     Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts)
     Perturbation: PolicyPerturbation | None = None
+    Executor: ExecutorSpec | None = None
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -154,6 +159,13 @@ class PolicyBenchmarkConfig(ConditionsModel):
                                f"'{beats.Baseline}' is not one of this scenario's Policies "
                                f"({', '.join(self.Policies)})")
         return self
+
+    def blueprint_params(self) -> dict[str, Any]:
+        """make_blueprint's keyword arguments: the blueprint's Params and the StepLimit."""
+        params = dict(self.Blueprint.Params)
+        if self.StepLimit is not None:
+            params["max_steps"] = self.StepLimit
+        return params
 
     def judged(self) -> list[str]:
         if self.Judged is not None:

@@ -49,8 +49,13 @@ def episode_verdict(run: PolicyRun, row: int, fail_on: Sequence[str]) -> Verdict
 
 
 def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.ndarray, policy: Callable,
-                      name: str, ctx: Any) -> Searchable:
-    """The search of ``policy`` (called ``name``) over the episodes of ``seeds``."""
+                      name: str, ctx: Any, *, executor: Any = None, source: Any = None,
+                      ledger: Any = None) -> Searchable:
+    """The search of ``policy`` (called ``name``) over the episodes of ``seeds``.
+
+    With a Ray ``executor`` (and the policy's ``source``, chunked.PolicySource) each generation's
+    episodes run as chunks of the Executor's ChunkSize on the cluster, the ``ledger``
+    (executor.ChunkLedger) counting where; the picture of the case found is drawn here."""
     spec = config.Perturbation
     fail_on = tuple(spec.FailOn)
 
@@ -58,8 +63,25 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
         return run_policy(blueprint, case_seeds, policy, name, agent_limit=config.AgentLimit, on_step=on_step,
                           perturbation=perturbation_rows(perturbations))
 
+    def run_chunked(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation]) -> PolicyRun:
+        from pytest_driveeval.usecases.executor import run_item_chunks
+        from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, episode_chunks, merged,
+                                                                        run_episode_chunk)
+
+        work = episode_chunks(name, source, blueprint.name, config.blueprint_params(), case_seeds,
+                              config.AgentLimit, executor.ChunkSize or DEFAULT_CHUNK_SIZE,
+                              perturbation_rows(perturbations))
+        # A bar per generation would scroll the terminal; the report counts the chunks instead.
+        chunk_run = run_item_chunks(ctx, executor, work, run_episode_chunk, "", show_progress=False)
+        if ledger is not None:
+            ledger.add(chunk_run)
+        done = merged(chunk_run.results)
+        return PolicyRun(name, blueprint.name, case_seeds, np.zeros(len(case_seeds), np.int64), done.outcome,
+                         done.returns, done.steps)
+
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
-        done = run(seeds[[e.case for e in examples]], [e.perturbation for e in examples])
+        case_seeds, perturbations = seeds[[e.case for e in examples]], [e.perturbation for e in examples]
+        done = run(case_seeds, perturbations) if executor is None else run_chunked(case_seeds, perturbations)
         return [episode_verdict(done, i, fail_on) for i in range(len(examples))]
 
     def show(example: Example) -> Outcome:

@@ -1,0 +1,222 @@
+"""policy_benchmark items on a real local Ray cluster (a head and two worker nodes on this
+machine) give the outcome, figures and artefacts of the same items run locally.
+
+The head has no CPUs, so every chunk runs on a worker node; four chunks in flight need both
+two-CPU nodes.  The cluster is torn down by ``Cluster.shutdown()``, never ``ray stop``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("scipy")
+ray = pytest.importorskip("ray")
+from ray.cluster_utils import Cluster  # noqa: E402
+
+pytestmark = pytest.mark.ray
+
+REPO = Path(__file__).resolve().parents[3]
+GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
+WORKER_CPUS = 2
+# Node deaths noticed within ~1.5 s instead of Ray's default ~30 s.
+FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_threshold": 3}
+
+BENCHMARK = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: bench
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint: {{Name: merging}}
+  Episodes: {episodes}
+  Policies:
+    gnn: {gnn}
+    random: random
+    constant: constant
+  Judged: [gnn]
+  Conditions:
+    GoalRate: {{AtLeast: 50}}
+    Beats: [{{Baseline: random, Metric: goal_rate}}, {{Baseline: constant, Metric: goal_rate}}]
+  Artefacts: {{Animations: all, ComparisonPlot: false}}
+{executor}"""
+
+SEARCH = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: search
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint: {{Name: merging}}
+  Episodes: 16
+  Policies:
+    constant: constant
+  Perturbation:
+    Lateral: [-0.5, 0.5]
+    Heading: [-0.05, 0.05]
+    SpeedScale: [0.8, 1.2]
+    GapScale: [0.7, 1.5]
+    Examples: 24
+    Batch: 12
+  Artefacts: {{Animations: all}}
+{executor}"""
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    cluster = Cluster(initialize_head=True, connect=True,
+                      head_node_args={"num_cpus": 0, "_system_config": FAST_HEALTH_CHECKS})
+    try:
+        for _ in range(2):
+            cluster.add_node(num_cpus=WORKER_CPUS)
+        cluster.wait_for_nodes()
+        yield cluster
+    finally:
+        ray.shutdown()       # the driver first: the head cannot be removed under it
+        cluster.shutdown()
+
+
+def worker_nodes() -> set[str]:
+    return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
+
+
+def executor_section(**keys) -> str:
+    return "  Executor: {" + ", ".join(f"{k}: {v}" for k, v in keys.items()) + "}\n"
+
+
+def results(folder: Path) -> dict:
+    data = json.loads((folder / "summary.json").read_text())
+    return {r["nodeid"]: r for r in data["results"]}
+
+
+def without_executor(record: dict) -> dict:
+    """What a run on any executor must reproduce: everything but where its chunks ran, the
+    run's output folder and the seconds a search took (no two runs share those)."""
+    kept = {k: v for k, v in record.items() if k not in ("artefacts", "duration")}
+    kept["details"] = {k: v for k, v in record["details"].items() if k != "executor"}
+    text = json.dumps(kept, sort_keys=True)
+    text = re.sub(r"/(local|remote)/runs/[^/]+/", "/OUTPUT/", text)
+    text = re.sub(r"[0-9.]+ s\b", "0 s", re.sub(r"(seconds\W+)[0-9.]+", r"\g<1>0", text))
+    return json.loads(text)
+
+
+def artefact_bytes(folder: Path, record: dict) -> dict[str, bytes]:
+    return {name: (folder / path).read_bytes() for name, path in record["artefacts"].items()}
+
+
+def assert_same_items(local: Path, remote: Path) -> dict:
+    here, there = results(local), results(remote)
+    assert set(here) == set(there) and here
+    for nodeid in here:
+        assert without_executor(there[nodeid]) == without_executor(here[nodeid]), nodeid
+        assert artefact_bytes(remote, there[nodeid]) == artefact_bytes(local, here[nodeid]), nodeid
+        assert "executor" not in here[nodeid]["details"], "the local run is the plain one-batch path"
+    return there
+
+
+def test_the_session_option_runs_the_chunks_on_both_nodes_with_the_local_outcome(cluster, pytester):
+    # A separate process, as a CI job would be: it connects to the cluster by its address.
+    pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(episodes=24, gnn=GNN, executor=""))
+    local = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "local")
+    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 3, MaxInFlight: 4}}"
+    remote = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "remote",
+                                           "--driveeval-executor", option)
+    local.assert_outcomes(passed=3)
+    remote.assert_outcomes(passed=3)
+    records = assert_same_items(pytester.path / "local", pytester.path / "remote")
+    judged = records["bench.scenario.yaml::policy_benchmark[gnn]"]
+    where = judged["details"]["executor"]
+    # 24 episodes in chunks of 3 for the judged policy and each of the two baselines it beats
+    assert len(where["chunks"]) == 3 * 8 and [c["chunk"] for c in where["chunks"]] == list(range(24))
+    assert where["chunks"][0]["work"] == "gnn seeds 0..2" and where["chunks"][-1]["work"] == "constant seeds 21..23"
+    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "four chunks in flight need both nodes"
+    assert "24 chunks on ray" in where["summary"] and "2 node(s)" in where["summary"]
+    assert any(name.endswith("_gif") for name in judged["artefacts"]), "the episode GIF is drawn on the driver"
+    # the Ray connection the session opened is closed with it; the cluster stays up
+    assert len(worker_nodes()) == 2
+
+
+def test_the_scenarios_executor_section_and_a_robustness_search_match_local(cluster, pytester):
+    pytester.makefile(".scenario.yaml", search=SEARCH.format(executor=""))
+    local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local", "--driveeval-search-profile", "ci")
+    pytester.makefile(".scenario.yaml", search=SEARCH.format(executor=executor_section(Kind="ray", ChunkSize=4)))
+    remote = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "remote", "--driveeval-search-profile",
+                                "ci")
+    assert local.ret == remote.ret
+    records = assert_same_items(pytester.path / "local", pytester.path / "remote")
+    where = records["search.scenario.yaml::policy_benchmark[constant]"]["details"]["executor"]
+    # every generation of 12 examples went out as three chunks of 4
+    assert sum(where["chunks_per_node"].values()) % 3 == 0 and "batch(es) on ray" in where["summary"]
+
+
+def _running_chunk(raylet_pid: int) -> int | None:
+    """The pid of a worker under that raylet that is running a chunk (Ray titles a worker after
+    the task it runs: ``ray::driveeval chunk 3``), read from /proc."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    below, found = [raylet_pid], []
+    while below:
+        pid = below.pop()
+        for child in children.get(pid, []):
+            below.append(child)
+            found.append(child)
+    for pid in found:
+        try:
+            if b"driveeval chunk" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return pid
+        except OSError:
+            continue
+    return None
+
+
+def test_a_worker_node_killed_mid_item_costs_retries_not_the_outcome(cluster, pytester):
+    doomed = cluster.add_node(num_cpus=WORKER_CPUS)
+    cluster.wait_for_nodes()
+    raylet = doomed.all_processes["raylet"][0].process.pid
+    killed = threading.Event()
+
+    def kill_once_a_chunk_runs_there():
+        # As a machine that dies: its raylet and the worker under way on a chunk go together
+        # (a worker outlives its raylet for a while and could still deliver).
+        while not killed.is_set():
+            worker = _running_chunk(raylet)
+            if worker is not None:
+                cluster.remove_node(doomed, allow_graceful=False)
+                try:
+                    os.kill(worker, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                killed.set()
+            time.sleep(0.01)
+
+    pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(episodes=36, gnn=GNN, executor=""))
+    local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local", "-k", "gnn")
+    pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(
+        episodes=36, gnn=GNN, executor=executor_section(Kind="ray", ChunkSize=3, MaxInFlight=6, Retries=3)))
+    killer = threading.Thread(target=kill_once_a_chunk_runs_there, daemon=True)
+    killer.start()
+    try:
+        remote = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "remote", "-k", "gnn")
+    finally:
+        killed.set()
+        killer.join()
+    local.assert_outcomes(passed=1)
+    remote.assert_outcomes(passed=1)
+    assert not any(n["NodeID"] == doomed.node_id and n["Alive"] for n in ray.nodes())
+    records = assert_same_items(pytester.path / "local", pytester.path / "remote")
+    chunks = records["bench.scenario.yaml::policy_benchmark[gnn]"]["details"]["executor"]["chunks"]
+    retried = [c for c in chunks if c["attempts"] > 1]
+    assert retried, "a chunk was running on the killed node: it needed another attempt"
+    assert all(c["node"] != doomed.node_id for c in retried)
