@@ -5,7 +5,11 @@ use cases that split their work into chunks read it; see :mod:`pytest_driveeval.
 The session option ``--driveeval-executor`` (ini ``driveeval_executor``) sets the executor
 for every item: each key it gives replaces the scenario's, the keys it leaves out keep the
 scenario's values (``--driveeval-executor ray`` keeps a scenario's ``ChunkSize``).  With
-neither, the item runs locally exactly as it always has: one batch, no chunks.
+neither, or ``Kind: local`` without a ``ChunkSize``, the item runs locally exactly as it always
+has: one batch, no chunks.  ``Kind: local`` with a ``ChunkSize`` runs the chunks a Ray run would
+run, one after the other in this process: a chunk's result depends on its description alone, so
+this reproduces a Ray run bit for bit, also for a model whose float32 arithmetic rounds
+differently with the batch size (the shipped planning model: ~1e-6 m on its displacements).
 """
 from __future__ import annotations
 
@@ -18,8 +22,8 @@ __all__ = ["ChunkLedger", "chunked_executor", "executor_details", "run_item_chun
 
 
 def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSpec | None:
-    """The executor of this item when it runs as chunks on Ray, or None when it runs locally
-    (a local executor keeps the use case's own one-batch path: splitting it would only cost)."""
+    """The executor of this item's chunks, or None for the use case's own one-batch path (the
+    default, and a local executor that names no ChunkSize)."""
     session: ExecutorSpec | None = getattr(ctx, "executor", None)
     if session is None:
         spec = scenario_spec
@@ -27,7 +31,7 @@ def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSp
         spec = session
     else:
         spec = scenario_spec.model_copy(update={key: getattr(session, key) for key in session.model_fields_set})
-    return None if spec is None or spec.is_local else spec
+    return None if spec is None or (spec.is_local and spec.ChunkSize is None) else spec
 
 
 def run_item_chunks(ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: Callable[..., Any], label: str,

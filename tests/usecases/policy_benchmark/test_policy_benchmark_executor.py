@@ -43,8 +43,11 @@ def test_the_session_option_replaces_the_keys_it_gives_and_keeps_the_scenarios_o
     scenario = ExecutorSpec(Kind="ray", Address="ray://head:10001", ChunkSize=16, Retries=1)
     assert chunked_executor(session(None), None) is None, "nothing asked: the plain local path"
     assert chunked_executor(session(None), scenario) == scenario
-    assert chunked_executor(session(None), ExecutorSpec(Kind="local", ChunkSize=4)) is None
-    assert chunked_executor(session("local"), scenario) is None, "the session runs everything here"
+    assert chunked_executor(session(None), ExecutorSpec(Kind="local")) is None
+    # a ChunkSize with Kind local: the chunks a Ray run would run, here, to reproduce it
+    assert chunked_executor(session(None), ExecutorSpec(Kind="local", ChunkSize=4)).ChunkSize == 4
+    assert chunked_executor(session("local"), ExecutorSpec(Kind="ray")) is None, "the session runs it all here"
+    assert chunked_executor(session("local"), scenario).is_local
     merged = chunked_executor(session("{Address: auto, ChunkSize: 2}"), scenario)
     assert (merged.Kind, merged.Address, merged.ChunkSize, merged.Retries) == ("ray", "auto", 2, 1)
     kept = chunked_executor(session("ray"), ExecutorSpec(ChunkSize=8))
@@ -114,15 +117,19 @@ def test_a_mistake_in_the_executor_section_is_located(pytester):
     result.stdout.fnmatch_lines(["*bench.scenario.yaml:11: Evaluation.Executor.Chunksize: unknown key*ChunkSize*"])
 
 
-def test_a_local_executor_and_no_executor_are_the_same_plain_run(pytester):
-    pytester.makefile(".scenario.yaml", bench=SCENARIO.format(executor="  Executor: {Kind: local, ChunkSize: 2}\n"))
-    pytester.runpytest("-q", "--driveeval-output", "asked").assert_outcomes(passed=1)
-    pytester.makefile(".scenario.yaml", bench=SCENARIO.format(executor=""))
+def test_local_chunks_give_the_plain_runs_outcome_and_say_where_they_ran(pytester):
+    pytester.makefile(".scenario.yaml", bench=SCENARIO.format(executor="  Executor: {Kind: local, ChunkSize: 4}\n"))
+    pytester.runpytest("-q", "--driveeval-output", "chunked").assert_outcomes(passed=1)
+    pytester.makefile(".scenario.yaml", bench=SCENARIO.format(executor="  Executor: {Kind: local}\n"))
     pytester.runpytest("-q", "--driveeval-output", "plain").assert_outcomes(passed=1)
-    asked, plain = ([r for r in json.loads((pytester.path / out / "summary.json").read_text())["results"]]
-                    for out in ("asked", "plain"))
-    assert [r["figures"] for r in asked] == [r["figures"] for r in plain]
-    assert "executor" not in asked[0]["details"]
+    (chunked,), (plain,) = (json.loads((pytester.path / out / "summary.json").read_text())["results"]
+                            for out in ("chunked", "plain"))
+    assert chunked["figures"] == plain["figures"] and chunked["findings"] == plain["findings"]
+    assert "executor" not in plain["details"]
+    where = chunked["details"].pop("executor")
+    assert chunked["details"] == plain["details"]
+    assert [c["work"] for c in where["chunks"]] == ["mine seeds 0..3", "mine seeds 4..5"]
+    assert {c["node"] for c in where["chunks"]} == {"local"} and where["summary"].startswith("2 chunks on local")
 
 
 CONFTEST = """\
