@@ -53,41 +53,44 @@ def _before(a, b):
 
 
 @_compiled
-def _choose(agent_xy, track_id, relevant, s, t, cand, cand_ok, n_hist, cx, cy, radius, score, ref, order):
+def _choose(agent_xy, track_id, relevant, s, t, cand, cand_ok, n_hist, cx, cy, radius, score, ref, order,
+            found, best, now):
     """Score each candidate column of row (s, t) as agents._rank_agents does and
     sort them into ``order`` (stable, NaN last); fills ``score`` and ``ref``."""
     k_count = cand.shape[0]
+    rel_f, tid_f = relevant[s, t], track_id[s, t]
     for k in range(k_count):
-        c = cand[k]
-        ok = cand_ok[k]
-        # The most recent relevant frame's track, and that track's distances in the window;
-        # with no relevant frame, the current cell's track (never used).
-        found = False
-        r = track_id[s, t, c] if relevant[s, t, c] else _NO_TRACK
-        best = np.inf
-        now = np.inf
-        if ok:
-            for h in range(min(n_hist, t + 1)):
-                f = t - h
-                if not relevant[s, f, c]:
-                    continue
-                tid = track_id[s, f, c]
-                if not found:
-                    r = tid
-                    found = True
-                elif tid != r:
-                    continue
-                dx = agent_xy[s, f, c, 0] - cx
-                dy = agent_xy[s, f, c, 1] - cy
-                d = math.sqrt(dx * dx + dy * dy)
-                if d < radius:
-                    if h == 0:
-                        now = d
-                    if d < best:
-                        best = d
-        ref[k] = r
+        # With no relevant frame in the window, the current cell's track (never used).
+        ref[k] = tid_f[cand[k]] if rel_f[cand[k]] else _NO_TRACK
+        found[k] = False
+        best[k] = np.inf
+        now[k] = np.inf
+    # Frame by frame from the current one back: the first relevant frame of a column
+    # names its track, and that track's distances in the window score it.
+    for h in range(min(n_hist, t + 1)):
+        f = t - h
+        rel_f, tid_f, xy_f = relevant[s, f], track_id[s, f], agent_xy[s, f]
+        for k in range(k_count):
+            c = cand[k]
+            if not cand_ok[k] or not rel_f[c]:
+                continue
+            tid = tid_f[c]
+            if not found[k]:
+                ref[k] = tid
+                found[k] = True
+            elif tid != ref[k]:
+                continue
+            dx = xy_f[c, 0] - cx
+            dy = xy_f[c, 1] - cy
+            d = math.sqrt(dx * dx + dy * dy)
+            if d < radius:
+                if h == 0:
+                    now[k] = d
+                if d < best[k]:
+                    best[k] = d
+    for k in range(k_count):
         # Agents seen now first, by distance; then history-only ones, by closest approach.
-        score[k] = now if now != np.inf else best + radius
+        score[k] = now[k] if now[k] != np.inf else best[k] + radius
         # Insertion into the sorted prefix: stable, as the candidates come in column order.
         j = k
         while j > 0 and _before(score[k], score[order[j - 1]]):
@@ -106,9 +109,12 @@ def agent_inputs(agent_xy, agent_yaw, agent_extent, track_id, relevant, availabl
     n_rows = rows.shape[0]
     n_hist = pos.shape[2]
     k_count = cand_all.shape[2]
-    score = np.empty(k_count)
-    ref = np.empty(k_count, np.int64)
-    order = np.empty(k_count, np.int64)
+    score, best, now = np.empty(k_count), np.empty(k_count), np.empty(k_count)
+    ref, order = np.empty(k_count, np.int64), np.empty(k_count, np.int64)
+    found = np.empty(k_count, np.bool_)
+    slot_col, slot_track = np.empty(max_agents, np.int64), np.empty(max_agents, np.int64)
+    slot_used = np.empty(max_agents, np.bool_)
+    kind = np.empty(max_agents, label.dtype)
     for b in range(n_rows):
         s = rows[b]
         t = frames[b]
@@ -116,39 +122,44 @@ def agent_inputs(agent_xy, agent_yaw, agent_extent, track_id, relevant, availabl
         cy = centre[b, 1]
         c_b = cos[b]
         s_b = sin[b]
+        yaw_b = yaw[b]
         cand = cand_all[s, t]
         _choose(agent_xy, track_id, relevant, s, t, cand, cand_ok_all[s, t], n_hist, cx, cy, radius,
-                score, ref, order)
+                score, ref, order, found, best, now)
         for j in range(max_agents):
             if j < k_count:
                 k = order[j]
-                c = cand[k]
-                used = math.isfinite(score[k])
-                track = ref[k]
+                slot_col[j] = cand[k]
+                slot_used[j] = math.isfinite(score[k])
+                slot_track[j] = ref[k]
             else:  # fewer candidates than slots: column 0, unused
-                c = 0
-                used = False
-                track = -1
-            kind = 0
-            for h in range(n_hist):
-                f = t - h
-                ok = f >= 0 and used
-                if f < 0:
-                    f = 0
-                ok = ok and available[s, f, c] and track_id[s, f, c] == track
+                slot_col[j] = 0
+                slot_used[j] = False
+                slot_track[j] = -1
+        for h in range(n_hist):
+            f = t - h
+            seen = f >= 0
+            if f < 0:
+                f = 0
+            avail_f, tid_f, xy_f = available[s, f], track_id[s, f], agent_xy[s, f]
+            yaw_f, ext_f, label_f = agent_yaw[s, f], agent_extent[s, f], label[s, f]
+            for j in range(max_agents):
+                c = slot_col[j]
+                ok = seen and slot_used[j] and avail_f[c] and tid_f[c] == slot_track[j]
                 m = 1.0 if ok else 0.0
                 # The ego-frame transform of inputs._planes_to_ego, masked after rounding each step.
-                dx = agent_xy[s, f, c, 0] - cx
-                dy = agent_xy[s, f, c, 1] - cy
+                dx = xy_f[c, 0] - cx
+                dy = xy_f[c, 1] - cy
                 u = c_b * dx + s_b * dy
                 v = dy * c_b - dx * s_b
                 pos[b, j, h, 0] = u * m
                 pos[b, j, h, 1] = v * m
-                yaws[b, j, h] = _wrap(np.float64(agent_yaw[s, f, c]) - yaw[b]) * m
-                ext[b, j, h, 0] = np.float64(agent_extent[s, f, c, 0]) * m
-                ext[b, j, h, 1] = np.float64(agent_extent[s, f, c, 1]) * m
+                yaws[b, j, h] = _wrap(np.float64(yaw_f[c]) - yaw_b) * m
+                ext[b, j, h, 0] = np.float64(ext_f[c, 0]) * m
+                ext[b, j, h, 1] = np.float64(ext_f[c, 1]) * m
                 avail[b, j, h] = m
-                lab = label[s, f, c] if ok else 0
-                if h == 0 or lab > kind:
-                    kind = lab
-            types[b, j] = kind
+                lab = label_f[c] if ok else 0
+                if h == 0 or lab > kind[j]:  # the max over the window of label * availability
+                    kind[j] = lab
+        for j in range(max_agents):
+            types[b, j] = kind[j]

@@ -378,9 +378,9 @@ def _judge_near(log: LogArrays, near: list, driven_xy: np.ndarray, driven_yaw: n
         return kind, track, fault
     t = np.concatenate([np.full(n[0].size, n[1], np.int64) for n in near])
     c = np.concatenate([n[2] for n in near])
-    key = s * shape[1] + t
-    order = np.argsort(key, kind="stable")
-    s, t, c, key = s[order], t[order], c[order], key[order]
+    # The loop recorded frame after frame, rows ascending and columns ascending within a row,
+    # so each (scene, frame) group is contiguous and in column order already.
+    key = t * shape[0] + s
     first = np.ones(key.size, bool)
     first[1:] = key[1:] != key[:-1]
     frame = np.cumsum(first) - 1  # which judged frame each pair belongs to
@@ -391,9 +391,14 @@ def _judge_near(log: LogArrays, near: list, driven_xy: np.ndarray, driven_yaw: n
     available = np.zeros(grid, bool)
     available[frame, slot] = True
 
+    cell = (s * shape[1] + t) * log.available.shape[2] + c
+
     def table(x: np.ndarray, fill=0) -> np.ndarray:
         out = np.full(grid + x.shape[3:], fill, x.dtype)
-        out[frame, slot] = x[s, t, c]
+        # One take at the flat cell index is several times faster than indexing with three
+        # arrays; a broadcast or sliced log is indexed as it is (flattening it would copy it).
+        out[frame, slot] = np.take(x.reshape((-1,) + x.shape[3:]), cell, axis=0) if x.flags.c_contiguous \
+            else x[s, t, c]
         return out
 
     col = detect_collisions(driven_xy[fs, ft], driven_yaw[fs, ft], ext, table(log.agent_xy), table(log.agent_yaw),
