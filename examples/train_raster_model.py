@@ -44,6 +44,8 @@ from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.sim.logreplay import LogArrays, UnrollConfig, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_zarr
 from pytest_driveeval.usecases.closed_loop.raster_inputs import raster_inputs
+# The vector model's loss (smooth L1 on positions + yaw, heavier on the near future): the same targets.
+from train_planning_model import horizon_weights, loss_fn  # noqa: E402  (examples/ is on sys.path when run)
 
 ROOT = Path(__file__).resolve().parents[1]
 HISTORY, FUTURE = 10, 12
@@ -118,20 +120,6 @@ def draw_batch(data: Data, rng: np.random.Generator, batch_size: int, prob: floa
     on = rng.random(rows.size) < prob
     offsets = np.clip(rng.normal(size=(rows.size, 3)) * np.array(std), -3.0, 3.0) * on[:, None]
     return data.samples(rows, frames, offsets)
-
-
-def horizon_weights(future: int = FUTURE) -> torch.Tensor:
-    """Heavier on the near future: the closed loop executes only the first pose."""
-    w = 1.0 / (1.0 + 0.15 * torch.arange(future, dtype=torch.float32))
-    return w / w.mean()
-
-
-def loss_fn(pred: dict, batch: dict, weights: torch.Tensor, yaw_weight: float = 5.0) -> torch.Tensor:
-    ok = batch["target_availabilities"]
-    pos = torch.nn.functional.smooth_l1_loss(pred["positions"], batch["target_positions"], reduction="none",
-                                             beta=0.5).sum(-1)
-    yaw = (pred["yaws"][..., 0] - batch["target_yaws"][..., 0]).abs()
-    return ((pos + yaw_weight * yaw) * weights[None] * ok).sum() / ok.sum().clamp(min=1.0)
 
 
 @torch.no_grad()
