@@ -255,18 +255,24 @@ class L5Scene:
             rows, frame = _concat_ranges(intervals[:, 0], intervals[:, 1])
             agents = self.agents[rows]
         rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
-        track_ids, track = np.unique(agents["track_id"], return_inverse=True)
-        track = track.astype(np.int64, copy=False)
-        # Rows come frame by frame, so a stable sort by track keeps each track's frames in order.
-        by_track = np.argsort(track, kind="stable")
+        # Rows come frame by frame, so a stable sort by track id keeps each track's frames in order;
+        # the same sort gives the distinct ids and each row's index among them (np.unique's result
+        # without its own sort).
+        ids = agents["track_id"]
+        by_track = np.argsort(ids, kind="stable")
+        sorted_ids = ids[by_track]
+        same = sorted_ids[1:] == sorted_ids[:-1]
+        starts = np.flatnonzero(np.concatenate(([True], ~same))) if ids.size else np.zeros(0, np.int64)
+        track_ids = sorted_ids[starts]
+        track = np.empty(ids.size, np.int64)
+        track[by_track] = np.cumsum(np.concatenate(([False], ~same))) if ids.size else 0
         ordered = frame[by_track]
-        same = np.flatnonzero(track[by_track][1:] == track[by_track][:-1])
+        same = np.flatnonzero(same)
         if same.size and (ordered[same + 1] == ordered[same]).any():
             first_dup = same[ordered[same + 1] == ordered[same]][0]
             raise L5FormatError(f"{self.source}: scene {self.index}: a track id occurs twice in one frame "
                                 f"(first at frame {int(ordered[first_dup])})")
-        starts = np.searchsorted(track[by_track], np.arange(track_ids.size))
-        ends = np.append(starts[1:], track.size)
+        ends = np.append(starts[1:], track.size)[:starts.size]  # none for a scene without agents
         return AgentRows(
             frame=frame, rank=rank, track=track, track_ids=track_ids,
             first=ordered[starts], last=ordered[ends - 1],

@@ -1,4 +1,5 @@
-"""The compiled agent inputs (numba) against the numpy path, bit for bit, and the numpy path without numba."""
+"""The compiled paths (numba) of the closed loop against the numpy ones, bit for bit: the agent inputs,
+the unroll, stacking scenes; and the numpy paths in a process without numba."""
 from __future__ import annotations
 
 import subprocess
@@ -11,7 +12,7 @@ import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
-from pytest_driveeval.sim.logreplay import agents_jit
+from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 pytestmark = pytest.mark.skipif(not agents_jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
@@ -22,6 +23,16 @@ RESULT_FIELDS = ("valid", "driven_xy", "driven_yaw", "collision_kind", "collisio
 
 def _log():
     return stack_scenes(scenes_from_arrays(generate_scenes(4, 80, seed=7)))
+
+
+def _stacked() -> dict[str, np.ndarray]:
+    """Scenes stacked with the default track gap, none, and a long one (other column choices)."""
+    scenes = scenes_from_arrays(generate_scenes(3, 90, seed=11))
+    out = {}
+    for gap in (10, 0, 25):
+        log = stack_scenes(scenes, track_gap=gap)
+        out.update({f"stack{gap}.{f}": getattr(log, f) for f in log.__dataclass_fields__})
+    return out
 
 
 def _batches(log) -> dict[str, np.ndarray]:
@@ -69,13 +80,34 @@ def test_compiled_inputs_and_unroll_are_the_numpy_ones_bit_for_bit(monkeypatch):
     _assert_same_bits(compiled, {**_batches(log), **_unrolled(log)})
 
 
+def test_compiled_stacking_is_the_numpy_one_byte_for_byte(monkeypatch):
+    compiled = _stacked()
+    assert len({compiled[f"stack{g}.available"].shape[2] for g in (10, 0, 25)}) > 1  # the gap changes the columns
+    monkeypatch.setattr(logarrays_jit, "AVAILABLE", False)
+    _assert_same_bits(compiled, _stacked())
+
+
+def test_a_scene_without_agents_stacks_beside_others():
+    import dataclasses
+    scenes = scenes_from_arrays(generate_scenes(2, 40, seed=5))
+    frames = scenes[0].frames.copy()
+    frames["agent_index_interval"] = 0
+    empty = dataclasses.replace(scenes[0], frames=frames, agents=scenes[0].agents[:0])
+    log = stack_scenes([empty, scenes[1]])
+    assert not log.available[0].any() and log.available[1].sum() == len(scenes[1].agents)
+    assert stack_scenes([empty]).shape == (1, 40, 0)
+
+
 def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
-    log = stack_scenes([L5Dataset.open(shared_data / "l5kit" / "single_scene.zarr").scene(0)] * 2)
-    compiled = _batches(log)
+    scene = L5Dataset.open(shared_data / "l5kit" / "single_scene.zarr").scene(0)
+    log = stack_scenes([scene] * 2)
+    compiled = {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}}
     assert compiled["default.all_other_agents_history_availability"].sum() > 1000
     monkeypatch.setattr(agents_jit, "AVAILABLE", False)
-    _assert_same_bits(compiled, _batches(log))
+    monkeypatch.setattr(logarrays_jit, "AVAILABLE", False)
+    log = stack_scenes([scene] * 2)
+    _assert_same_bits(compiled, {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}})
 
 
 WITHOUT_NUMBA = """
@@ -84,17 +116,17 @@ sys.modules["numba"] = None  # import numba fails: the numpy path
 sys.path.insert(0, sys.argv[2])
 import numpy as np
 import test_logreplay_agents_jit as t
-from pytest_driveeval.sim.logreplay import agents_jit
-assert not agents_jit.AVAILABLE
+from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
+assert not agents_jit.AVAILABLE and not logarrays_jit.AVAILABLE
 log = t._log()
-np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log))
+np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log), **t._stacked())
 """
 
 
-def test_without_numba_the_inputs_and_the_unroll_are_the_same(tmp_path):
+def test_without_numba_the_inputs_the_unroll_and_the_stacking_are_the_same(tmp_path):
     out = tmp_path / "plain.npz"
     subprocess.run([sys.executable, "-c", WITHOUT_NUMBA, str(out), str(Path(__file__).parent)], check=True,
                    timeout=600)
     log = _log()
     with np.load(out) as plain:
-        _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log)})
+        _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log), **_stacked()})
