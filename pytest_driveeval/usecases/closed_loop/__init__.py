@@ -10,7 +10,7 @@ registers the use case; it stays light (no torch, no zarr reader) because
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Callable
 
 from pytest_driveeval.errors import ModelError, display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
@@ -77,11 +77,16 @@ class ClosedLoop(UseCase):
                              "or a driveeval_model fixture)")
         ctx.notes["policy"] = Path(spec).name if spec not in BASELINES and ":" not in spec else spec
         if spec in BASELINES:
-            return baseline(spec, ctx.scenario.config)
-        if not from_option and not ctx.allow_code and runs_code(spec):
-            where = f"{display_path(ctx.scenario.path)}:{ctx.scenario.line_of('Evaluation', 'Model')}"
-            refuse_code_from_data(spec, where)
-        return load_model(spec, base=None if from_option else ctx.scenario.folder)
+            model = baseline(spec, ctx.scenario.config)
+        else:
+            if not from_option and not ctx.allow_code and runs_code(spec):
+                where = f"{display_path(ctx.scenario.path)}:{ctx.scenario.line_of('Evaluation', 'Model')}"
+                refuse_code_from_data(spec, where)
+            model = load_model(spec, base=None if from_option else ctx.scenario.folder)
+        # How a Ray worker loads the same model, kept with the object so that run() can tell it
+        # from one a conftest.py fixture built (which has no spec to send).
+        ctx.notes["model_source"] = (spec, str(Path.cwd() if from_option else ctx.scenario.folder), model)
+        return model
 
     def run(self, config: ClosedLoopConfig, ctx: RunContext) -> Outcome:
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
@@ -96,6 +101,13 @@ class ClosedLoop(UseCase):
                 show=lambda scene, perturbation: self._evaluate(config, ctx, [scene], [], perturbation))
             with one_torch_thread():
                 outcome = run_item(self.name, searchable, config.Perturbation, ctx)
+            from pytest_driveeval.usecases.executor import chunked_executor
+
+            asked = chunked_executor(ctx, config.Executor)
+            if asked is not None:
+                outcome.details["executor"] = {"executor": "local", "summary": (
+                    f"ran locally, not on {asked.describe()}: a closed-loop search's generations unroll "
+                    "views of the scenes stacked once in this process (not distributed yet)")}
             if problems:
                 outcome.verdict, outcome.findings = FAILED, problems + outcome.findings
             return outcome
@@ -120,7 +132,9 @@ class ClosedLoop(UseCase):
         """Unroll and judge the scenes ``ids`` (each under ``perturbation`` if given)."""
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
         spec = config.Unroll
-        findings = list(problems)
+        executor, where = (None, {}) if perturbation is not None or not ids else self._executor(config, ctx)
+        if executor is not None:
+            return self._evaluate_chunks(config, ctx, ids, problems, executor)
         semantic_map = None
         if ids and spec.Inputs.Kind == "raster" and spec.Inputs.MapType == "py_semantic":
             from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
@@ -131,6 +145,20 @@ class ClosedLoop(UseCase):
                                agents=replayed_agents(spec.Agents), perturbation=perturbation,
                                semantic_map=semantic_map) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
+        outcome = self._outcome(config, ctx, verdicts, problems, dataset,
+                                lambda figures: write_artefacts(ctx, config, unroll, verdicts, figures)
+                                if unroll is not None else {},
+                                [unroll.result.errors[row] for row in range(len(ids))] if unroll is not None else [])
+        if perturbation is not None:
+            outcome.details["perturbation"] = perturbation.to_json()
+        if where:
+            outcome.details["executor"] = where
+        return outcome
+
+    def _outcome(self, config: ClosedLoopConfig, ctx: RunContext, verdicts: list, problems: list[Finding],
+                 dataset: L5Dataset, artefacts_for: Callable[[dict], dict], errors: list[str]) -> Outcome:
+        """The item's outcome from its scenes' verdicts, however they were unrolled."""
+        findings = list(problems)
         for verdict in verdicts:
             findings.extend(verdict.findings)
         passed = sum(v.passed for v in verdicts)
@@ -150,10 +178,56 @@ class ClosedLoop(UseCase):
         summary = (f"{passed}/{len(verdicts)} scenes passed; collisions front {figures['front']}, side "
                    f"{figures['side']}, rear {figures['rear']} ({figures['at_fault']} at fault); "
                    f"{figures['drift_resets']} drift reset(s)")
-        artefacts = write_artefacts(ctx, config, unroll, verdicts, figures) if unroll is not None else {}
+        artefacts = artefacts_for(figures)
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
-                               "error": unroll.result.errors[row]} for row, v in enumerate(verdicts)]}
-        if perturbation is not None:
-            details["perturbation"] = perturbation.to_json()
+                               "error": errors[row]} for row, v in enumerate(verdicts)]}
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
+
+    @staticmethod
+    def _executor(config: ClosedLoopConfig, ctx: RunContext) -> tuple[Any, dict]:
+        """(the executor of the item's chunks or None, why it stays local although one was asked
+        for: details for the report, or {})."""
+        from pytest_driveeval.usecases.executor import chunked_executor
+
+        executor = chunked_executor(ctx, config.Executor)
+        if executor is None:
+            return None, {}
+        _, _, loaded = ctx.notes.get("model_source", (None, None, None))
+        if loaded is not ctx.fixtures["driveeval_model"]:
+            # A conftest.py fixture's model is a live object: nothing a worker could load safely.
+            return None, {"executor": "local", "summary": (
+                f"ran locally, not on {executor.describe()}: the model is the driveeval_model fixture's "
+                "object (conftest.py), which has no loading spec a worker could use")}
+        return executor, {}
+
+    def _evaluate_chunks(self, config: ClosedLoopConfig, ctx: RunContext, ids: list[int], problems: list[Finding],
+                         executor: Any) -> Outcome:
+        """The scenes as chunks on the executor: each worker opens the dataset by its path, loads
+        the model by its spec, and returns its scenes' verdicts, collisions and GIFs."""
+        from pytest_driveeval.atomic import write_bytes_atomic
+        from pytest_driveeval.usecases.closed_loop.artefacts import write_scene_artefacts
+        from pytest_driveeval.usecases.closed_loop.chunked import merged, run_scene_chunk, scene_chunks
+        from pytest_driveeval.usecases.executor import executor_details, run_item_chunks
+
+        dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
+        model, base, _ = ctx.notes["model_source"]
+        work = scene_chunks(str(Path(dataset.path).resolve()), ids, config, model, base, str(ctx.scenario.folder),
+                            executor)
+        run = run_item_chunks(ctx, executor, work, run_scene_chunk, f"{ctx.case.name}: chunks")
+        done = merged(run.results)
+        events = {v.scene: e for v, e in zip(done.verdicts, done.events)}
+
+        def draw(row: int, verdict: Any) -> Path | None:
+            gif = done.gifs.get(verdict.scene)
+            if gif is None:
+                return None
+            path = ctx.artefact(f"scene_{verdict.scene}.gif")
+            write_bytes_atomic(path, gif)
+            return path
+
+        outcome = self._outcome(config, ctx, done.verdicts, problems, dataset,
+                                lambda figures: write_scene_artefacts(ctx, config, done.verdicts, events, figures,
+                                                                      draw), done.errors)
+        outcome.details["executor"] = executor_details(run, lambda index: repr(work[index]))
+        return outcome

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -15,15 +16,33 @@ from pytest_driveeval.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
 
-__all__ = ["chart_counts", "write_artefacts"]
+__all__ = ["animated", "chart_counts", "scene_gif", "write_artefacts", "write_scene_artefacts"]
 
 
 def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, verdicts: list[SceneVerdict],
                     figures: dict) -> dict[str, Path]:
     """closed_loop.json, the chart of collisions and resets and the scenes' GIFs, as the
     scenario's ``Artefacts`` asks; returns them by artefact name."""
-    out: dict[str, Path] = {}
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
+
+    def draw(row: int, verdict: SceneVerdict) -> Path | None:
+        return scene_gif(ctx.artefact(f"scene_{verdict.scene}.gif"), unroll, row, verdict.scene)
+
+    return write_scene_artefacts(ctx, config, verdicts, events, figures, draw)
+
+
+def animated(config: ClosedLoopConfig, verdict: SceneVerdict) -> bool:
+    wanted = config.Artefacts.Animations
+    return wanted == "all" or (wanted == "failing" and not verdict.passed)
+
+
+def write_scene_artefacts(ctx: RunContext, config: ClosedLoopConfig, verdicts: list[SceneVerdict],
+                          events: dict[int, list[dict]], figures: dict,
+                          draw: Callable[[int, SceneVerdict], Path | None]) -> dict[str, Path]:
+    """The artefacts from what was judged: ``draw(row, verdict)`` writes the GIF of a scene the
+    scenario wants animated (None when it has no frame), from an unroll here or from the bytes a
+    worker drew."""
+    out: dict[str, Path] = {}
     result_path = ctx.artefact("closed_loop.json")
     write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
                                                    "collisions": events[v.scene],
@@ -35,25 +54,27 @@ def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, v
 
         out["chart"] = bar_chart(ctx.artefact("collisions.png"), chart_counts(figures),
                                  f"{ctx.scenario.name}: collisions and drift resets")
-    wanted = config.Artefacts.Animations
-    if wanted != "none":
-        from pytest_driveeval.report.birdseye import render_unroll_gif
-        from pytest_driveeval.sim.logreplay import EGO_EXTENT
-
-        r, log = unroll.result, unroll.log
-        ego_extent = np.asarray(EGO_EXTENT[:2], dtype=float)
-        for row, verdict in enumerate(verdicts):
-            if wanted == "failing" and verdict.passed:
-                continue
-            keep = r.valid[row]
-            if not keep.any():
-                continue
-            out[f"scene_{verdict.scene}_gif"] = render_unroll_gif(
-                ctx.artefact(f"scene_{verdict.scene}.gif"), r.driven_xy[row][keep], r.driven_yaw[row][keep],
-                ego_extent, r.logged_xy[row][keep],
-                log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
-                log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {verdict.scene}")
+    for row, verdict in enumerate(verdicts):
+        if animated(config, verdict):
+            path = draw(row, verdict)
+            if path is not None:
+                out[f"scene_{verdict.scene}_gif"] = path
     return out
+
+
+def scene_gif(path: Path, unroll: Unroll, row: int, scene: int) -> Path | None:
+    """The bird's-eye GIF of scene ``row`` of an unroll, or None when it has no unrolled frame."""
+    from pytest_driveeval.report.birdseye import render_unroll_gif
+    from pytest_driveeval.sim.logreplay import EGO_EXTENT
+
+    r, log = unroll.result, unroll.log
+    keep = r.valid[row]
+    if not keep.any():
+        return None
+    return render_unroll_gif(path, r.driven_xy[row][keep], r.driven_yaw[row][keep],
+                             np.asarray(EGO_EXTENT[:2], dtype=float), r.logged_xy[row][keep],
+                             log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
+                             log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {scene}")
 
 
 def chart_counts(figures: dict) -> dict[str, int]:

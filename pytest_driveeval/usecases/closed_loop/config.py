@@ -31,6 +31,9 @@
         SpeedScale: [0.8, 1.2] # the ego's past speeds (so its initial speed) scaled
         AgentsSpeedScale: [0.8, 1.2]   # the other agents replayed faster or slower
         Examples: 200          # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
+      Executor: {Kind: ray, Address: auto, ChunkSize: 8}   # optional: scenes in chunks as Ray tasks
+                               # (pytest_driveeval.execute; --driveeval-executor replaces each key it
+                               # gives); a search's generations stay here; default: local, one batch
 """
 from __future__ import annotations
 
@@ -39,6 +42,7 @@ from typing import Any, Literal
 from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
                       ValidationInfo, field_validator, model_validator)
 
+from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.sim.agents import TrafficModel
 from pytest_driveeval.usecase import ConditionsModel
@@ -261,6 +265,7 @@ class ClosedLoopConfig(ConditionsModel):
     Conditions: ClosedLoopConditions = Field(default_factory=ClosedLoopConditions)
     Artefacts: ArtefactSpec = Field(default_factory=ArtefactSpec)
     Perturbation: ClosedLoopPerturbation | None = None
+    Executor: ExecutorSpec | None = None
 
     @field_validator("ConstantVelocity")
     @classmethod

@@ -1,14 +1,9 @@
 """policy_benchmark items on a real local Ray cluster (a head and two worker nodes on this
-machine) give the outcome, figures and artefacts of the same items run locally.
-
-The head has no CPUs, so every chunk runs on a worker node; four chunks in flight need both
-two-CPU nodes.  The cluster is torn down by ``Cluster.shutdown()``, never ``ray stop``.
-"""
+machine, tests/usecases/conftest.py) give the outcome, figures and artefacts of the same
+items run locally."""
 from __future__ import annotations
 
-import json
 import os
-import re
 import signal
 import threading
 import time
@@ -19,15 +14,15 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("scipy")
 ray = pytest.importorskip("ray")
-from ray.cluster_utils import Cluster  # noqa: E402
 
+import ray_items  # noqa: E402  (tests/ray_items.py)
+from ray_items import WORKER_CPUS, assert_same_items, executor_section, worker_nodes  # noqa: E402
+
+cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
 pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
 GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
-WORKER_CPUS = 2
-# Node deaths noticed within ~1.5 s instead of Ray's default ~30 s.
-FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_threshold": 3}
 
 BENCHMARK = """\
 ScenarioFormatVersion: 3.0.0
@@ -67,58 +62,6 @@ Evaluation:
     Batch: 12
   Artefacts: {{Animations: all}}
 {executor}"""
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    cluster = Cluster(initialize_head=True, connect=True,
-                      head_node_args={"num_cpus": 0, "_system_config": FAST_HEALTH_CHECKS})
-    try:
-        for _ in range(2):
-            cluster.add_node(num_cpus=WORKER_CPUS)
-        cluster.wait_for_nodes()
-        yield cluster
-    finally:
-        ray.shutdown()       # the driver first: the head cannot be removed under it
-        cluster.shutdown()
-
-
-def worker_nodes() -> set[str]:
-    return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
-
-
-def executor_section(**keys) -> str:
-    return "  Executor: {" + ", ".join(f"{k}: {v}" for k, v in keys.items()) + "}\n"
-
-
-def results(folder: Path) -> dict:
-    data = json.loads((folder / "summary.json").read_text())
-    return {r["nodeid"]: r for r in data["results"]}
-
-
-def without_executor(record: dict) -> dict:
-    """What a run on any executor must reproduce: everything but where its chunks ran, the
-    run's output folder and the seconds a search took (no two runs share those)."""
-    kept = {k: v for k, v in record.items() if k not in ("artefacts", "duration")}
-    kept["details"] = {k: v for k, v in record["details"].items() if k != "executor"}
-    text = json.dumps(kept, sort_keys=True)
-    text = re.sub(r"/(local|remote)/runs/[^/]+/", "/OUTPUT/", text)
-    text = re.sub(r"[0-9.]+ s\b", "0 s", re.sub(r"(seconds\W+)[0-9.]+", r"\g<1>0", text))
-    return json.loads(text)
-
-
-def artefact_bytes(folder: Path, record: dict) -> dict[str, bytes]:
-    return {name: (folder / path).read_bytes() for name, path in record["artefacts"].items()}
-
-
-def assert_same_items(local: Path, remote: Path) -> dict:
-    here, there = results(local), results(remote)
-    assert set(here) == set(there) and here
-    for nodeid in here:
-        assert without_executor(there[nodeid]) == without_executor(here[nodeid]), nodeid
-        assert artefact_bytes(remote, there[nodeid]) == artefact_bytes(local, here[nodeid]), nodeid
-        assert "executor" not in here[nodeid]["details"], "the local run is the plain one-batch path"
-    return there
 
 
 def test_the_session_option_runs_the_chunks_on_both_nodes_with_the_local_outcome(cluster, pytester):
@@ -185,12 +128,12 @@ def test_a_worker_node_killed_mid_item_costs_retries_not_the_outcome(cluster, py
     doomed = cluster.add_node(num_cpus=WORKER_CPUS)
     cluster.wait_for_nodes()
     raylet = doomed.all_processes["raylet"][0].process.pid
-    killed = threading.Event()
+    killed, stop = threading.Event(), threading.Event()
 
     def kill_once_a_chunk_runs_there():
         # As a machine that dies: its raylet and the worker under way on a chunk go together
         # (a worker outlives its raylet for a while and could still deliver).
-        while not killed.is_set():
+        while not (killed.is_set() or stop.is_set()):
             worker = _running_chunk(raylet)
             if worker is not None:
                 cluster.remove_node(doomed, allow_graceful=False)
@@ -201,17 +144,19 @@ def test_a_worker_node_killed_mid_item_costs_retries_not_the_outcome(cluster, py
                 killed.set()
             time.sleep(0.01)
 
-    pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(episodes=36, gnn=GNN, executor=""))
+    # 12 chunks of 8 episodes (a few tenths of a second each), six at a time over three nodes
+    pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(episodes=96, gnn=GNN, executor=""))
     local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local", "-k", "gnn")
     pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(
-        episodes=36, gnn=GNN, executor=executor_section(Kind="ray", ChunkSize=3, MaxInFlight=6, Retries=3)))
+        episodes=96, gnn=GNN, executor=executor_section(Kind="ray", ChunkSize=8, MaxInFlight=6, Retries=3)))
     killer = threading.Thread(target=kill_once_a_chunk_runs_there, daemon=True)
     killer.start()
     try:
         remote = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "remote", "-k", "gnn")
     finally:
-        killed.set()
+        stop.set()
         killer.join()
+    assert killed.is_set(), "no chunk ran on the third node while the item ran"
     local.assert_outcomes(passed=1)
     remote.assert_outcomes(passed=1)
     assert not any(n["NodeID"] == doomed.node_id and n["Alive"] for n in ray.nodes())

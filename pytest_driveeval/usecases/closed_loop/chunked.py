@@ -1,0 +1,102 @@
+"""A closed-loop item's scenes as chunks of scene indices on Ray workers (issue 15).
+
+A chunk names the dataset by its path (a shared file system, or the same path on every
+worker), its scene indices, the scenario's closed-loop section (plain pydantic data) and the
+policy by its loading spec; the worker opens the dataset, loads the policy with the safe
+loaders, unrolls and judges its scenes and draws the GIFs the scenario wants, and returns
+the verdicts, the collision events and the GIFs as bytes.  Stacked scenes are padded to the
+widest of their batch, so a chunk never returns its unroll: the driver merges per-scene
+results only.  The engine keeps scenes apart (a batch-invariant policy gives the one-batch
+run's figures bit for bit); a model's float32 arithmetic may round differently with the batch
+size, which ``Kind: local`` with the same ChunkSize reproduces exactly.
+"""
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+from pytest_driveeval.execute import ExecutorSpec, split
+from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
+from pytest_driveeval.usecases.closed_loop.evaluate import SceneVerdict
+
+__all__ = ["DEFAULT_CHUNK_SIZE", "SceneChunk", "SceneResults", "run_scene_chunk", "scene_chunks"]
+
+#: scenes per task unless the Executor section says otherwise: a few seconds of the planning
+#: model's unroll, against opening the dataset and loading the model on the worker
+DEFAULT_CHUNK_SIZE = 8
+
+
+@dataclass(frozen=True)
+class SceneChunk:
+    dataset: str                 # the zarr's path, as the workers see it
+    scenes: tuple[int, ...]
+    config: ClosedLoopConfig     # Unroll, Conditions, Artefacts, ConstantVelocity: what the worker needs
+    model: str                   # a baseline's name or a model spec
+    base: str | None             # the folder a relative model path (and the semantic map) resolves against
+    scenario_folder: str
+
+    def __repr__(self) -> str:
+        return f"scenes {self.scenes[0]}..{self.scenes[-1]} of {Path(self.dataset).name}"
+
+
+@dataclass(frozen=True)
+class SceneResults:
+    verdicts: list[SceneVerdict]
+    events: list[list[dict]]        # collision events per scene
+    errors: list[str]               # the engine's message per scene ('' when none)
+    gifs: dict[int, bytes]          # scene -> GIF, for the scenes the scenario animates
+
+
+def _policy(chunk: SceneChunk) -> Any:
+    from pytest_driveeval.policies.loading import load_model
+    from pytest_driveeval.usecases.closed_loop import BASELINES, baseline
+
+    if chunk.model in BASELINES:
+        return baseline(chunk.model, chunk.config)
+    return load_model(chunk.model, base=Path(chunk.base) if chunk.base else None)
+
+
+def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
+    """A chunk's scenes unrolled, judged and drawn, on whichever process runs it."""
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.sim.torch_threads import one_torch_thread
+    from pytest_driveeval.usecases.closed_loop import replayed_agents
+    from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_gif
+    from pytest_driveeval.usecases.closed_loop.evaluate import collision_events, judge_scene, unroll_scenes
+
+    config, spec = chunk.config, chunk.config.Unroll
+    dataset = L5Dataset.open(chunk.dataset)
+    semantic_map = None
+    if spec.Inputs.Kind == "raster" and spec.Inputs.MapType == "py_semantic":
+        from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
+
+        semantic_map = load_semantic_map(dataset.path, spec.Inputs.SemanticMap, spec.Inputs.Meta,
+                                         chunk.scenario_folder)
+    ids = list(chunk.scenes)
+    with one_torch_thread():  # as the design of run_chunks asks: the same float sums wherever it runs
+        unroll = unroll_scenes(dataset, _policy(chunk), ids, **spec.unroll_options(),
+                               agents=replayed_agents(spec.Agents), semantic_map=semantic_map)
+    verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
+    gifs: dict[int, bytes] = {}
+    with tempfile.TemporaryDirectory(prefix="driveeval-chunk-") as folder:
+        for row, verdict in enumerate(verdicts):
+            if animated(config, verdict):
+                path = scene_gif(Path(folder) / f"scene_{verdict.scene}.gif", unroll, row, verdict.scene)
+                if path is not None:
+                    gifs[verdict.scene] = path.read_bytes()
+    return SceneResults(verdicts, [collision_events(unroll, row) for row in range(len(ids))],
+                        [unroll.result.errors[row] for row in range(len(ids))], gifs)
+
+
+def scene_chunks(dataset: str, ids: Sequence[int], config: ClosedLoopConfig, model: str, base: str | None,
+                 scenario_folder: str, executor: ExecutorSpec) -> list[SceneChunk]:
+    size = executor.ChunkSize or DEFAULT_CHUNK_SIZE
+    return [SceneChunk(dataset, tuple(int(ids[i]) for i in part), config, model, base, scenario_folder)
+            for part in split(len(ids), size)]
+
+
+def merged(results: Sequence[SceneResults]) -> SceneResults:
+    return SceneResults([v for r in results for v in r.verdicts], [e for r in results for e in r.events],
+                        [m for r in results for m in r.errors], {s: g for r in results for s, g in r.gifs.items()})

@@ -1,0 +1,81 @@
+"""closed_loop items with their scenes in chunks on a real local Ray cluster (a head and two
+worker nodes on this machine, tests/usecases/conftest.py): the dataset reaches the workers by
+its path, the model by its loading spec, and the verdicts, figures and GIFs come back."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("torch")
+pytest.importorskip("ray")
+
+import ray_items  # noqa: E402  (tests/ray_items.py)
+from ray_items import assert_same_items, executor_section, results, worker_nodes  # noqa: E402
+
+cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
+
+pytestmark = pytest.mark.ray
+
+REPO = Path(__file__).resolve().parents[3]
+GENERATED = REPO / "fixtures" / "l5kit" / "generated.zarr"
+PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt"
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: scenes
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - generated: {{Path: {dataset}}}
+  Model: {model}
+  Unroll: {{Scenes: [0, 1, 2, 3, 5, 8, 11, 13], StartFrame: 10, Steps: {steps}}}
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
+    Displacement: {{Max: 3.0}}
+  Artefacts: {{Animations: {animations}}}
+{executor}"""
+
+
+def scenario(model, executor="", steps=40, animations="failing") -> str:
+    return SCENARIO.format(dataset=GENERATED, model=model, executor=executor, steps=steps, animations=animations)
+
+
+def test_a_baseline_on_both_nodes_gives_the_one_batch_runs_outcome_and_gifs(cluster, pytester):
+    # The engine keeps scenes apart, so a batch-invariant policy gives the one-batch run bit for bit.
+    pytester.makefile(".scenario.yaml", scenes=scenario("constant_velocity", animations="all"))
+    local = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "local")
+    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 2, MaxInFlight: 4}}"
+    remote = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "remote",
+                                           "--driveeval-executor", option)
+    assert local.ret == remote.ret
+    records = assert_same_items(pytester.path / "local", pytester.path / "remote")
+    record, = records.values()
+    where = record["details"]["executor"]
+    assert [c["work"] for c in where["chunks"]] == [f"scenes {a}..{b} of generated.zarr"
+                                                    for a, b in ((0, 1), (2, 3), (5, 8), (11, 13))]
+    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "four chunks in flight need both nodes"
+    gifs = [name for name in record["artefacts"] if name.endswith("_gif")]
+    assert len(gifs) == 8, "every scene's GIF, drawn on a worker, written here"
+
+
+def test_the_planning_model_on_ray_is_the_local_run_of_the_same_chunks(cluster, pytester):
+    # The model's float32 sums round differently with the batch size (~1e-6 m): a Ray run is
+    # reproduced exactly by the same chunks run here, and its verdicts are the one batch's.
+    def run(output: str, executor: str):
+        pytester.makefile(".scenario.yaml", scenes=scenario(PLANNING_MODEL, executor=executor))
+        return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
+
+    here = run("local", executor_section(Kind="local", ChunkSize=3))
+    there = run("remote", executor_section(Kind="ray", ChunkSize=3))
+    batch = run("batch", "")
+    assert here.ret == there.ret == batch.ret
+    records = assert_same_items(pytester.path / "local", pytester.path / "remote", plain_local=False)
+    record, = records.values()
+    assert len(record["details"]["executor"]["chunks"]) == 3
+    one_batch, = results(pytester.path / "batch").values()
+    assert [(s["scene"], s["passed"]) for s in record["details"]["scenes"]] == \
+        [(s["scene"], s["passed"]) for s in one_batch["details"]["scenes"]]
+    for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
+        assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-4)
