@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
+from pytest_driveeval.sim.logreplay import (UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll,
+                                            window_columns)
 from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
 from pytest_driveeval.synth.scenegen import generate_scenes
 
@@ -32,6 +33,8 @@ def _stacked() -> dict[str, np.ndarray]:
     for gap in (10, 0, 25):
         log = stack_scenes(scenes, track_gap=gap)
         out.update({f"stack{gap}.{f}": getattr(log, f) for f in log.__dataclass_fields__})
+    for history in (0, 3, 10, 200):  # 200: longer than the scenes
+        out[f"window{history}.cols"], out[f"window{history}.ok"] = window_columns(log, history)
     return out
 
 

@@ -157,11 +157,12 @@ def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
     return reach * reach
 
 
-def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse2: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The (row position, column) pairs of agents within ``coarse2`` (squared) of
-    the ego at frame t, and their squared distances: the only pairs that can
-    overlap the ego.  ``xy`` (B, 2) is the ego of each of ``rows`` at t."""
+def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse2: float, ego_norm: float
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The (row position, column) pairs of agents within reach of the ego at frame t,
+    their squared distances and the agents' (length, width): the only pairs that
+    can overlap the ego.  ``xy`` (B, 2) is the ego of each of ``rows`` at t,
+    ``coarse2`` a squared range no pair's reach exceeds, ``ego_norm`` the ego box's diagonal."""
     a_xy = log.agent_xy[rows, t]
     dx = a_xy[..., 0] - xy[:, 0, None]
     dy = a_xy[..., 1] - xy[:, 1, None]
@@ -171,22 +172,24 @@ def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse
     near = dx < coarse2
     near &= log.available[rows, t]
     f, a = np.nonzero(near)
-    return f, a, dx[f, a]
+    d2 = dx[f, a]
+    # The exact range test of each pair (l5kit's, as detect_collisions and _overlapping apply it):
+    # the pairs it drops can never collide, and the judge at the end gathers only those left.
+    a_ext = log.agent_extent[rows[f], t, a, :2].astype(np.float64)
+    reach = 0.5 * (ego_norm + norm2d(a_ext))
+    close = d2 < reach * reach
+    return f[close], a[close], d2[close], a_ext[close]
 
 
 def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray, extent: np.ndarray,
                  pairs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> np.ndarray:
     """(B,) True where the ego box overlaps an agent at frame t (detect_collisions' criterion),
-    judged on the :func:`_near_pairs` of these rows: the exact per-pair range
-    test, then the separating-axis test."""
-    f, a, d2 = pairs
+    judged on the :func:`_near_pairs` of these rows (row positions into ``rows``,
+    columns, agent extents), already within range: the separating-axis test."""
+    f, a, a_ext = pairs
     out = np.zeros(rows.size, dtype=bool)
     if f.size:
         r = rows[f]
-        a_ext = log.agent_extent[r, t, a, :2].astype(np.float64)
-        reach = 0.5 * (norm2d(extent[:2]) + norm2d(a_ext))
-        close = d2 < reach * reach
-        f, a, r, a_ext = f[close], a[close], r[close], a_ext[close]
         hit = oriented_boxes_overlap(xy[f], yaw[f], extent[:2], log.agent_xy[r, t, a], log.agent_yaw[r, t, a], a_ext)
         out[f[hit]] = True
     return out
@@ -254,7 +257,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
                    candidates=candidates or window_columns(log, cfg.history_frames), cells=cells)
-    coarse2 = _coarse_reach_squared(log, ext)
+    coarse2, ego_norm = _coarse_reach_squared(log, ext), norm2d(ext[:2])
     near: list[tuple[np.ndarray, int, np.ndarray]] = []  # (rows, frame, columns) that may collide, per frame
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 
@@ -265,7 +268,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             # Which agents are near enough to touch the ego in this frame: collisions are judged on those
             # only, at the end; a pass over every agent column of the table would cost more than the loop.
             act = np.flatnonzero(active)
-            pairs = _near_pairs(log, act, t, driven_xy[act, t], coarse2)
+            pairs = _near_pairs(log, act, t, driven_xy[act, t], coarse2, ego_norm)
             near.append((act[pairs[0]], t, pairs[1]))
             rows = np.flatnonzero(active & (t + 1 < end))  # the last frame needs no forward
             if rows.size == 0:
@@ -313,7 +316,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             if cfg.freeze_on_collision:
                 mine = np.isin(act[pairs[0]], rows)  # the pairs of the rows that moved
                 f = np.searchsorted(rows, act[pairs[0][mine]])
-                hold = _overlapping(log, rows, t, xy, yaw, ext, (f, pairs[1][mine], pairs[2][mine]))
+                hold = _overlapping(log, rows, t, xy, yaw, ext, (f, pairs[1][mine], pairs[3][mine]))
                 nxt[hold], nyaw[hold] = xy[hold], yaw[hold]
                 reset[rows[hold], t + 1] = False
                 frozen[rows[hold], t + 1] = True

@@ -168,6 +168,8 @@ def window_columns(log: LogArrays, history_frames: int) -> tuple[np.ndarray, np.
     the ~100 columns, so the per-step work shrinks by that factor.  Returns
     cols (S, T, K) int64 and ok (S, T, K) bool (False on padding).
     """
+    if logarrays_jit.AVAILABLE:
+        return logarrays_jit.window_columns(log.relevant, int(history_frames))
     seen = np.cumsum(log.relevant, axis=1, dtype=np.int32)
     in_window = seen.copy()
     in_window[:, history_frames + 1:] -= seen[:, :-history_frames - 1]

@@ -1,4 +1,4 @@
-"""Stacking scenes compiled with numba: :func:`~.logarrays.stack_scenes`' column assignment when numba is installed.
+"""The loops of :mod:`.logarrays` compiled with numba, its path when numba is installed.
 
 The greedy partition of a scene's tracks into columns goes track by track
 through a priority queue of the columns' free-from frames; in Python (heapq)
@@ -16,7 +16,7 @@ try:
 except ImportError:  # pragma: no cover - exercised where numba is absent
     njit = None
 
-__all__ = ["AVAILABLE", "assign_columns"]
+__all__ = ["AVAILABLE", "assign_columns", "scatter_rows", "window_columns"]
 
 AVAILABLE = njit is not None
 
@@ -96,3 +96,43 @@ def scatter_rows(i, cell, centroid, yaw, extent, velocity, track_id, label, keep
         labels[i, f, c] = label[r]
         relevant[i, f, c] = keep[label[r]]
         frame_row[i, f, c] = rank[r]
+
+
+@_compiled
+def window_columns(relevant, history_frames):
+    """:func:`~.logarrays.window_columns` from the log's ``relevant`` (S, T, C): a count per
+    column of its relevant cells in [t - H, t], slid frame by frame; one pass sizes the
+    table, a second fills it in column order."""
+    n_scenes, n_frames, n_cols = relevant.shape
+    count = np.zeros(n_cols, np.int32)
+    sizes = np.zeros((n_scenes, n_frames), np.int64)
+    for s in range(n_scenes):
+        count[:] = 0
+        for t in range(n_frames):
+            old = t - history_frames - 1
+            n = 0
+            for c in range(n_cols):
+                v = count[c] + relevant[s, t, c]
+                if old >= 0:
+                    v -= relevant[s, old, c]
+                count[c] = v
+                n += v > 0
+            sizes[s, t] = n
+    k = max(1, sizes.max()) if sizes.size else 1
+    cols = np.zeros((n_scenes, n_frames, k), np.int64)
+    ok = np.zeros((n_scenes, n_frames, k), np.bool_)
+    for s in range(n_scenes):
+        count[:] = 0
+        for t in range(n_frames):
+            old = t - history_frames - 1
+            n = 0
+            for c in range(n_cols):
+                v = count[c] + relevant[s, t, c]
+                if old >= 0:
+                    v -= relevant[s, old, c]
+                count[c] = v
+                if v > 0:
+                    cols[s, t, n] = c
+                    ok[s, t, n] = True
+                    n += 1
+    return cols, ok
