@@ -31,11 +31,12 @@ from .draw import AVAILABLE, fill_polygons
 if TYPE_CHECKING:
     from ..sim.logreplay.logarrays import LogArrays
 
-__all__ = ["EGO_BOX", "BoxTable", "agent_keep", "box_corners", "draw_box_channels"]
+__all__ = ["EGO_BOX", "BoxTable", "agent_keep", "box_corners", "draw_box_channels", "ego_corners"]
 
 EGO_BOX = np.array([4.87, 1.85], np.float32)  # l5kit's rasterizer ego (length, width)
 KEEP_LABELS = np.arange(3, 16)  # PERCEPTION_LABEL_CAR .. PERCEPTION_LABEL_ANIMAL
 _UNIT_CORNERS = np.asarray([[-1, -1], [-1, 1], [1, 1], [1, -1]]) * 0.5
+_EGO_LOCAL = _UNIT_CORNERS * EGO_BOX  # what box_corners makes of the ego's extent, once
 
 
 def _compiled(fn):
@@ -72,10 +73,18 @@ def agent_keep(scenes: Sequence[L5Scene], log: "LogArrays", threshold: float) ->
 
 def box_corners(centroid: np.ndarray, yaw: np.ndarray, extent: np.ndarray) -> np.ndarray:
     """(N, 4, 2) world corners with l5kit's arithmetic: yaw (N,) and extent (N, 2) float32."""
+    return _place(_UNIT_CORNERS[None] * np.asarray(extent, np.float32)[:, None, :2], yaw, centroid)
+
+
+def ego_corners(centroid: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """``box_corners`` of the rasterizer's ego box, to the last bit."""
+    return _place(_EGO_LOCAL, yaw, centroid)
+
+
+def _place(corners: np.ndarray, yaw: np.ndarray, centroid: np.ndarray) -> np.ndarray:
     yaw = np.asarray(yaw, np.float32)
-    corners = _UNIT_CORNERS[None] * np.asarray(extent, np.float32)[:, None, :2]
     s, c = np.sin(yaw), np.cos(yaw)
-    rotation = np.moveaxis(np.array(((c, s), (-s, c))), 2, 0)
+    rotation = np.stack([c, s, -s, c], -1).reshape(-1, 2, 2)
     return corners @ rotation + np.asarray(centroid, np.float64)[:, None, :2]
 
 
@@ -97,15 +106,28 @@ class BoxTable:
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self.corners = np.ascontiguousarray(
             box_corners(log.agent_xy[s, t, c], log.agent_yaw[s, t, c], log.agent_extent[s, t, c, :2]))
+        self.most = max(int(counts.max(initial=0)), 1)  # boxes of the fullest cell, at least the ego's one
 
 
 @_compiled
-def _channel(out, lut, scratch, matrix, corners, first, last, colour, verts, starts):
-    """Draw boxes ``corners[first:last]`` in one fillPoly and write the touched part of
-    ``scratch`` to ``out`` (H, W) through ``lut``, leaving ``scratch`` zero again."""
+def _clear(out, rects, n):
+    """Zero the rectangles ``rects[:n]`` (x0, y0, x1, y1 inclusive) of ``out`` (H, W)."""
+    for r in range(n):
+        for y in range(rects[r, 1], rects[r, 3] + 1):
+            out[y, rects[r, 0]:rects[r, 2] + 1] = 0.0
+
+
+@_compiled
+def _channel(out, lut, scratch, matrix, corners, first, last, colour, verts, starts, rects):
+    """Draw boxes ``corners[first:last]`` in one fillPoly and write what they touched of
+    ``scratch`` to ``out`` (H, W) through ``lut``, leaving ``scratch`` zero again.
+
+    Returns how many boxes were drawn; ``rects`` gets their pixel rectangles (clipped to
+    the image), which hold every pixel the fill and its outline can touch: an even-odd
+    fill only paints points inside some box, and the outline stays within a pixel or
+    two of an edge."""
     height, width = scratch.shape[0], scratch.shape[1]
     n = 0
-    lo_x, lo_y, hi_x, hi_y = 1 << 40, 1 << 40, -(1 << 40), -(1 << 40)
     for k in range(first, last):
         xmin, ymin, xmax, ymax = np.inf, np.inf, -np.inf, -np.inf
         for v in range(4):
@@ -119,44 +141,54 @@ def _channel(out, lut, scratch, matrix, corners, first, last, colour, verts, sta
         # A box wholly off one side draws nothing, and leaves the even-odd fill of the others alone.
         if xmax < -1.0 or ymax < -1.0 or xmin > width + 1.0 or ymin > height + 1.0:
             continue
-        lo_x, hi_x = min(lo_x, int(xmin) - 3), max(hi_x, int(xmax) + 3)
-        lo_y, hi_y = min(lo_y, int(ymin) - 3), max(hi_y, int(ymax) + 3)
+        rects[n, 0], rects[n, 2] = max(int(xmin) - 3, 0), min(int(xmax) + 3, width - 1)
+        rects[n, 1], rects[n, 3] = max(int(ymin) - 3, 0), min(int(ymax) + 3, height - 1)
         n += 1
         starts[n] = 4 * n
     if n == 0:
-        return
+        return 0
     fill_polygons(scratch, verts[:4 * n], starts[:n + 1], colour)
-    for y in range(max(lo_y, 0), min(hi_y, height - 1) + 1):
-        for x in range(max(lo_x, 0), min(hi_x, width - 1) + 1):
-            value = scratch[y, x, 0]
-            if value:
-                out[y, x] = lut[value]
-                scratch[y, x, 0] = 0
+    # Copied whole, zeros too (the channel is zero where nothing is drawn), without a branch a pixel;
+    # overlapping rectangles copy the same values, as the scratch is zeroed after all of them.
+    for r in range(n):
+        for y in range(rects[r, 1], rects[r, 3] + 1):
+            for x in range(rects[r, 0], rects[r, 2] + 1):
+                out[y, x] = lut[scratch[y, x, 0]]
+    for r in range(n):
+        for y in range(rects[r, 1], rects[r, 3] + 1):
+            scratch[y, rects[r, 0]:rects[r, 2] + 1, 0] = 0
+    return n
 
 
 @_compiled
-def draw_box_channels(out, lut, matrices, rows, history, offsets, n_frames, corners, ego_corners, ego_history):
-    """Fill the 2 (H+1) box channels of ``out`` (B, C, height, width), zeros on entry.
+def draw_box_channels(out, lut, matrices, rows, history, offsets, n_frames, corners, ego_corners, ego_history,
+                      rects, n_rects):
+    """Fill the 2 (H+1) box channels of ``out`` (B, C, height, width).
 
     ``history`` (B, H+1) holds the frame of each channel, -1 before the scene's
     start; ``ego_corners`` (B, H+1, 4, 2); ``ego_history`` False draws only the
-    current ego."""
+    current ego.  ``rects`` (>= B, 2 (H+1), K, 4) int and ``n_rects`` (>= B, 2 (H+1)):
+    on entry the rectangles drawn into ``out`` before, the only non-zero pixels of the
+    box channels (these are cleared first); on return those drawn now.  K must hold
+    the most boxes of any (scene, frame) cell, and at least one."""
     n_hist = history.shape[1]
     scratch = np.zeros((out.shape[2], out.shape[3], 1), np.uint8)
-    most = 1
-    for k in range(offsets.size - 1):
-        most = max(most, offsets[k + 1] - offsets[k])
+    most = rects.shape[2]
     verts = np.empty((4 * most, 2), np.int64)
     starts = np.zeros(most + 1, np.int64)
     colour = np.full(1, 255, np.int64)
     for b in range(rows.size):
+        for ch in range(2 * n_hist):
+            _clear(out[b, ch], rects[b, ch], n_rects[b, ch])
+            n_rects[b, ch] = 0
         for i in range(n_hist):
             frame = history[b, i]
             if frame < 0:
                 continue
             cell = rows[b] * n_frames + frame
-            _channel(out[b, i], lut, scratch, matrices[b], corners, offsets[cell], offsets[cell + 1], colour,
-                     verts, starts)
+            n_rects[b, i] = _channel(out[b, i], lut, scratch, matrices[b], corners, offsets[cell], offsets[cell + 1],
+                                     colour, verts, starts, rects[b, i])
             if ego_history or i == 0:
-                _channel(out[b, n_hist + i], lut, scratch, matrices[b], ego_corners[b, i:i + 1], 0, 1, colour,
-                         verts, starts)
+                n_rects[b, n_hist + i] = _channel(out[b, n_hist + i], lut, scratch, matrices[b],
+                                                  ego_corners[b, i:i + 1], 0, 1, colour, verts, starts,
+                                                  rects[b, n_hist + i])

@@ -13,26 +13,83 @@ centred on the ego's pose at the row's frame.
 """
 from __future__ import annotations
 
+import sys
 from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from ..io.l5kit_zarr import L5Scene
-from .boxes import EGO_BOX, BoxTable, agent_keep, box_corners, draw_box_channels
+from .boxes import BoxTable, agent_keep, draw_box_channels, ego_corners
+from .draw import AVAILABLE
 from .params import RasterParams
 from .semantic import ActiveFaces, PreparedMap, active_faces, draw_semantic_batch
-from .transforms import raster_centre_in_world, raster_from_world
+from .transforms import raster_centre_in_world, raster_from_local, world_matrices
 
 if TYPE_CHECKING:
     from ..io.l5_semantic_map import SemanticMap
     from ..sim.logreplay.logarrays import LogArrays
 
-__all__ = ["LUT", "Rasterizer", "rasterize"]
+__all__ = ["LUT", "Canvas", "Rasterizer", "rasterize"]
 
 LUT = np.arange(256, dtype=np.uint8).astype(np.float32) / 255  # l5kit's astype(float32) / 255, value by value
 # How far past a scene's logged path its map candidates reach: a driven ego
 # rarely strays further, and when it does the scene's candidates are rebuilt.
 _REACH = 30.0
+
+
+def _compiled(fn):
+    if not AVAILABLE:
+        return fn
+    from numba import njit
+    return njit(cache=True, nogil=True)(fn)
+
+
+@_compiled
+def _prepare(rows, frames, num_frames, ego_xy, ego_yaw, history, pose_xy, pose_yaw):
+    """Each row's channel frames (``history`` (B, H+1), -1 before the scene) and the ego's
+    pose at each (clipped to frame 0), gathered flat; returns the first row b whose scene
+    row or frame is out of range, else -1.  One call instead of a dozen small numpy ones."""
+    n_scenes = num_frames.size
+    n_hist = history.shape[1]
+    for b in range(rows.size):
+        s, t = rows[b], frames[b]
+        if s < 0 or s >= n_scenes or t < 0 or t >= num_frames[s]:
+            return b
+        for i in range(n_hist):
+            f = t - i
+            history[b, i] = f if f >= 0 else -1
+            f = max(f, 0)
+            pose_xy[b * n_hist + i, 0] = ego_xy[s, f, 0]
+            pose_xy[b * n_hist + i, 1] = ego_xy[s, f, 1]
+            pose_yaw[b * n_hist + i] = ego_yaw[s, f]
+    return -1
+
+
+class Canvas:
+    """An image that a :class:`Rasterizer` draws into again and again (``out=``).
+
+    ``image`` is (capacity, C, H, W) float32; a draw of B rows returns
+    ``image[:B]``, and clears first only the box pixels the previous draws set
+    there (``rects``/``n_rects``: per slot and box channel, the rectangles drawn),
+    instead of zeroing or allocating the whole image; the semantic channels are
+    drawn whole every time.  So whoever still holds an earlier result sees it
+    change: draw again only when :attr:`free`.
+    """
+
+    def __init__(self, params: RasterParams, capacity: int, most: int):
+        self.image = np.zeros((capacity, params.num_channels, params.height, params.width), np.float32)
+        self.rects = np.empty((capacity, params.box_channels, most, 4), np.int64)
+        self.n_rects = np.zeros((capacity, params.box_channels), np.int64)
+
+    @property
+    def capacity(self) -> int:
+        return self.image.shape[0]
+
+    @property
+    def free(self) -> bool:
+        """No earlier result (nor a torch tensor made from one, nor a view of either)
+        is alive: each holds a reference to ``image``, directly or through its base."""
+        return sys.getrefcount(self.image) <= 2  # the attribute and the argument
 
 
 class Rasterizer:
@@ -54,6 +111,8 @@ class Rasterizer:
         if keep is None:
             keep = agent_keep(scenes, log, params.filter_agents_threshold) if scenes is not None else log.relevant
         self.boxes = BoxTable(log, keep)
+        self._local = raster_from_local(params)
+        self._num_frames = np.ascontiguousarray(log.num_frames, np.int64)
         self.semantic = params.map_type == "py_semantic"
         if not self.semantic:
             return
@@ -106,32 +165,47 @@ class Rasterizer:
                              f"/ ({n_scenes}, {n_frames}), like the log")
         if rows.shape != frames.shape or rows.ndim != 1:
             raise ValueError(f"rows {rows.shape} and frames {frames.shape} must be two equal 1-D arrays")
-        bad = np.flatnonzero((rows < 0) | (rows >= n_scenes))
-        if bad.size:
-            raise IndexError(f"row {int(rows[bad[0]])} outside the log's {n_scenes} scenes")
-        bad = np.flatnonzero((frames < 0) | (frames >= self.log.num_frames[rows]))
-        if bad.size:
-            b = bad[0]
-            raise IndexError(f"scene {int(self.log.scene_ids[rows[b]])}: frame {int(frames[b])} outside "
-                             f"[0, {int(self.log.num_frames[rows[b]])})")
 
-    def __call__(self, rows, frames, ego_xy: np.ndarray, ego_yaw: np.ndarray) -> np.ndarray:
-        rows = np.asarray(rows, np.int64).reshape(-1)
-        frames = np.asarray(frames, np.int64).reshape(-1)
+    def _bad_row(self, rows: np.ndarray, frames: np.ndarray, b: int) -> Exception:
+        s, t = int(rows[b]), int(frames[b])
+        if not 0 <= s < self.log.shape[0]:
+            return IndexError(f"row {s} outside the log's {self.log.shape[0]} scenes")
+        return IndexError(f"scene {int(self.log.scene_ids[s])}: frame {t} outside [0, {int(self.log.num_frames[s])})")
+
+    def canvas(self, capacity: int) -> Canvas:
+        """A :class:`Canvas` for up to ``capacity`` rows per call."""
+        return Canvas(self.params, capacity, self.boxes.most)
+
+    def __call__(self, rows, frames, ego_xy: np.ndarray, ego_yaw: np.ndarray, out: Canvas | None = None) -> np.ndarray:
+        """(B, C, H, W) rasters of ``(rows[b], frames[b])``, a new array, or ``out.image[:B]``
+        redrawn in place when ``out`` is given (see :class:`Canvas`)."""
+        rows = np.ascontiguousarray(rows, np.int64).reshape(-1)
+        frames = np.ascontiguousarray(frames, np.int64).reshape(-1)
         ego_xy, ego_yaw = np.asarray(ego_xy, np.float64), np.asarray(ego_yaw, np.float64)
         self._check(rows, frames, ego_xy, ego_yaw)
         p = self.params
-        history = frames[:, None] - np.arange(p.history_num_frames + 1)
-        clipped = np.maximum(history, 0)
-        history[history < 0] = -1
-        centre_xy, centre_yaw = ego_xy[rows, frames], ego_yaw[rows, frames]
-        matrices = np.ascontiguousarray(raster_from_world(p, centre_xy, centre_yaw))
-        r2 = rows[:, None]
-        ego = box_corners(ego_xy[r2, clipped].reshape(-1, 2), ego_yaw[r2, clipped].reshape(-1),
-                          np.broadcast_to(EGO_BOX, (clipped.size, 2)))
-        out = np.zeros((rows.size, p.num_channels, p.height, p.width), np.float32)
-        draw_box_channels(out, LUT, matrices, rows, history, self.boxes.offsets, self.boxes.n_frames,
-                          self.boxes.corners, ego.reshape(clipped.shape + (4, 2)), p.render_ego_history)
+        n_hist = p.history_num_frames + 1
+        history = np.empty((rows.size, n_hist), np.int64)
+        pose_xy, pose_yaw = np.empty((rows.size * n_hist, 2)), np.empty(rows.size * n_hist)
+        bad = _prepare(rows, frames, self._num_frames, ego_xy, ego_yaw, history, pose_xy, pose_yaw)
+        if bad >= 0:
+            raise self._bad_row(rows, frames, bad)
+        # The current frame's pose is channel 0's.
+        matrices = np.ascontiguousarray(world_matrices(self._local, pose_xy[::n_hist], pose_yaw[::n_hist]))
+        ego = ego_corners(pose_xy, pose_yaw)
+        fresh = out is None
+        if fresh:
+            out = Canvas(p, rows.size, self.boxes.most)
+        elif out.image.shape[1:] != (p.num_channels, p.height, p.width) or out.rects.shape[2] < self.boxes.most:
+            raise ValueError(f"out: a canvas of {out.image.shape[1:]} images for {out.rects.shape[2]} boxes a cell, "
+                             f"this rasterizer draws {(p.num_channels, p.height, p.width)} and up to "
+                             f"{self.boxes.most}: make it with Rasterizer.canvas")
+        elif rows.size > out.capacity:
+            raise ValueError(f"out: {rows.size} rows for a canvas of {out.capacity}")
+        draw_box_channels(out.image, LUT, matrices, rows, history, self.boxes.offsets, self.boxes.n_frames,
+                          self.boxes.corners, ego.reshape(rows.size, n_hist, 4, 2), p.render_ego_history, out.rects,
+                          out.n_rects)
+        out = out.image if fresh else out.image[:rows.size]
         if self.semantic:
             self._draw_semantic(out, matrices, rows, frames)
         return out

@@ -16,7 +16,7 @@ import numpy as np
 
 from .params import RasterParams
 
-__all__ = ["raster_centre_in_world", "raster_from_local", "raster_from_world", "transform_points"]
+__all__ = ["raster_centre_in_world", "raster_from_local", "raster_from_world", "transform_points", "world_matrices"]
 
 
 def raster_from_local(params: RasterParams) -> np.ndarray:
@@ -34,6 +34,11 @@ def raster_from_local(params: RasterParams) -> np.ndarray:
 
 def raster_from_world(params: RasterParams, xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """(B, 3, 3) for ego positions ``xy`` (B, 2) and yaws (B,) in the world."""
+    return world_matrices(raster_from_local(params), xy, yaw)
+
+
+def world_matrices(local: np.ndarray, xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """``raster_from_world`` with ``raster_from_local`` given (a caller's, made once)."""
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     yaw = np.asarray(yaw, np.float64).reshape(-1)
     cos, sin = np.cos(yaw), np.sin(yaw)
@@ -41,7 +46,7 @@ def raster_from_world(params: RasterParams, xy: np.ndarray, yaw: np.ndarray) -> 
     pose[:, 0, 0], pose[:, 0, 1], pose[:, 0, 2] = cos, -sin, xy[:, 0]
     pose[:, 1, 0], pose[:, 1, 1], pose[:, 1, 2] = sin, cos, xy[:, 1]
     pose[:, 2, 2] = 1.0
-    return raster_from_local(params) @ np.linalg.inv(pose)
+    return local @ np.linalg.inv(pose)
 
 
 def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
