@@ -38,6 +38,22 @@ def _stacked() -> dict[str, np.ndarray]:
     return out
 
 
+def _agent_rows() -> dict[str, np.ndarray]:
+    """Agent rows of a scene whose label probabilities have ties, NaNs and whole NaN rows
+    (the track labels come from a compiled vote with numba, np.argmax's votes without)."""
+    import dataclasses
+    scene = scenes_from_arrays(generate_scenes(1, 60, seed=13))[0]
+    agents = scene.agents.copy()
+    rng = np.random.default_rng(13)
+    probs = rng.random(agents["label_probabilities"].shape).astype(np.float32)
+    probs[rng.random(probs.shape) < 0.03] = np.nan
+    probs[rng.random(probs.shape) < 0.2] = 0.9  # ties at the maximum
+    probs[::17] = np.nan
+    agents["label_probabilities"] = probs
+    rows = dataclasses.replace(scene, agents=agents).agent_rows()
+    return {f"rows.{k}": v for k, v in rows._asdict().items()}
+
+
 def _batches(log) -> dict[str, np.ndarray]:
     """Inputs at random frames, seen from driven poses off the log: some 2 m away, yaws a
     turn and more off (the modulo branch of the wrap), few slots (a choice to make) and
@@ -122,14 +138,15 @@ import test_logreplay_agents_jit as t
 from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
 assert not agents_jit.AVAILABLE and not logarrays_jit.AVAILABLE
 log = t._log()
-np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log), **t._stacked())
+np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log), **t._stacked(), **t._agent_rows())
 """
 
 
-def test_without_numba_the_inputs_the_unroll_and_the_stacking_are_the_same(tmp_path):
+def test_without_numba_the_inputs_the_unroll_the_stacking_and_the_labels_are_the_same(tmp_path):
     out = tmp_path / "plain.npz"
     subprocess.run([sys.executable, "-c", WITHOUT_NUMBA, str(out), str(Path(__file__).parent)], check=True,
                    timeout=600)
     log = _log()
     with np.load(out) as plain:
-        _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log), **_stacked()})
+        _assert_same_bits({k: plain[k] for k in plain.files},
+                          {**_batches(log), **_unrolled(log), **_stacked(), **_agent_rows()})
