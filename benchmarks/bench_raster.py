@@ -9,7 +9,9 @@ lanes along the ego's path (and its neighbours), side streets across it,
 crosswalks, and traffic-light faces named after the scene's own faces, so
 the lights switch as logged.  l5kit's figure for its 112 x 112 box raster in
 closed loop on this machine: 123-154 scene-steps/s (one scene), 190-223
-(16-64 copies); the target is 20x that.  Nothing is asserted.
+(16-64 copies); the target is 20x that.  Each is timed drawing a new array
+every step and drawing again into one ``Canvas`` (what the closed loop's
+raster inputs do).  Nothing is asserted.
 
     python benchmarks/bench_raster.py [--copies 64] [--history 10] [--repeats 3]
     python benchmarks/bench_raster.py --write-map DIR   # the map as semantic_map.pb + meta.json, for l5kit
@@ -76,15 +78,17 @@ def scene_map(scene: L5Scene, lane_width: float = 3.5) -> SemanticMap:
         world_to_ecef=WORLD_TO_ECEF)
 
 
-def rate(raster: Rasterizer, log, copies: int, repeats: int) -> float:
-    """Best of ``repeats`` passes over every frame, in scene-steps per second."""
+def rate(raster: Rasterizer, log, copies: int, repeats: int, canvas: bool) -> float:
+    """Best of ``repeats`` passes over every frame, in scene-steps per second; a new array each
+    step, or (``canvas``) drawn again into one, as the closed loop does."""
+    out = raster.canvas(copies) if canvas else None
     rows = np.arange(copies)
     n = int(log.num_frames[0])
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
         for frame in range(n):
-            raster(rows, np.full(copies, frame), log.ego_xy, log.ego_yaw)
+            raster(rows, np.full(copies, frame), log.ego_xy, log.ego_yaw, out=out)
         best = min(best, time.perf_counter() - start)
     return copies * n / best
 
@@ -116,9 +120,13 @@ def main() -> None:
             log = stack_scenes([scene] * copies)
             raster = Rasterizer(params, log, scenes=[scene] * copies, semantic_map=smap)
             raster(np.zeros(1, np.int64), np.zeros(1, np.int64), log.ego_xy, log.ego_yaw)  # compile
-            figures[copies] = rate(raster, log, copies, args.repeats)
-        line = ", ".join(f"{c} scene{'s' if c > 1 else ''}: {r:,.0f}/s ({1e3 / r:.3f} ms)" for c, r in figures.items())
-        print(f"{map_type:12s} {params.num_channels} channels  {line}")
+            for canvas in (False, True):
+                figures[copies, canvas] = rate(raster, log, copies, args.repeats, canvas)
+        for canvas in (False, True):
+            line = ", ".join(f"{c} scene{'s' if c > 1 else ''}: {r:,.0f}/s ({1e3 / r:.3f} ms)"
+                             for (c, into), r in figures.items() if into == canvas)
+            print(f"{map_type:12s} {params.num_channels} channels, {'into a canvas' if canvas else 'new arrays  '}  "
+                  f"{line}")
 
 
 if __name__ == "__main__":
