@@ -96,18 +96,18 @@ class ClosedLoop(UseCase):
             from pytest_driveeval.sim.torch_threads import one_torch_thread
             from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
 
+            executor, where = self._executor(config, ctx)
+            distribute, ledger = self._distributed_search(config, ctx, ids, executor) if executor else (None, None)
             searchable = closed_loop_searchable(
                 config, dataset, ctx.fixtures["driveeval_model"], ids, replayed_agents(config.Unroll.Agents),
-                show=lambda scene, perturbation: self._evaluate(config, ctx, [scene], [], perturbation))
+                show=lambda scene, perturbation: self._evaluate(config, ctx, [scene], [], perturbation),
+                distribute=distribute)
             with one_torch_thread():
                 outcome = run_item(self.name, searchable, config.Perturbation, ctx)
-            from pytest_driveeval.usecases.executor import chunked_executor
-
-            asked = chunked_executor(ctx, config.Executor)
-            if asked is not None:
-                outcome.details["executor"] = {"executor": "local", "summary": (
-                    f"ran locally, not on {asked.describe()}: a closed-loop search's generations unroll "
-                    "views of the scenes stacked once in this process (not distributed yet)")}
+            if ledger is not None and ledger.runs:
+                outcome.details["executor"] = ledger.details()
+            elif where:
+                outcome.details["executor"] = where
             if problems:
                 outcome.verdict, outcome.findings = FAILED, problems + outcome.findings
             return outcome
@@ -183,6 +183,28 @@ class ClosedLoop(UseCase):
                                "error": errors[row]} for row, v in enumerate(verdicts)]}
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
+
+    @staticmethod
+    def _distributed_search(config: ClosedLoopConfig, ctx: RunContext, ids: list[int], executor: Any):
+        """(the search's ``distribute``: a generation's examples as chunks on the executor, each
+        judged on a worker by the same search code; the ledger of where they ran)."""
+        from pytest_driveeval.usecases.closed_loop.chunked import SceneChunk, run_search_chunk, search_chunks
+        from pytest_driveeval.usecases.executor import ChunkLedger, run_item_chunks
+
+        dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
+        model, base, _ = ctx.notes["model_source"]
+        scenes = SceneChunk(str(Path(dataset.path).resolve()), tuple(int(i) for i in ids), config, model, base,
+                            str(ctx.scenario.folder))
+        ledger = ChunkLedger()
+
+        def distribute(examples: list) -> list:
+            # A bar per generation would scroll the terminal; the report counts the chunks instead.
+            run = run_item_chunks(ctx, executor, search_chunks(scenes, examples, executor), run_search_chunk, "",
+                                  show_progress=False)
+            ledger.add(run)
+            return [verdict for part in run.results for verdict in part]
+
+        return distribute, ledger
 
     @staticmethod
     def _executor(config: ClosedLoopConfig, ctx: RunContext) -> tuple[Any, dict]:

@@ -21,7 +21,8 @@ from pytest_driveeval.execute import ExecutorSpec, split
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import SceneVerdict
 
-__all__ = ["DEFAULT_CHUNK_SIZE", "SceneChunk", "SceneResults", "run_scene_chunk", "scene_chunks"]
+__all__ = ["DEFAULT_CHUNK_SIZE", "SceneChunk", "SceneResults", "SearchChunk", "run_scene_chunk", "run_search_chunk",
+           "scene_chunks", "search_chunks"]
 
 #: scenes per task unless the Executor section says otherwise: a few seconds of the planning
 #: model's unroll, against opening the dataset and loading the model on the worker
@@ -100,3 +101,35 @@ def scene_chunks(dataset: str, ids: Sequence[int], config: ClosedLoopConfig, mod
 def merged(results: Sequence[SceneResults]) -> SceneResults:
     return SceneResults([v for r in results for v in r.verdicts], [e for r in results for e in r.events],
                         [m for r in results for m in r.errors], {s: g for r in results for s, g in r.gifs.items()})
+
+
+@dataclass(frozen=True)
+class SearchChunk:
+    """Some of a robustness search generation's examples: ``scenes`` names the item's scenes (all
+    of them, which the examples' cases index) and how to load them and the model."""
+
+    scenes: SceneChunk
+    examples: tuple   # search.engine.Example: (case, StartPerturbation)
+
+    def __repr__(self) -> str:
+        return f"{len(self.examples)} search example(s) on {Path(self.scenes.dataset).name}"
+
+
+def run_search_chunk(chunk: SearchChunk) -> list:
+    """The chunk's examples judged as the local search judges them (robustness.closed_loop_searchable)."""
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.sim.torch_threads import one_torch_thread
+    from pytest_driveeval.usecases.closed_loop import replayed_agents
+    from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
+
+    scenes = chunk.scenes
+    dataset = L5Dataset.open(scenes.dataset)
+    searchable = closed_loop_searchable(scenes.config, dataset, _policy(scenes), list(scenes.scenes),
+                                        replayed_agents(scenes.config.Unroll.Agents), show=None)
+    with one_torch_thread():
+        return searchable.evaluate_many(list(chunk.examples))
+
+
+def search_chunks(scenes: SceneChunk, examples: Sequence[Any], executor: ExecutorSpec) -> list[SearchChunk]:
+    size = executor.ChunkSize or DEFAULT_CHUNK_SIZE
+    return [SearchChunk(scenes, tuple(examples[i] for i in part)) for part in split(len(examples), size)]

@@ -38,9 +38,12 @@ def example_verdict(verdict: SceneVerdict) -> Verdict:
 
 
 def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: Sequence[int],
-                           agents: Any, show: Callable[[int, StartPerturbation], Outcome]) -> Searchable:
+                           agents: Any, show: Callable[[int, StartPerturbation], Outcome] | None,
+                           distribute: Callable[[list[Example]], list[Verdict]] | None = None) -> Searchable:
     """The search over ``ids`` (scene indices); ``show(scene, perturbation)`` is the item's own
-    evaluation of one scene, with its animation."""
+    evaluation of one scene, with its animation.  ``distribute``: judges a generation's examples
+    elsewhere (chunks on an executor, each judged by this same function on a worker) instead
+    of here."""
     spec = config.Unroll
     log = stack_log(dataset, ids, spec.StartFrame, agents)
     options = spec.unroll_options()
@@ -65,6 +68,8 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
         return taken
 
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
+        if distribute is not None:
+            return distribute(examples)
         rows = np.array([e.case for e in examples], dtype=np.int64)
         unrolled = unroll_log(copies(tuple(rows.tolist())), model, settings, [e.perturbation for e in examples],
                               cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
@@ -73,4 +78,4 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
     return Searchable(case_name="scene", case_labels=[int(i) for i in ids], perturbation_type=StartPerturbation,
                       perturbations=start_perturbations(**config.Perturbation.ranges()),
                       evaluate_many=evaluate_many,
-                      show=lambda example: show(int(ids[example.case]), example.perturbation))
+                      show=lambda example: show(int(ids[example.case]), example.perturbation) if show else None)

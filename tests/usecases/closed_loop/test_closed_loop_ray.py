@@ -79,3 +79,38 @@ def test_the_planning_model_on_ray_is_the_local_run_of_the_same_chunks(cluster, 
         [(s["scene"], s["passed"]) for s in one_batch["details"]["scenes"]]
     for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
         assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-4)
+
+
+SEARCH = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: search
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - generated: {{Path: {dataset}}}
+  Model: {model}
+  Unroll: {{Scenes: [0, 2], StartFrame: 10, Steps: 30}}
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
+    Displacement: {{Max: 2.0}}
+  Perturbation: {{Lateral: [-3.0, 3.0], Heading: [-0.1, 0.1], Examples: 24, Batch: 8, Tolerance: 0.05}}
+{executor}"""
+
+
+def test_a_closed_loop_search_runs_its_generations_on_both_nodes(cluster, pytester):
+    """The same search, its generations' examples judged in chunks on the workers: the same minimal
+    perturbation, statistics and picture as the search run here."""
+    def run(output: str, executor: str):
+        pytester.makefile(".scenario.yaml", search=SEARCH.format(dataset=GENERATED, model="constant_velocity",
+                                                                 executor=executor))
+        return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output,
+                                  "--driveeval-search-profile", "ci")
+
+    here, there = run("local", ""), run("remote", executor_section(Kind="ray", ChunkSize=3, MaxInFlight=4))
+    assert here.ret == there.ret
+    record, = assert_same_items(pytester.path / "local", pytester.path / "remote").values()
+    assert record["details"]["search"]["examples"] > 8, "several generations were judged"
+    where = record["details"]["executor"]
+    assert set(where["chunks_per_node"]) and sum(where["chunks_per_node"].values()) >= 3
+    assert len(where["chunks_per_node"]) == 2, "chunks of a generation in flight on both nodes"

@@ -171,3 +171,16 @@ def test_an_expected_failure_still_shows_its_search_in_html_allure_and_markdown(
 def test_the_replay_line_repeats_a_session_seed_that_is_not_the_default(demo):
     demo.runpytest("--driveeval-search-profile=ci", "--driveeval-seed", "7")
     assert search_record(demo)["details"]["search"]["replay"].endswith(" --driveeval-seed 7")
+
+
+def test_a_search_in_local_chunks_finds_what_the_one_process_search_finds(demo):
+    """Executor Kind: local with a ChunkSize judges each generation in chunks, as a Ray run would
+    (each chunk on its own stacking of the scene): the same search, and the report says where."""
+    demo.runpytest("-p", "no:randomly", "--driveeval-search-profile", "ci", "--driveeval-output", "plain")
+    demo.runpytest("-p", "no:randomly", "--driveeval-search-profile", "ci", "--driveeval-output", "chunked",
+                   "--driveeval-executor", "{Kind: local, ChunkSize: 16}")
+    plain, chunked = search_record(demo, "plain"), search_record(demo, "chunked")
+    assert chunked["details"]["search"]["minimal"] == plain["details"]["search"]["minimal"]
+    assert chunked["details"]["search"]["examples"] == plain["details"]["search"]["examples"]
+    assert "executor" not in plain["details"]
+    assert chunked["details"]["executor"]["chunks_per_node"], chunked["details"]["executor"]
