@@ -39,11 +39,6 @@ import numcodecs
 import numpy as np
 
 from ..geometry import yaw_from_rotation33
-
-try:  # compiles the per-row label vote (optional: the numpy path gives the same labels)
-    from numba import njit as _njit
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    _njit = None
 from .zarr_v2 import ZarrArray1D, ZarrFormatError, describe_dtype, dtype_mismatch, write_array, zarr_json
 
 __all__ = [
@@ -190,39 +185,12 @@ def _concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np
     return rows, owner
 
 
-def _label_votes_numpy(probabilities: np.ndarray, column: np.ndarray, num_tracks: int) -> np.ndarray:
-    num_labels = probabilities.shape[1]
-    votes = np.bincount(column * num_labels + probabilities.argmax(axis=1), minlength=num_tracks * num_labels)
-    return votes.reshape(num_tracks, num_labels)
-
-
-def _label_votes_loop(probabilities, column, num_tracks):
-    """The same votes row by row: numpy's argmax over 17 values per row costs more than loading the
-    rest of the scene, a compiled loop a tenth of it.  np.argmax's rules: the first maximum; a NaN
-    counts as the maximum, the first one wins."""
-    num_labels = probabilities.shape[1]
-    votes = np.zeros((num_tracks, num_labels), np.int64)
-    for r in range(probabilities.shape[0]):
-        best, top = 0, probabilities[r, 0]
-        if top == top:
-            for i in range(1, num_labels):
-                value = probabilities[r, i]
-                if value != value:
-                    best = i
-                    break
-                if value > top:
-                    best, top = i, value
-        votes[column[r], best] += 1
-    return votes
-
-
-_label_votes = _label_votes_numpy if _njit is None else _njit(cache=True, nogil=True)(_label_votes_loop)
-
-
 def _track_labels(probabilities: np.ndarray, column: np.ndarray, num_tracks: int) -> np.ndarray:
     # A dense (T, A, 17) copy would dominate agent_tensor's cost and a track's class
     # rarely changes, so keep one label per track: the most frequent per-row argmax.
-    return _label_votes(probabilities, column, num_tracks).argmax(axis=1)
+    num_labels = probabilities.shape[1]
+    votes = np.bincount(column * num_labels + probabilities.argmax(axis=1), minlength=num_tracks * num_labels)
+    return votes.reshape(num_tracks, num_labels).argmax(axis=1)
 
 
 def _is_partition(intervals: np.ndarray, length: int) -> bool:

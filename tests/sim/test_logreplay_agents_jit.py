@@ -13,10 +13,16 @@ import torch
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.sim.logreplay import (UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll,
                                             window_columns)
-from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
+from pytest_driveeval.sim.logreplay import jit
 from pytest_driveeval.synth.scenegen import generate_scenes
 
-pytestmark = pytest.mark.skipif(not agents_jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
+pytestmark = pytest.mark.skipif(not jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
+
+
+@pytest.fixture(autouse=True)
+def compiled_paths():
+    """The compiled paths even for this file's small inputs, which alone would not pay for starting numba."""
+    jit.start()
 
 RESULT_FIELDS = ("valid", "driven_xy", "driven_yaw", "collision_kind", "collision_track_id", "collision_at_fault",
                  "displacement_error", "distance_to_reference", "speed_difference", "reset", "frozen")
@@ -36,22 +42,6 @@ def _stacked() -> dict[str, np.ndarray]:
     for history in (0, 3, 10, 200):  # 200: longer than the scenes
         out[f"window{history}.cols"], out[f"window{history}.ok"] = window_columns(log, history)
     return out
-
-
-def _agent_rows() -> dict[str, np.ndarray]:
-    """Agent rows of a scene whose label probabilities have ties, NaNs and whole NaN rows
-    (the track labels come from a compiled vote with numba, np.argmax's votes without)."""
-    import dataclasses
-    scene = scenes_from_arrays(generate_scenes(1, 60, seed=13))[0]
-    agents = scene.agents.copy()
-    rng = np.random.default_rng(13)
-    probs = rng.random(agents["label_probabilities"].shape).astype(np.float32)
-    probs[rng.random(probs.shape) < 0.03] = np.nan
-    probs[rng.random(probs.shape) < 0.2] = 0.9  # ties at the maximum
-    probs[::17] = np.nan
-    agents["label_probabilities"] = probs
-    rows = dataclasses.replace(scene, agents=agents).agent_rows()
-    return {f"rows.{k}": v for k, v in rows._asdict().items()}
 
 
 def _batches(log) -> dict[str, np.ndarray]:
@@ -95,14 +85,14 @@ def test_compiled_inputs_and_unroll_are_the_numpy_ones_bit_for_bit(monkeypatch):
     assert (few_slots_used == 3).sum() > 50  # rows where 3 of more agents had to be chosen
     assert np.signbit(compiled["many.all_other_agents_history_positions"][compiled[
         "many.all_other_agents_history_availability"] == 0]).any()  # masked zeros of both signs are compared
-    monkeypatch.setattr(agents_jit, "AVAILABLE", False)
+    monkeypatch.setattr(jit, "AVAILABLE", False)
     _assert_same_bits(compiled, {**_batches(log), **_unrolled(log)})
 
 
 def test_compiled_stacking_is_the_numpy_one_byte_for_byte(monkeypatch):
     compiled = _stacked()
     assert len({compiled[f"stack{g}.available"].shape[2] for g in (10, 0, 25)}) > 1  # the gap changes the columns
-    monkeypatch.setattr(logarrays_jit, "AVAILABLE", False)
+    monkeypatch.setattr(jit, "AVAILABLE", False)
     _assert_same_bits(compiled, _stacked())
 
 
@@ -123,8 +113,7 @@ def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
     log = stack_scenes([scene] * 2)
     compiled = {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}}
     assert compiled["default.all_other_agents_history_availability"].sum() > 1000
-    monkeypatch.setattr(agents_jit, "AVAILABLE", False)
-    monkeypatch.setattr(logarrays_jit, "AVAILABLE", False)
+    monkeypatch.setattr(jit, "AVAILABLE", False)
     log = stack_scenes([scene] * 2)
     _assert_same_bits(compiled, {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}})
 
@@ -135,18 +124,24 @@ sys.modules["numba"] = None  # import numba fails: the numpy path
 sys.path.insert(0, sys.argv[2])
 import numpy as np
 import test_logreplay_agents_jit as t
-from pytest_driveeval.sim.logreplay import agents_jit, logarrays_jit
-assert not agents_jit.AVAILABLE and not logarrays_jit.AVAILABLE
+from pytest_driveeval.sim.logreplay import jit
+assert not jit.AVAILABLE and not jit.start()
 log = t._log()
-np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log), **t._stacked(), **t._agent_rows())
+np.savez(sys.argv[1], **t._batches(log), **t._unrolled(log), **t._stacked())
 """
 
 
-def test_without_numba_the_inputs_the_unroll_the_stacking_and_the_labels_are_the_same(tmp_path):
+def test_without_numba_the_inputs_the_unroll_and_the_stacking_are_the_same(tmp_path):
     out = tmp_path / "plain.npz"
     subprocess.run([sys.executable, "-c", WITHOUT_NUMBA, str(out), str(Path(__file__).parent)], check=True,
                    timeout=600)
     log = _log()
     with np.load(out) as plain:
-        _assert_same_bits({k: plain[k] for k in plain.files},
-                          {**_batches(log), **_unrolled(log), **_stacked(), **_agent_rows()})
+        _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log), **_stacked()})
+
+
+def test_small_work_does_not_start_numba_and_large_work_does(monkeypatch):
+    monkeypatch.setattr(jit, "_started", False)
+    assert not jit.wanted(0.01) and not jit._started  # a one-scene unroll: the numpy path
+    assert jit.wanted(jit.START_SECONDS)  # enough work to pay for the start ...
+    assert jit.wanted(0.0)  # ... and from then on everything compiled

@@ -41,9 +41,9 @@ from pytest_driveeval.io.l5kit_zarr import L5Scene
 from pytest_driveeval.metrics.collisions import detect_collisions, max_or_zero
 from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
 from pytest_driveeval.sim.dynamics import KinematicLimits, PoseTarget, Unicycle
-from pytest_driveeval.sim.logreplay import agents_jit
+from pytest_driveeval.sim.logreplay import jit
 from pytest_driveeval.sim.logreplay.agents import LogCells
-from pytest_driveeval.sim.logreplay.inputs import build_batch
+from pytest_driveeval.sim.logreplay.inputs import SECONDS_SAVED_PER_ROW, build_batch
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
 from pytest_driveeval.sim.logreplay.outputs import BadPolicyOutput, first_pose, format_scenes
 from pytest_driveeval.sim.logreplay.perturb import perturb_history
@@ -215,8 +215,9 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     past moved with it (:func:`~pytest_driveeval.sim.logreplay.perturb.perturb_history`);
     the log stays the reference that drift is measured against.  ``cells``:
     the log's :class:`~.agents.LogCells` when the caller has them already
-    (packed once for many unrolls of the same scenes), and ``candidates`` its
-    :func:`~.logarrays.window_columns` for ``config.history_frames``.
+    (packed once for many unrolls of the same scenes; only the numpy inputs
+    read them, when numba is absent: the compiled ones read the log itself),
+    and ``candidates`` its :func:`~.logarrays.window_columns` for ``config.history_frames``.
     ``extra_inputs(rows, t, driven_xy, driven_yaw)``: more tensors for the
     policy's batch at frame t (e.g. the bird's-eye rasters of
     :mod:`pytest_driveeval.raster`), drawn from the ego's driven history.
@@ -251,12 +252,14 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
         # The agents move: the loop reads and writes its own copy of their poses, and its own packing of them.
         reactive = ReactiveReplay(log, cfg.reactive_agents, cfg.step_time)
         log, cells = reactive.sim, None
-    if cells is None and (reactive is not None or not agents_jit.AVAILABLE):
+    # Numba pays for its start when the whole unroll saves more than that (see .jit).
+    compiled = jit.wanted(float(np.maximum(end - start, 0).sum()) * SECONDS_SAVED_PER_ROW)
+    if cells is None and (reactive is not None or not compiled):
         # The compiled inputs read the log itself; the numpy ones and the reactive agents' moves need the packing.
         cells = LogCells(log)
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
-                   candidates=candidates or window_columns(log, cfg.history_frames), cells=cells)
+                   candidates=candidates or window_columns(log, cfg.history_frames), cells=cells, compiled=compiled)
     coarse2, ego_norm = _coarse_reach_squared(log, ext), norm2d(ext[:2])
     near: list[tuple[np.ndarray, int, np.ndarray]] = []  # (rows, frame, columns) that may collide, per frame
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)

@@ -34,13 +34,15 @@ import numpy as np
 import torch
 
 from pytest_driveeval.io.l5kit_zarr import L5Scene
-from pytest_driveeval.sim.logreplay import agents_jit
+from pytest_driveeval.sim.logreplay import jit
 from pytest_driveeval.sim.logreplay.agents import LogCells, agent_histories
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns
 
 __all__ = ["build_batch", "collate_training_samples"]
 
 _TWO_PI = 2.0 * np.pi
+# What the compiled agent inputs save per row over the numpy ones (64 copies of the real scene).
+SECONDS_SAVED_PER_ROW = 25e-6
 
 
 def _wrap_masked(angle: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -93,7 +95,7 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
                 history_frames: int = 10, future_frames: int = 12, max_agents: int = 30, radius: float = 35.0,
                 step_time: float = STEP_TIME, ego_extent: np.ndarray = EGO_EXTENT,
                 candidates: tuple[np.ndarray, np.ndarray] | None = None,
-                cells: LogCells | None = None) -> dict[str, torch.Tensor]:
+                cells: LogCells | None = None, compiled: bool | None = None) -> dict[str, torch.Tensor]:
     """Inputs for rows ``(rows[b], frames[b])`` with the ego poses taken from ``ego_xy``/``ego_yaw``.
 
     ``ego_xy`` (S, T, 2) / ``ego_yaw`` (S, T) are the poses the ego actually
@@ -101,7 +103,9 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
     targets always come from the log.  ``candidates`` is
     ``window_columns(log, history_frames)``, computed here when not given.
     ``cells`` (``LogCells(log)``) only saves work on repeated calls of the numpy
-    path; with numba the agents come from :mod:`.agents_jit`, which reads the log itself.
+    path.  ``compiled``: take the agents from :mod:`.agents_jit` (numba), which
+    reads the log itself; None decides by :func:`.jit.wanted` for this call's
+    rows.  Both paths give the same tensors.
 
     Every value is computed with the same float64 operations and rounded to
     float32 once, so the tensors do not depend on the path taken.
@@ -137,7 +141,9 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
 
     if candidates is None:
         candidates = window_columns(log, history_frames)
-    if agents_jit.AVAILABLE:
+    if compiled is None:
+        compiled = jit.wanted(b * SECONDS_SAVED_PER_ROW)
+    if compiled and jit.AVAILABLE:
         a_pos, a_yaw, a_ext, a_ok, a_type = _agents_compiled(log, rows, frames, centre, yaw, cos, sin, max_agents,
                                                              radius, n_hist, candidates)
     else:
@@ -159,6 +165,7 @@ def build_batch(log: LogArrays, rows: np.ndarray, frames: np.ndarray, ego_xy: np
 
 def _agents_compiled(log, rows, frames, centre, yaw, cos, sin, max_agents, radius, n_hist, candidates):
     """The other agents' inputs from :func:`.agents_jit.agent_inputs`, already float32."""
+    from pytest_driveeval.sim.logreplay import agents_jit  # imports numba: only when it is used
     b = rows.size
     pos = np.empty((b, max_agents, n_hist, 2), np.float32)
     yaws = np.empty((b, max_agents, n_hist, 1), np.float32)

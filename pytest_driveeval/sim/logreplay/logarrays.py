@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from pytest_driveeval.io.l5kit_zarr import PERCEPTION_LABELS, L5Arrays, L5Scene
-from pytest_driveeval.sim.logreplay import logarrays_jit
+from pytest_driveeval.sim.logreplay import jit
 
 __all__ = ["EGO_EXTENT", "STEP_TIME", "LogArrays", "scenes_from_arrays", "stack_scenes", "window_columns"]
 
@@ -79,7 +79,8 @@ def scenes_from_arrays(arrays: L5Arrays) -> list[L5Scene]:
 def _assign_columns(first: np.ndarray, last: np.ndarray, gap: int) -> tuple[np.ndarray, int]:
     """Column of each track, given its first and last frame (greedy interval
     partitioning, optimal for intervals), and the column count."""
-    if logarrays_jit.AVAILABLE:
+    if jit.wanted(first.size * 0.5e-6):  # the heapq loop's cost per track
+        from pytest_driveeval.sim.logreplay import logarrays_jit
         column, count = logarrays_jit.assign_columns(np.asarray(first, np.int64), np.asarray(last, np.int64), int(gap),
                                                      np.argsort(first, kind="stable"))
         return column, int(count)
@@ -120,6 +121,9 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
         available=np.zeros(shape, bool), track_id=np.full(shape, -1, np.int64), label=np.zeros(shape, np.int16),
         relevant=np.zeros(shape, bool), frame_row=np.full(shape, -1, np.int32),
     )
+    compiled = jit.wanted(sum(r.frame.size for r in agent_rows) * 0.07e-6)  # numpy's scatter cost per row
+    if compiled:
+        from pytest_driveeval.sim.logreplay import logarrays_jit
     for i, (scene, rows, (column, _)) in enumerate(zip(scenes, agent_rows, columns)):
         t = scene.num_frames
         log.ego_xy[i, :t], log.ego_yaw[i, :t] = scene.ego_positions(), scene.ego_yaws()
@@ -129,7 +133,7 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
         cell = rows.frame * c_max + column[a]
         label = rows.label[a]
         track = rows.track_ids.astype(np.int64)[a]
-        if logarrays_jit.AVAILABLE:
+        if compiled:
             logarrays_jit.scatter_rows(i, cell, rows.centroid, rows.yaw, rows.extent, rows.velocity, track, label,
                                        _KEEP_LABEL, rows.rank, log.agent_xy, log.agent_yaw, log.agent_extent,
                                        log.agent_velocity, log.available, log.track_id, log.label, log.relevant,
@@ -168,7 +172,8 @@ def window_columns(log: LogArrays, history_frames: int) -> tuple[np.ndarray, np.
     the ~100 columns, so the per-step work shrinks by that factor.  Returns
     cols (S, T, K) int64 and ok (S, T, K) bool (False on padding).
     """
-    if logarrays_jit.AVAILABLE:
+    if jit.wanted(log.relevant.size * 6e-9):  # numpy's cost per cell
+        from pytest_driveeval.sim.logreplay import logarrays_jit
         return logarrays_jit.window_columns(log.relevant, int(history_frames))
     seen = np.cumsum(log.relevant, axis=1, dtype=np.int32)
     in_window = seen.copy()
