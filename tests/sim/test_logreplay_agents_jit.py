@@ -140,8 +140,10 @@ def test_without_numba_the_inputs_the_unroll_and_the_stacking_are_the_same(tmp_p
         _assert_same_bits({k: plain[k] for k in plain.files}, {**_batches(log), **_unrolled(log), **_stacked()})
 
 
-def test_small_work_does_not_start_numba_and_large_work_does(monkeypatch):
+def test_numba_starts_once_the_savings_forgone_pay_for_it(monkeypatch):
     monkeypatch.setattr(jit, "_started", False)
-    assert not jit.wanted(0.01) and not jit._started  # a one-scene unroll: the numpy path
-    assert jit.wanted(jit.START_SECONDS)  # enough work to pay for the start ...
-    assert jit.wanted(0.0)  # ... and from then on everything compiled
+    monkeypatch.setattr(jit, "_forgone", 0.0)
+    assert not jit.wanted(0.01)  # a one-scene unroll: the numpy path
+    assert not jit.wanted(jit.START_SECONDS - 0.02)  # still short of the start's cost, summed
+    assert jit.wanted(0.01)  # now it has paid for itself ...
+    assert jit.wanted(0.0)  # ... and from then on everything is compiled

@@ -5,9 +5,11 @@ process pays once, at its first compiled call, for importing numba and
 starting its compiler (~0.5 s, even when the kernels come from numba's cache),
 and that is more than a small unroll or a few scenes' loading saves: a
 one-scene scenario under a time limit of a few seconds would spend most of it
-there.  So a call site takes the compiled path when numba is installed and
-either the process has started it already or the work it is about to do saves
-more than the start costs (each call site estimates its own saving).
+there.  So each call site estimates what the compiled path would save on the work
+it is about to do, and the process starts numba once those savings, summed
+over the calls that went without it, reach the start's cost (renting until
+the rent paid equals the price, then buying: never more than twice the best
+choice made knowing the future).  Calls after that take the compiled paths.
 :func:`start` starts it up front (benchmarks, long sessions).
 """
 from __future__ import annotations
@@ -27,15 +29,17 @@ def _installed() -> bool:
 AVAILABLE = _installed()
 START_SECONDS = 0.5  # importing numba and starting its compiler, measured on a 2-core machine
 _started = False
+_forgone = 0.0  # what the numpy paths cost more so far in this process
 
 
 def wanted(seconds_saved: float) -> bool:
     """Whether to take the compiled path for work the numpy path would do ``seconds_saved`` slower."""
-    global _started
+    global _started, _forgone
     if not AVAILABLE:
         return False
-    if not _started and seconds_saved >= START_SECONDS:
-        _started = True
+    if not _started:
+        _forgone += seconds_saved
+        _started = _forgone >= START_SECONDS
     return _started
 
 
