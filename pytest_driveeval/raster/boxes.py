@@ -35,6 +35,7 @@ __all__ = ["EGO_BOX", "BoxTable", "agent_keep", "box_corners", "draw_box_channel
 
 EGO_BOX = np.array([4.87, 1.85], np.float32)  # l5kit's rasterizer ego (length, width)
 KEEP_LABELS = np.arange(3, 16)  # PERCEPTION_LABEL_CAR .. PERCEPTION_LABEL_ANIMAL
+_FAR = 1e9  # metres: a box there is off every raster (and its pixel coordinates still fit an int64)
 _UNIT_CORNERS = np.asarray([[-1, -1], [-1, 1], [1, 1], [1, -1]]) * 0.5
 _EGO_LOCAL = _UNIT_CORNERS * EGO_BOX  # what box_corners makes of the ego's extent, once
 
@@ -107,6 +108,22 @@ class BoxTable:
         self.corners = np.ascontiguousarray(
             box_corners(log.agent_xy[s, t, c], log.agent_yaw[s, t, c], log.agent_extent[s, t, c, :2]))
         self.most = max(int(counts.max(initial=0)), 1)  # boxes of the fullest cell, at least the ego's one
+        self.scene, self.column = s, c
+
+    def refresh(self, log: "LogArrays", rows: np.ndarray, frame: int) -> None:
+        """The corners of the kept boxes of (``rows``, ``frame``) again, from ``log``: a copy of
+        the log these were prepared from in which agents moved (reactive agents).  A box whose
+        cell is no longer available goes far off every raster."""
+        cells = np.asarray(rows, np.int64) * self.n_frames + frame
+        first, last = self.offsets[cells], self.offsets[cells + 1]
+        counts = last - first
+        idx = np.repeat(first - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+        if idx.size == 0:
+            return
+        s, c = self.scene[idx], self.column[idx]
+        corners = box_corners(log.agent_xy[s, frame, c], log.agent_yaw[s, frame, c], log.agent_extent[s, frame, c, :2])
+        corners[~log.available[s, frame, c]] = _FAR
+        self.corners[idx] = corners
 
 
 @_compiled

@@ -208,7 +208,8 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
 def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
            config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None,
            cells: LogCells | None = None, candidates: tuple[np.ndarray, np.ndarray] | None = None,
-           extra_inputs: Callable[[np.ndarray, int, np.ndarray, np.ndarray], dict] | None = None) -> UnrollResult:
+           extra_inputs: Callable[[np.ndarray, int, np.ndarray, np.ndarray, LogArrays], dict] | None = None
+           ) -> UnrollResult:
     """Drive ``policy`` through all ``scenes`` together; see the module doc.
 
     ``start_perturbation`` (S, 4): each scene's start moved off the log, its
@@ -218,7 +219,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     (packed once for many unrolls of the same scenes; only the numpy inputs
     read them, when numba is absent: the compiled ones read the log itself),
     and ``candidates`` its :func:`~.logarrays.window_columns` for ``config.history_frames``.
-    ``extra_inputs(rows, t, driven_xy, driven_yaw)``: more tensors for the
+    ``extra_inputs(rows, t, driven_xy, driven_yaw, agents)``: more tensors for the
     policy's batch at frame t (e.g. the bird's-eye rasters of
     :mod:`pytest_driveeval.raster`), drawn from the ego's driven history.
     """
@@ -278,7 +279,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                 continue
             batch = build_batch(log, rows, np.full(rows.size, t), driven_xy, driven_yaw, **options)
             if extra_inputs is not None:
-                batch.update(extra_inputs(rows, t, driven_xy, driven_yaw))
+                batch.update(extra_inputs(rows, t, driven_xy, driven_yaw, log))
             if cfg.device != "cpu":
                 batch = {k: v.to(cfg.device) for k, v in batch.items()}
             forwards += 1

@@ -202,10 +202,6 @@ class UnrollSpec(_Strict):
     def _one_selection(self):
         if self.Scenes is not None and self.SceneStride is not None:
             raise ValueError("give Scenes or SceneStride, not both")
-        if self.Inputs.Kind == "raster" and self.Agents.Mode == "reactive":
-            # The rasterizer prepares the logged boxes once; reactive agents move off them.
-            raise ValueError("Inputs: raster with Agents: reactive is not supported yet: the raster would "
-                             "draw the agents where the log has them, not where they braked")
         return self
 
 

@@ -2,9 +2,10 @@
 
 The engine asks for extra inputs at every step (``unroll(extra_inputs=...)``);
 this gives it ``image``, drawn by :class:`pytest_driveeval.raster.Rasterizer`
-from the ego's driven history and the logged agents of the scenes as they
-were stacked (the label filter and the traffic-light faces are read from
-those scenes, so they must be the ones the log was built from).
+from the ego's driven history and the agents where the engine has them: the
+log, or with reactive agents its copy in which they braked (the label filter
+and the traffic-light faces are read from the scenes the log was stacked from,
+so they must be those).
 """
 from __future__ import annotations
 
@@ -33,7 +34,11 @@ def raster_inputs(params: Any, log: Any, scenes: Sequence[Any], semantic_map: An
     # them) keeps the canvas busy, and the next step draws on a new one.
     canvas = [raster.canvas(log.shape[0])]
 
-    def inputs(rows: np.ndarray, t: int, driven_xy: np.ndarray, driven_yaw: np.ndarray) -> dict:
+    def inputs(rows: np.ndarray, t: int, driven_xy: np.ndarray, driven_yaw: np.ndarray, agents: Any = None) -> dict:
+        if agents is not None and agents is not log:
+            # Reactive agents: the engine's own copy of the log, where they moved.  Frame t is final
+            # by now (the step before wrote it) and earlier frames were refreshed when they were t.
+            raster.boxes.refresh(agents, rows, t)
         if not canvas[0].free or canvas[0].capacity < rows.size:
             canvas[0] = raster.canvas(max(rows.size, 1))
         return {"image": torch.from_numpy(raster(rows, np.full(rows.size, t), driven_xy, driven_yaw, out=canvas[0]))}

@@ -57,8 +57,6 @@ def test_vector_is_the_default_and_raster_takes_l5kits_parameters(tmp_path):
      "k:8: Evaluation.Unroll.Inputs: SemanticMap and Meta apply to MapType: py_semantic"),
     ("    Inputs: {Kind: raster, PixelSize: [0.25, 0.5]}\n",
      "k:8: Evaluation.Unroll.Inputs: RasterParams.pixel_size must be square"),
-    ("    Inputs: raster\n    Agents: reactive\n",
-     "k:7: Evaluation.Unroll: Inputs: raster with Agents: reactive is not supported yet"),
 ])
 def test_mistakes_are_located(tmp_path, unroll, expected):
     found = problems(tmp_path, unroll)
@@ -104,6 +102,46 @@ def test_the_raster_shows_the_driven_history():
     # At the start the driven history is the log's, so the whole raster is the log's.
     np.testing.assert_array_equal(first, rasterize(params, log, [0], [20], log.ego_xy, log.ego_yaw,
                                                    scenes=scenes)[0])
+
+
+class RecordingConstantVelocity(torch.nn.Module):
+    """Constant velocity, keeping the images it was given."""
+
+    def __init__(self):
+        super().__init__()
+        from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+
+        self.policy, self.images = ConstantVelocityPolicy(), []
+
+    def forward(self, data):
+        self.images.append(data["image"].clone())
+        return self.policy(data)
+
+
+@pytest.mark.skipif(not GENERATED.exists(), reason="demo data not generated")
+def test_with_reactive_agents_the_raster_shows_them_where_they_braked():
+    """Generated scene 1: constant velocity stops short and the car behind brakes (reactive); every
+    step's raster is the one drawn afresh from where the engine had the agents, not the log's."""
+    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.raster import RasterParams, rasterize
+    from pytest_driveeval.sim.logreplay import ReactiveAgents
+    from pytest_driveeval.usecases.closed_loop.evaluate import kept_scenes, stack_log, unroll_scenes
+
+    dataset = L5Dataset.open(GENERATED)
+    params = RasterParams(map_type="box_debug", raster_size=(112, 112), history_num_frames=10)
+    policy = RecordingConstantVelocity()
+    result = unroll_scenes(dataset, policy, [1], start_frame=10, reactive=ReactiveAgents(), raster=params).result
+    assert result.reacted.any(), "an agent left its log"
+    scenes = kept_scenes(dataset, [1], 10)
+    log = stack_log(dataset, [1], 10, scenes=scenes)
+    differs = 0
+    for k, image in enumerate(policy.images):
+        frame = 10 + k
+        fresh = rasterize(params, result.agents, [0], [frame], result.driven_xy, result.driven_yaw, scenes=scenes)
+        np.testing.assert_array_equal(image[0].numpy(), fresh[0], err_msg=f"frame {frame}")
+        logged = rasterize(params, log, [0], [frame], result.driven_xy, result.driven_yaw, scenes=scenes)
+        differs += not np.array_equal(logged[0, :11], fresh[0, :11])
+    assert differs > 0, "the braking car is drawn where it braked, not where the log has it"
 
 
 def test_a_missing_semantic_map_is_named(tmp_path):
