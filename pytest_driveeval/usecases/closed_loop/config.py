@@ -33,7 +33,7 @@
         Examples: 200          # Batch, Tolerance, Replay: see pytest_driveeval.search.spec
       Executor: {Kind: ray, Address: auto, ChunkSize: 8}   # optional: scenes in chunks as Ray tasks
                                # (pytest_driveeval.execute; --driveeval-executor replaces each key it
-                               # gives); a search's generations stay here; default: local, one batch
+                               # gives); a search's generations go too; default: local, one batch
 """
 from __future__ import annotations
 
