@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -20,9 +21,10 @@ WORKER_CPUS = 2
 FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_threshold": 3}
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    ray = pytest.importorskip("ray")
+@contextmanager
+def local_cluster():
+    """A head without CPUs and two worker nodes, connected; shut down on exit."""
+    import ray
     from ray.cluster_utils import Cluster
 
     cluster = Cluster(initialize_head=True, connect=True,
@@ -35,6 +37,13 @@ def cluster():
     finally:
         ray.shutdown()       # the driver first: the head cannot be removed under it
         cluster.shutdown()
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    pytest.importorskip("ray")
+    with local_cluster() as running:
+        yield running
 
 
 def worker_nodes() -> set[str]:

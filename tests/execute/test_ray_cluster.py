@@ -18,13 +18,9 @@ import pytest
 from pytest_driveeval.execute import ChunkError, ExecutorSpec, disconnect, run_chunks, split
 
 ray = pytest.importorskip("ray")
-from ray.cluster_utils import Cluster  # noqa: E402
+from ray_items import WORKER_CPUS, local_cluster, worker_nodes  # noqa: E402  (tests/ray_items.py)
 
 pytestmark = pytest.mark.ray
-
-WORKER_CPUS = 2
-# Node deaths noticed within ~1.5 s instead of Ray's default ~30 s.
-FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_threshold": 3}
 
 
 @pytest.fixture(scope="module")
@@ -32,21 +28,11 @@ def cluster():
     # The workers cannot import this test module by name (it is not on their path):
     # its task functions travel by value instead.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    cluster = Cluster(initialize_head=True, connect=True,
-                      head_node_args={"num_cpus": 0, "_system_config": FAST_HEALTH_CHECKS})
     try:
-        for _ in range(2):
-            cluster.add_node(num_cpus=WORKER_CPUS)
-        cluster.wait_for_nodes()
-        yield cluster
+        with local_cluster() as running:
+            yield running
     finally:
-        ray.shutdown()       # the driver first: the head cannot be removed under it
-        cluster.shutdown()
         ray.cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
-
-
-def worker_nodes(cluster) -> set[str]:
-    return {n["NodeID"] for n in ray.nodes() if n["Alive"] and n["Resources"].get("CPU", 0) > 0}
 
 
 def seeded_scenes(chunk):
@@ -91,7 +77,7 @@ def test_results_match_a_local_run_in_chunk_order_across_both_nodes(cluster):
     assert finished[0] > finished[1], "the slow first chunk should have finished after the second"
     assert progress == list(range(len(chunks) + 1))
     # four tasks at once need both two-CPU nodes; placements name them
-    assert run.nodes == worker_nodes(cluster) and len(run.nodes) == 2
+    assert run.nodes == worker_nodes() and len(run.nodes) == 2
     assert all(p.attempts == 1 and p.seconds >= 0.2 and p.wall_seconds >= p.seconds for p in run.placements)
     assert "2 node(s)" in run.summary()
     disconnect()
@@ -194,4 +180,4 @@ def test_a_connection_it_opens_is_closed_and_the_cluster_stays_up(cluster):
         assert not ray.is_initialized()
     finally:
         ray.init(address=cluster.address)
-    assert len(worker_nodes(cluster)) >= 2, "disconnecting must not take the cluster down"
+    assert len(worker_nodes()) >= 2, "disconnecting must not take the cluster down"

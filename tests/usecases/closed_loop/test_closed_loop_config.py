@@ -3,29 +3,8 @@ from __future__ import annotations
 
 import pytest
 
+from closed_loop_yaml import load, problems
 from pytest_driveeval import load_scenario
-from pytest_driveeval.errors import ScenarioError
-
-SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: keys
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Model: {model}
-{extra}"""
-
-
-def load(tmp_path, extra, model="constant_velocity"):
-    path = tmp_path / "k.scenario.yaml"
-    path.write_text(SCENARIO.format(model=model, extra=extra))
-    return load_scenario(path)
-
-
-def problems(tmp_path, extra, model="constant_velocity") -> list[str]:
-    with pytest.raises(ScenarioError) as failed:
-        load(tmp_path, extra, model)
-    return [p.render("k") for p in failed.value.problems]
 
 
 def test_l5kit_setup_is_read(tmp_path):

@@ -8,35 +8,20 @@ import shutil
 import numpy as np
 import pytest
 
-from pytest_driveeval import load_scenario
-from pytest_driveeval.errors import DataError, ScenarioError
+from pytest_driveeval.errors import DataError
 
+import closed_loop_yaml
 from conftest import REPO_ROOT
 
 torch = pytest.importorskip("torch")
 
 GENERATED = REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr"
-SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: keys
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Model: constant_velocity
-  Unroll:
-{unroll}"""
-
-
 def load(tmp_path, unroll):
-    path = tmp_path / "k.scenario.yaml"
-    path.write_text(SCENARIO.format(unroll=unroll))
-    return load_scenario(path).config
+    return closed_loop_yaml.load(tmp_path, "  Unroll:\n" + unroll).config
 
 
 def problems(tmp_path, unroll) -> list[str]:
-    with pytest.raises(ScenarioError) as failed:
-        load(tmp_path, unroll)
-    return [p.render("k") for p in failed.value.problems]
+    return closed_loop_yaml.problems(tmp_path, "  Unroll:\n" + unroll)
 
 
 def test_vector_is_the_default_and_raster_takes_l5kits_parameters(tmp_path):

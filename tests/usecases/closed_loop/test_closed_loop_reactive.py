@@ -6,32 +6,16 @@ import shutil
 
 import pytest
 
-from pytest_driveeval import load_scenario
-from pytest_driveeval.errors import ScenarioError
-
+import closed_loop_yaml
 from conftest import REPO_ROOT
-
-SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: keys
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Model: constant_velocity
-  Unroll:
-{agents}"""
 
 
 def load(tmp_path, agents):
-    path = tmp_path / "k.scenario.yaml"
-    path.write_text(SCENARIO.format(agents=agents))
-    return load_scenario(path).config.Unroll.Agents
+    return closed_loop_yaml.load(tmp_path, "  Unroll:\n" + agents).config.Unroll.Agents
 
 
 def problems(tmp_path, agents) -> list[str]:
-    with pytest.raises(ScenarioError) as failed:
-        load(tmp_path, agents)
-    return [p.render("k") for p in failed.value.problems]
+    return closed_loop_yaml.problems(tmp_path, "  Unroll:\n" + agents)
 
 
 def test_the_default_and_log_replay_the_log(tmp_path):
