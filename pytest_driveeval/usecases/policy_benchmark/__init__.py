@@ -33,15 +33,23 @@ def baseline(name: str) -> Any:
     return IDMExpert()
 
 
+def vet_policy_spec(ctx: RunContext, name: str, spec: str, from_option: bool = False) -> None:
+    """Refuse a scenario's policy spec that would run code unless the user opted in; wherever the
+    policy is then loaded (here, or on a Ray worker from its spec), it passed this."""
+    from pytest_driveeval.policies.loading import refuse_code_from_data, runs_code
+
+    if spec not in BASELINES and not from_option and not ctx.allow_code and runs_code(spec):
+        line = ctx.scenario.line_of("Evaluation", "Policies", name)
+        refuse_code_from_data(spec, f"{display_path(ctx.scenario.path)}:{line}")
+
+
 def load_policy(ctx: RunContext, name: str, spec: str, from_option: bool = False) -> Any:
     """A policy by its spec: a baseline's name, or a model file / factory (code only with opt-in)."""
-    from pytest_driveeval.policies.loading import load_model, refuse_code_from_data, runs_code
+    from pytest_driveeval.policies.loading import load_model
 
     if spec in BASELINES:
         return baseline(spec)
-    if not from_option and not ctx.allow_code and runs_code(spec):
-        line = ctx.scenario.line_of("Evaluation", "Policies", name)
-        refuse_code_from_data(spec, f"{display_path(ctx.scenario.path)}:{line}")
+    vet_policy_spec(ctx, name, spec, from_option)
     return load_model(spec, base=None if from_option else ctx.scenario.folder)
 
 
@@ -122,6 +130,8 @@ class PolicyBenchmark(UseCase):
             from pytest_driveeval.usecases.executor import executor_details
             from pytest_driveeval.usecases.policy_benchmark.chunked import PolicySource, run_policies_chunked
 
+            for name in baselines:  # loaded on the workers: the same check as load_policy here
+                vet_policy_spec(ctx, name, config.Policies[name])
             sources = {policy: source, **{name: PolicySource(config.Policies[name], str(ctx.scenario.folder))
                                           for name in baselines}}
             runs, chunk_run, described = run_policies_chunked(ctx, executor, blueprint, params, seeds, strata,

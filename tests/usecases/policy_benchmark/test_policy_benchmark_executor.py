@@ -153,3 +153,32 @@ def test_a_model_from_a_conftest_fixture_stays_local_and_the_report_says_why(pyt
     assert record["details"]["executor"]["executor"] == "local"
     assert "driveeval_model fixture's object" in record["details"]["executor"]["summary"]
     assert record["figures"]["episodes"] == 6
+
+
+CODE_BASELINE = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: bench
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint: {Name: merging}
+  Episodes: 4
+  Policies:
+    mine: constant
+    other: "builtins:print"
+  Judged: [mine]
+  Conditions:
+    Beats:
+      - {Baseline: other, Metric: goal_rate}
+  Executor: {Kind: local, ChunkSize: 2}
+"""
+
+
+def test_a_compared_policy_that_names_code_is_refused_in_chunks_too(pytester):
+    """The chunks load the compared policy from its spec on the workers: it must pass the same
+    opt-in check as when it is loaded here, not run ``builtins:print`` there."""
+    pytester.makefile(".scenario.yaml", bench=CODE_BASELINE)
+    result = pytester.runpytest("-q", "-k", "mine")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["*bench.scenario.yaml:10: Model 'builtins:print' would run Python code*"])
+    result.stdout.no_fnmatch_line("*returned a NoneType*")
