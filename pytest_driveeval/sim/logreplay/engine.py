@@ -158,9 +158,9 @@ def _coarse_reach_squared(log: LogArrays, extent: np.ndarray) -> float:
 
 
 def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse2: float, ego_norm: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The (row position, column) pairs of agents within reach of the ego at frame t,
-    their squared distances and the agents' (length, width): the only pairs that
+    and the agents' (length, width): the only pairs that
     can overlap the ego.  ``xy`` (B, 2) is the ego of each of ``rows`` at t,
     ``coarse2`` a squared range no pair's reach exceeds, ``ego_norm`` the ego box's diagonal."""
     a_xy = log.agent_xy[rows, t]
@@ -172,13 +172,12 @@ def _near_pairs(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, coarse
     near = dx < coarse2
     near &= log.available[rows, t]
     f, a = np.nonzero(near)
-    d2 = dx[f, a]
     # The exact range test of each pair (l5kit's, as detect_collisions and _overlapping apply it):
     # the pairs it drops can never collide, and the judge at the end gathers only those left.
     a_ext = log.agent_extent[rows[f], t, a, :2].astype(np.float64)
     reach = 0.5 * (ego_norm + norm2d(a_ext))
-    close = d2 < reach * reach
-    return f[close], a[close], d2[close], a_ext[close]
+    close = dx[f, a] < reach * reach
+    return f[close], a[close], a_ext[close]
 
 
 def _overlapping(log: LogArrays, rows: np.ndarray, t: int, xy: np.ndarray, yaw: np.ndarray, extent: np.ndarray,
@@ -250,13 +249,13 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     model_time, forwards, scene_steps = 0.0, 0, 0
     reactive = None
     if cfg.reactive_agents is not None:
-        # The agents move: the loop reads and writes its own copy of their poses, and its own packing of them.
+        # The agents move: the loop reads and writes its own copy of their poses (and packing, if one is read).
         reactive = ReactiveReplay(log, cfg.reactive_agents, cfg.step_time)
         log, cells = reactive.sim, None
     # Numba pays for its start when the whole unroll saves more than that (see .jit).
     compiled = jit.wanted(float(np.maximum(end - start, 0).sum()) * SECONDS_SAVED_PER_ROW)
-    if cells is None and (reactive is not None or not compiled):
-        # The compiled inputs read the log itself; the numpy ones and the reactive agents' moves need the packing.
+    if cells is None and not compiled:
+        # The compiled inputs read the log itself; only the numpy ones read the packing.
         cells = LogCells(log)
     options = dict(history_frames=cfg.history_frames, future_frames=cfg.future_frames, max_agents=cfg.max_agents,
                    radius=cfg.agents_radius, step_time=cfg.step_time, ego_extent=ext,
@@ -273,7 +272,8 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             # only, at the end; a pass over every agent column of the table would cost more than the loop.
             act = np.flatnonzero(active)
             pairs = _near_pairs(log, act, t, driven_xy[act, t], coarse2, ego_norm)
-            near.append((act[pairs[0]], t, pairs[1]))
+            pair_rows = act[pairs[0]]
+            near.append((pair_rows, t, pairs[1]))
             rows = np.flatnonzero(active & (t + 1 < end))  # the last frame needs no forward
             if rows.size == 0:
                 continue
@@ -318,9 +318,11 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
                 reset[rows[back], t + 1] = True
                 speed[rows[back]] = norm2d(log.ego_xy[rows[back], t + 1] - log.ego_xy[rows[back], t]) / cfg.step_time
             if cfg.freeze_on_collision:
-                mine = np.isin(act[pairs[0]], rows)  # the pairs of the rows that moved
-                f = np.searchsorted(rows, act[pairs[0][mine]])
-                hold = _overlapping(log, rows, t, xy, yaw, ext, (f, pairs[1][mine], pairs[3][mine]))
+                moving = np.zeros(n_scenes, bool)
+                moving[rows] = True
+                mine = moving[pair_rows]  # the pairs of the rows that moved
+                f = np.searchsorted(rows, pair_rows[mine])
+                hold = _overlapping(log, rows, t, xy, yaw, ext, (f, pairs[1][mine], pairs[2][mine]))
                 nxt[hold], nyaw[hold] = xy[hold], yaw[hold]
                 reset[rows[hold], t + 1] = False
                 frozen[rows[hold], t + 1] = True

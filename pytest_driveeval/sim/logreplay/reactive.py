@@ -133,8 +133,9 @@ class ReactiveReplay:
         self.reacted = np.zeros(log.available.shape, bool)
 
     def step(self, rows: np.ndarray, t: int, ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_extent: np.ndarray,
-             cells: LogCells) -> None:
-        """Move the agents of ``rows`` from frame t to t+1 in ``sim`` (and ``cells``).
+             cells: LogCells | None) -> None:
+        """Move the agents of ``rows`` from frame t to t+1 in ``sim`` (and ``cells``, the packing
+        the numpy inputs read; None when the compiled inputs read ``sim`` itself).
 
         ``ego_xy`` (S, T, 2) / ``ego_yaw`` (S, T): the driven ego, known up to t."""
         log, sim, model = self.log, self.sim, self.spec.idm
@@ -272,6 +273,8 @@ class ReactiveReplay:
         sim.agent_velocity[r, t + 1, c] = (v_next[:, None] * tangent).astype(np.float32)
         self.reacted[r, t + 1, c] = True
         self.frame[r, c], self.s[r, c], self.v[r, c] = f, s_next, v_next
+        if cells is None:
+            return
         cell = cells.base(r, np.full(r.size, t + 1)) + c
         cells.sel.view(np.float64)[cell, 1:3] = xy
         feat = cells.feat.view(np.float64)
