@@ -135,12 +135,9 @@ class ClosedLoop(UseCase):
         executor, where = (None, {}) if perturbation is not None or not ids else self._executor(config, ctx)
         if executor is not None:
             return self._evaluate_chunks(config, ctx, ids, problems, executor)
-        semantic_map = None
-        if ids and spec.Inputs.Kind == "raster" and spec.Inputs.MapType == "py_semantic":
-            from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
+        from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
-            semantic_map = load_semantic_map(dataset.path, spec.Inputs.SemanticMap, spec.Inputs.Meta,
-                                             ctx.scenario.folder)
+        semantic_map = semantic_map_for(spec.Inputs, dataset.path, ctx.scenario.folder) if ids else None
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, **spec.unroll_options(),
                                agents=replayed_agents(spec.Agents), perturbation=perturbation,
                                semantic_map=semantic_map) if ids else None

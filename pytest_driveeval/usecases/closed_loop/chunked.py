@@ -69,12 +69,9 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
 
     config, spec = chunk.config, chunk.config.Unroll
     dataset = L5Dataset.open(chunk.dataset)
-    semantic_map = None
-    if spec.Inputs.Kind == "raster" and spec.Inputs.MapType == "py_semantic":
-        from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
+    from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
-        semantic_map = load_semantic_map(dataset.path, spec.Inputs.SemanticMap, spec.Inputs.Meta,
-                                         chunk.scenario_folder)
+    semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder)
     ids = list(chunk.scenes)
     with one_torch_thread():  # as the design of run_chunks asks: the same float sums wherever it runs
         unroll = unroll_scenes(dataset, _policy(chunk), ids, **spec.unroll_options(),

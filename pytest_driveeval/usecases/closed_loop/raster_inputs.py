@@ -17,7 +17,7 @@ import numpy as np
 
 from pytest_driveeval.errors import DataError
 
-__all__ = ["load_semantic_map", "raster_inputs"]
+__all__ = ["load_semantic_map", "raster_inputs", "semantic_map_for"]
 
 
 def raster_inputs(params: Any, log: Any, scenes: Sequence[Any], semantic_map: Any = None) -> Callable:
@@ -61,3 +61,10 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
             raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
                             f"MapType py_semantic; give Inputs.{key} to point elsewhere)")
     return read_semantic_map(pb_path, meta_path)
+
+
+def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike) -> Any:
+    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None."""
+    if inputs.Kind != "raster" or inputs.MapType != "py_semantic":
+        return None
+    return load_semantic_map(dataset_path, inputs.SemanticMap, inputs.Meta, folder)

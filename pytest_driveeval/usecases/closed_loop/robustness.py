@@ -43,7 +43,16 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
     """The search over ``ids`` (scene indices); ``show(scene, perturbation)`` is the item's own
     evaluation of one scene, with its animation.  ``distribute``: judges a generation's examples
     elsewhere (chunks on an executor, each judged by this same function on a worker) instead
-    of here."""
+    of here (the scenes are then not stacked in this process at all)."""
+    return Searchable(case_name="scene", case_labels=[int(i) for i in ids], perturbation_type=StartPerturbation,
+                      perturbations=start_perturbations(**config.Perturbation.ranges()),
+                      evaluate_many=distribute or _judged_here(config, dataset, model, ids, agents),
+                      show=lambda example: show(int(ids[example.case]), example.perturbation) if show else None)
+
+
+def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: Sequence[int], agents: Any
+                 ) -> Callable[[list[Example]], list[Verdict]]:
+    """``evaluate_many`` in this process: the scenes stacked once, each generation unrolled on copies."""
     spec = config.Unroll
     log = stack_log(dataset, ids, spec.StartFrame, agents)
     options = spec.unroll_options()
@@ -68,14 +77,9 @@ def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callab
         return taken
 
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
-        if distribute is not None:
-            return distribute(examples)
         rows = np.array([e.case for e in examples], dtype=np.int64)
         unrolled = unroll_log(copies(tuple(rows.tolist())), model, settings, [e.perturbation for e in examples],
                               cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
         return [example_verdict(judge_scene(unrolled, i, config.Conditions)) for i in range(len(examples))]
 
-    return Searchable(case_name="scene", case_labels=[int(i) for i in ids], perturbation_type=StartPerturbation,
-                      perturbations=start_perturbations(**config.Perturbation.ranges()),
-                      evaluate_many=evaluate_many,
-                      show=lambda example: show(int(ids[example.case]), example.perturbation) if show else None)
+    return evaluate_many
