@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ..io.l5kit_zarr import L5Scene
-from .draw import AVAILABLE, fill_polygons
+from .draw import compiled, fill_polygons
 
 if TYPE_CHECKING:
     from ..sim.logreplay.logarrays import LogArrays
@@ -38,13 +38,6 @@ KEEP_LABELS = np.arange(3, 16)  # PERCEPTION_LABEL_CAR .. PERCEPTION_LABEL_ANIMA
 _FAR = 1e9  # metres: a box there is off every raster (and its pixel coordinates still fit an int64)
 _UNIT_CORNERS = np.asarray([[-1, -1], [-1, 1], [1, 1], [1, -1]]) * 0.5
 _EGO_LOCAL = _UNIT_CORNERS * EGO_BOX  # what box_corners makes of the ego's extent, once
-
-
-def _compiled(fn):
-    if not AVAILABLE:
-        return fn
-    from numba import njit
-    return njit(cache=True, nogil=True)(fn)
 
 
 def agent_keep(scenes: Sequence[L5Scene], log: "LogArrays", threshold: float) -> np.ndarray:
@@ -126,7 +119,7 @@ class BoxTable:
         self.corners[idx] = corners
 
 
-@_compiled
+@compiled
 def _clear(out, rects, n):
     """Zero the rectangles ``rects[:n]`` (x0, y0, x1, y1 inclusive) of ``out`` (H, W)."""
     for r in range(n):
@@ -134,7 +127,7 @@ def _clear(out, rects, n):
             out[y, rects[r, 0]:rects[r, 2] + 1] = 0.0
 
 
-@_compiled
+@compiled
 def _channel(out, lut, scratch, matrix, corners, first, last, colour, verts, starts, rects):
     """Draw boxes ``corners[first:last]`` in one fillPoly and write what they touched of
     ``scratch`` to ``out`` (H, W) through ``lut``, leaving ``scratch`` zero again.
@@ -177,7 +170,7 @@ def _channel(out, lut, scratch, matrix, corners, first, last, colour, verts, sta
     return n
 
 
-@_compiled
+@compiled
 def draw_box_channels(out, lut, matrices, rows, history, offsets, n_frames, corners, ego_corners, ego_history,
                       rects, n_rects):
     """Fill the 2 (H+1) box channels of ``out`` (B, C, height, width).

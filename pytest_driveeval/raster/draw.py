@@ -56,7 +56,7 @@ GAUSSIAN = np.array([
     40, 36, 32, 28, 25, 22, 19, 16, 14, 12, 11, 9, 8, 7, 5, 5], np.int64)
 
 
-def _compiled(fn):
+def compiled(fn):
     return njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
 
 
@@ -70,14 +70,14 @@ def subpixel(points: np.ndarray) -> np.ndarray:
     return (np.asarray(points, np.float64) * (1 << SUBPIXEL_SHIFT)).astype(np.int64)
 
 
-@_compiled
+@compiled
 def _cdiv(a, b):
     """C's integer division (toward zero); Python's // floors."""
     q = abs(a) // abs(b)
     return q if (a >= 0) == (b >= 0) else -q
 
 
-@_compiled
+@compiled
 def _outcode(x, y, right, bottom):
     code = 0
     if x < 0:
@@ -91,7 +91,7 @@ def _outcode(x, y, right, bottom):
     return code
 
 
-@_compiled
+@compiled
 def _clip_line(width, height, x1, y1, x2, y2):
     """OpenCV's clipLine on [0, width-1] x [0, height-1]: the y sides first, then x,
     each intersection computed in double and truncated."""
@@ -138,13 +138,13 @@ def _blend(img, row, col, colour, alpha, height, width, channels):
             img[row, col, k] = c
 
 
-@_compiled
+@compiled
 def _end_index(count):
     # 0 at the end pixel, 1 next to it, 2 inside: which end-point weight applies.
     return 0 if count == 0 else (1 if count == 1 else 2)
 
 
-@_compiled
+@compiled
 def _end_weight(index, slope, i, j):
     """OpenCV's end-point correction table, entry ``index`` (3 x start position + end
     position, each 0 at the end pixel, 1 next to it, 2 inside), without building it."""
@@ -167,7 +167,7 @@ def _end_weight(index, slope, i, j):
     return ((t2 + (slope << 7)) >> 8) & 0x1FF
 
 
-@_compiled
+@compiled
 def line_aa(img, x1, y1, x2, y2, colour):
     """An anti-aliased line between two 16.16 fixed-point points (OpenCV's LineAA)."""
     height, width, channels = img.shape[0], img.shape[1], img.shape[2]
@@ -219,7 +219,7 @@ def line_aa(img, x1, y1, x2, y2, colour):
         count -= 1
 
 
-@_compiled
+@compiled
 def polylines(img, verts, starts, closed, colour):
     """cv2.polylines(img, polygons, closed, colour, shift=9, lineType=LINE_AA), thickness 1."""
     for p in range(starts.size - 1):
@@ -233,7 +233,7 @@ def polylines(img, verts, starts, closed, colour):
             prev = v
 
 
-@_compiled
+@compiled
 def _insertion_sort(values, n):
     for i in range(1, n):
         v = values[i]
@@ -244,7 +244,7 @@ def _insertion_sort(values, n):
         values[j + 1] = v
 
 
-@_compiled
+@compiled
 def fill_polygons(img, verts, starts, colour):
     """cv2.fillPoly(img, polygons, colour, shift=9, lineType=LINE_AA): every edge
     outlined anti-aliased first, then all polygons filled together, even-odd."""

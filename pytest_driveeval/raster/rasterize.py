@@ -20,7 +20,7 @@ import numpy as np
 
 from ..io.l5kit_zarr import L5Scene
 from .boxes import BoxTable, agent_keep, draw_box_channels, ego_corners
-from .draw import AVAILABLE
+from .draw import compiled
 from .params import RasterParams
 from .semantic import ActiveFaces, PreparedMap, active_faces, draw_semantic_batch
 from .transforms import raster_centre_in_world, raster_from_local, world_matrices
@@ -37,14 +37,7 @@ LUT = np.arange(256, dtype=np.uint8).astype(np.float32) / 255  # l5kit's astype(
 _REACH = 30.0
 
 
-def _compiled(fn):
-    if not AVAILABLE:
-        return fn
-    from numba import njit
-    return njit(cache=True, nogil=True)(fn)
-
-
-@_compiled
+@compiled
 def _prepare(rows, frames, num_frames, ego_xy, ego_yaw, history, pose_xy, pose_yaw):
     """Each row's channel frames (``history`` (B, H+1), -1 before the scene) and the ego's
     pose at each (clipped to frame 0), gathered flat; returns the first row b whose scene

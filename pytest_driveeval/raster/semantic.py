@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ..io.l5kit_zarr import L5Scene
-from .draw import AVAILABLE, fill_polygons, polylines
+from .draw import compiled, fill_polygons, polylines
 
 if TYPE_CHECKING:
     from ..io.l5_semantic_map import SemanticMap
@@ -49,13 +49,6 @@ INTERPOLATION_POINTS = 20
 COLOURS = np.array([(255, 217, 82), (255, 0, 0), (255, 255, 0), (0, 255, 0), (17, 17, 31), (255, 117, 69)], np.int64)
 ROAD, CROSSWALK = 4, 5
 _RANK = np.array([0, 3, 2, 1], np.int64)  # unknown, red, yellow, green: which colour wins
-
-
-def _compiled(fn):
-    if not AVAILABLE:
-        return fn
-    from numba import njit
-    return njit(cache=True, nogil=True)(fn)
 
 
 @dataclass(frozen=True)
@@ -132,13 +125,13 @@ class PreparedMap:
         return np.array([self.face_index.get(f, -1) for f in faces.ids.tolist()], np.int64)
 
 
-@_compiled
+@compiled
 def _inside(bounds, k, cx, cy, half):
     return (cx > bounds[k, 0] - half and cy > bounds[k, 1] - half
             and cx < bounds[k, 2] + half and cy < bounds[k, 3] + half)
 
 
-@_compiled
+@compiled
 def _to_raster(points, matrix, verts, at):
     for v in range(points.shape[0]):
         px, py = points[v, 0], points[v, 1]
@@ -146,7 +139,7 @@ def _to_raster(points, matrix, verts, at):
         verts[at + v, 1] = int((px * matrix[1, 0] + py * matrix[1, 1] + matrix[1, 2]) * 512.0)
 
 
-@_compiled
+@compiled
 def draw_semantic(out, lut, img, matrix, cx, cy, half, lanes, lane_bounds, lane_polygons, lane_face_offsets,
                   lane_faces, face_on, face_rank, face_colour, crosswalks, cw_bounds, cw_points, cw_offsets):
     """One row's semantic layers into ``out`` (3, H, W).  ``lanes``/``crosswalks``:
@@ -215,7 +208,7 @@ def draw_semantic(out, lut, img, matrix, cx, cy, half, lanes, lane_bounds, lane_
                 out[c, y, x] = lut[img[y, x, c]]
 
 
-@_compiled
+@compiled
 def draw_semantic_batch(out, lut, channel, matrices, centres, half, rows, frames, n_frames, lane_offsets, lanes,
                         lane_bounds, lane_polygons, lane_face_offsets, lane_faces, face_rank, face_colour,
                         face_offsets, face_ids, cw_offsets_by_scene, crosswalks, cw_bounds, cw_points, cw_offsets):

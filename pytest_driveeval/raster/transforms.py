@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import transform_points, world_from_agent
 from .params import RasterParams
 
-__all__ = ["raster_centre_in_world", "raster_from_local", "raster_from_world", "transform_points", "world_matrices"]
+__all__ = ["raster_centre_in_world", "raster_from_local", "raster_from_world", "world_matrices"]
 
 
 def raster_from_local(params: RasterParams) -> np.ndarray:
@@ -41,18 +42,7 @@ def world_matrices(local: np.ndarray, xy: np.ndarray, yaw: np.ndarray) -> np.nda
     """``raster_from_world`` with ``raster_from_local`` given (a caller's, made once)."""
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     yaw = np.asarray(yaw, np.float64).reshape(-1)
-    cos, sin = np.cos(yaw), np.sin(yaw)
-    pose = np.zeros((yaw.size, 3, 3))
-    pose[:, 0, 0], pose[:, 0, 1], pose[:, 0, 2] = cos, -sin, xy[:, 0]
-    pose[:, 1, 0], pose[:, 1, 1], pose[:, 1, 2] = sin, cos, xy[:, 1]
-    pose[:, 2, 2] = 1.0
-    return local @ np.linalg.inv(pose)
-
-
-def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """Points (..., N, 2) through 3x3 matrices (..., 3, 3), as l5kit's transform_points."""
-    m = np.swapaxes(matrix, -1, -2)
-    return points @ m[..., :2, :2] + m[..., 2:, :2]
+    return local @ np.linalg.inv(world_from_agent(xy, yaw))
 
 
 def raster_centre_in_world(params: RasterParams, raster_from_world_: np.ndarray) -> np.ndarray:
