@@ -38,8 +38,6 @@ PINS = {
     "pyyaml": None,
     "ptable": None,
 }
-# What l5kit's rasterization and dataset imports need besides PINS, found by importing them.
-EXTRA: dict[str, str | None] = {}
 # Imported by the check: the modules rasterize.py uses.
 CHECK = ("import l5kit, l5kit.data, l5kit.dataset, l5kit.rasterization, numpy, torch;"
          "import importlib.metadata as m;"
@@ -90,7 +88,7 @@ def oracle_python(venv: Path = VENV, quiet: bool = False) -> Path:
         subprocess.run([base_interpreter(), "-m", "venv", str(venv)], check=True)
     else:
         say(f"{venv} exists")
-    deps = {**PINS, **EXTRA}
+    deps = PINS  # l5kit's imports need nothing beyond them (checked by CHECK below)
     wrong = mismatched(installed(python, list(deps)), deps)
     if wrong:
         say("installing " + " ".join(requirement(n, deps[n]) for n in wrong))

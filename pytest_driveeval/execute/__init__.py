@@ -3,7 +3,7 @@
 For whoever wires a use case to it
 ----------------------------------
 1. Read the scenario's ``Executor`` section with :class:`ExecutorSpec` (a session option or
-   ini key gives :func:`executor_from_option`'s spec, which replaces the scenario's).
+   ini key gives :func:`executor_from_option`'s spec; each key it gives replaces the scenario's).
 2. Split the item's work into chunk descriptions, e.g. ``split(len(scenes), spec.ChunkSize or
    64)``.  A description is small, picklable and self-contained: file paths or object-store
    URIs of the data, the scene indices or episode seeds of the chunk, the item's seed, and

@@ -33,11 +33,6 @@ class Placement:
     seconds: float        # inside task_fn, on the worker
     wall_seconds: float   # from the last submission to the result back here: the cost of shipping it
 
-    def where(self) -> str:
-        node = "" if self.node_id == "local" else f" node {self.node_id[:8]}"
-        retried = f", {self.attempts} attempts" if self.attempts > 1 else ""
-        return f"{self.hostname}{node} pid {self.pid}{retried}"
-
 
 @dataclass
 class ChunkRun(Generic[R]):

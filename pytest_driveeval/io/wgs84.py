@@ -41,12 +41,6 @@ def ecef_to_geodetic(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.degrees(lat), np.degrees(np.arctan2(y, x))
 
 
-def enu_to_ecef(enu: np.ndarray, lat_deg, lng_deg) -> np.ndarray:
-    """Points (..., 3) in the ENU frame at (lat, lng, altitude 0), broadcast per point, to ECEF."""
-    axes = enu_axes(lat_deg, lng_deg)
-    return geodetic_to_ecef(lat_deg, lng_deg) + np.einsum("...i,...ij->...j", enu, axes)
-
-
 def ecef_to_enu(xyz: np.ndarray, lat_deg, lng_deg) -> np.ndarray:
     axes = enu_axes(lat_deg, lng_deg)
     return np.einsum("...ij,...j->...i", axes, xyz - geodetic_to_ecef(lat_deg, lng_deg))

@@ -1,5 +1,5 @@
 """closed_loop items with their scenes in chunks on a real local Ray cluster (a head and two
-worker nodes on this machine, tests/usecases/conftest.py): the dataset reaches the workers by
+worker nodes on this machine, tests/ray_items.py): the dataset reaches the workers by
 its path, the model by its loading spec, and the verdicts, figures and GIFs come back."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """policy_benchmark items on a real local Ray cluster (a head and two worker nodes on this
-machine, tests/usecases/conftest.py) give the outcome, figures and artefacts of the same
+machine, tests/ray_items.py) give the outcome, figures and artefacts of the same
 items run locally."""
 from __future__ import annotations
 
