@@ -18,7 +18,7 @@ from typing import Any, Callable, Sequence
 from pytest_driveeval.errors import DriveEvalError
 from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, run_chunks
 
-__all__ = ["ChunkLedger", "chunked_executor", "executor_details", "run_item_chunks"]
+__all__ = ["ChunkLedger", "chunked_executor", "executor_details", "item_executor", "run_item_chunks"]
 
 
 def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSpec | None:
@@ -32,6 +32,22 @@ def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSp
     else:
         spec = scenario_spec.model_copy(update={key: getattr(session, key) for key in session.model_fields_set})
     return None if spec is None or (spec.is_local and spec.ChunkSize is None) else spec
+
+
+def item_executor(ctx: Any, scenario_spec: ExecutorSpec | None, loaded: Any, model: Any, what: str
+                  ) -> tuple[ExecutorSpec | None, dict]:
+    """(the executor of the item's chunks or None, why the item stays local although one was
+    asked for: details for the report, or {}).  ``loaded`` is the object the use case loaded
+    from a spec (which a worker can load again), ``model`` the one the item was given."""
+    executor = chunked_executor(ctx, scenario_spec)
+    if executor is None:
+        return None, {}
+    if loaded is not model:
+        # A conftest.py fixture's model is a live object: nothing a worker could load safely.
+        return None, {"executor": "local", "summary": (
+            f"ran locally, not on {executor.describe()}: the {what} is the driveeval_model fixture's "
+            "object (conftest.py), which has no loading spec a worker could use")}
+    return executor, {}
 
 
 def run_item_chunks(ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: Callable[..., Any], label: str,
@@ -85,6 +101,13 @@ class ChunkLedger:
         for p in run.placements:
             key = p.hostname if p.node_id == "local" else f"{p.hostname}/{p.node_id[:8]}"
             self.per_node[key] = self.per_node.get(key, 0) + 1
+
+    def run(self, ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: Callable[..., Any]) -> ChunkRun:
+        """One of the item's repeated chunk runs (a search's generation), counted here; no
+        progress bar: one per generation would scroll the terminal."""
+        run = run_item_chunks(ctx, spec, work, task_fn, "", show_progress=False)
+        self.add(run)
+        return run
 
     def details(self) -> dict:
         hosts = ", ".join(f"{h}: {n}" for h, n in sorted(self.per_node.items()))

@@ -186,7 +186,7 @@ class ClosedLoop(UseCase):
         """(the search's ``distribute``: a generation's examples as chunks on the executor, each
         judged on a worker by the same search code; the ledger of where they ran)."""
         from pytest_driveeval.usecases.closed_loop.chunked import SceneChunk, run_search_chunk, search_chunks
-        from pytest_driveeval.usecases.executor import ChunkLedger, run_item_chunks
+        from pytest_driveeval.usecases.executor import ChunkLedger
 
         dataset: L5Dataset = ctx.fixtures["driveeval_dataset"]
         model, base, _ = ctx.notes["model_source"]
@@ -195,30 +195,18 @@ class ClosedLoop(UseCase):
         ledger = ChunkLedger()
 
         def distribute(examples: list) -> list:
-            # A bar per generation would scroll the terminal; the report counts the chunks instead.
-            run = run_item_chunks(ctx, executor, search_chunks(scenes, examples, executor), run_search_chunk, "",
-                                  show_progress=False)
-            ledger.add(run)
+            run = ledger.run(ctx, executor, search_chunks(scenes, examples, executor), run_search_chunk)
             return [verdict for part in run.results for verdict in part]
 
         return distribute, ledger
 
     @staticmethod
     def _executor(config: ClosedLoopConfig, ctx: RunContext) -> tuple[Any, dict]:
-        """(the executor of the item's chunks or None, why it stays local although one was asked
-        for: details for the report, or {})."""
-        from pytest_driveeval.usecases.executor import chunked_executor
+        """(the executor of the item's chunks or None, why it stays local: usecases.executor.item_executor)."""
+        from pytest_driveeval.usecases.executor import item_executor
 
-        executor = chunked_executor(ctx, config.Executor)
-        if executor is None:
-            return None, {}
         _, _, loaded = ctx.notes.get("model_source", (None, None, None))
-        if loaded is not ctx.fixtures["driveeval_model"]:
-            # A conftest.py fixture's model is a live object: nothing a worker could load safely.
-            return None, {"executor": "local", "summary": (
-                f"ran locally, not on {executor.describe()}: the model is the driveeval_model fixture's "
-                "object (conftest.py), which has no loading spec a worker could use")}
-        return executor, {}
+        return item_executor(ctx, config.Executor, loaded, ctx.fixtures["driveeval_model"], "model")
 
     def _evaluate_chunks(self, config: ClosedLoopConfig, ctx: RunContext, ids: list[int], problems: list[Finding],
                          executor: Any) -> Outcome:

@@ -161,19 +161,12 @@ class PolicyBenchmark(UseCase):
     @staticmethod
     def _executor(config: PolicyBenchmarkConfig, ctx: RunContext, model: Any) -> tuple[Any, Any, dict]:
         """(the Ray executor or None, how a worker loads the policy, why the item stays local
-        although an executor was asked for: details for the report, or {})."""
-        from pytest_driveeval.usecases.executor import chunked_executor
+        although an executor was asked for: usecases.executor.item_executor)."""
+        from pytest_driveeval.usecases.executor import item_executor
 
-        executor = chunked_executor(ctx, config.Executor)
-        if executor is None:
-            return None, None, {}
         source, loaded = ctx.notes.get("policy_source", (None, None))
-        if loaded is not model:
-            # A conftest.py fixture's model is a live object: nothing a worker could load safely.
-            return None, None, {"executor": "local", "summary": (
-                f"ran locally, not on {executor.describe()}: the policy is the driveeval_model fixture's "
-                "object (conftest.py), which has no loading spec a worker could use")}
-        return executor, source, {}
+        executor, where = item_executor(ctx, config.Executor, loaded, model, "policy")
+        return executor, source if executor is not None else None, where
 
     @staticmethod
     def _replayer(blueprint: Any, run: Any, model: Any, name: str, agent_limit: int):

@@ -58,23 +58,23 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
     (executor.ChunkLedger) counting where; the picture of the case found is drawn here."""
     spec = config.Perturbation
     fail_on = tuple(spec.FailOn)
+    if executor is not None and ledger is None:
+        from pytest_driveeval.usecases.executor import ChunkLedger
+
+        ledger = ChunkLedger()
 
     def run(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation], on_step=None) -> PolicyRun:
         return run_policy(blueprint, case_seeds, policy, name, agent_limit=config.AgentLimit, on_step=on_step,
                           perturbation=perturbation_rows(perturbations))
 
     def run_chunked(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation]) -> PolicyRun:
-        from pytest_driveeval.usecases.executor import run_item_chunks
         from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, episode_chunks, merged,
                                                                         run_episode_chunk)
 
         work = episode_chunks(name, source, blueprint.name, config.blueprint_params(), case_seeds,
                               config.AgentLimit, executor.ChunkSize or DEFAULT_CHUNK_SIZE,
                               perturbation_rows(perturbations))
-        # A bar per generation would scroll the terminal; the report counts the chunks instead.
-        chunk_run = run_item_chunks(ctx, executor, work, run_episode_chunk, "", show_progress=False)
-        if ledger is not None:
-            ledger.add(chunk_run)
+        chunk_run = ledger.run(ctx, executor, work, run_episode_chunk)
         done = merged(chunk_run.results)
         return PolicyRun(name, blueprint.name, case_seeds, np.zeros(len(case_seeds), np.int64), done.outcome,
                          done.returns, done.steps)
