@@ -36,12 +36,26 @@ def cluster():
 
 
 def seeded_scenes(chunk):
-    """Deterministic numpy work that also takes a chunk-dependent time, so chunks finish
-    out of order: the first chunk is the slowest."""
+    """Deterministic numpy work that also takes a chunk-dependent time."""
     seed, scenes, pause = chunk
     time.sleep(pause)
-    values = np.stack([np.random.default_rng((seed, s)).normal(size=(32, 4)).cumsum(axis=0) for s in scenes])
-    return values, time.time()
+    return np.stack([np.random.default_rng((seed, s)).normal(size=(32, 4)).cumsum(axis=0) for s in scenes])
+
+
+def finishing_after(chunk):
+    """seeded_scenes, then a mark ``done-<index>`` in ``marks``; with ``after`` set, the chunk first waits
+    for that chunk's mark, so the two finish in that order however loaded the machine is.  Returns the
+    values and whether the awaited chunk had finished (a bounded wait: a scheduler that never runs the
+    two together fails the assertion instead of hanging)."""
+    marks, index, after, inner = chunk
+    values = seeded_scenes(inner)
+    awaited = after is None
+    deadline = time.monotonic() + 120.0
+    while not awaited and time.monotonic() < deadline:
+        awaited = (marks / f"done-{after}").exists()
+        time.sleep(0.02)
+    (marks / f"done-{index}").touch()
+    return values, awaited
 
 
 def timed(chunk):
@@ -65,16 +79,18 @@ def work(pauses):
     return [(11, scenes, pause) for scenes, pause in zip(split(len(pauses) * 3, 3), pauses)]
 
 
-def test_results_match_a_local_run_in_chunk_order_across_both_nodes(cluster):
+def test_results_match_a_local_run_in_chunk_order_across_both_nodes(cluster, tmp_path):
     chunks = work([0.9, 0.2, 0.5, 0.3, 0.4, 0.2, 0.3, 0.2])
     progress = []
     spec = ExecutorSpec(Kind="ray", MaxInFlight=4)
-    run = run_chunks(spec, chunks, seeded_scenes, progress=lambda done, total: progress.append(done))
+    # The first chunk waits for the second's mark: it finishes last of the two, and its result must
+    # still come first.
+    ordered = [(tmp_path, i, 1 if i == 0 else None, c) for i, c in enumerate(chunks)]
+    run = run_chunks(spec, ordered, finishing_after, progress=lambda done, total: progress.append(done))
     local = run_chunks(ExecutorSpec(), chunks, seeded_scenes)
 
-    assert all(np.array_equal(a[0], b[0]) for a, b in zip(run.results, local.results))
-    finished = [r[1] for r in run.results]
-    assert finished[0] > finished[1], "the slow first chunk should have finished after the second"
+    assert all(np.array_equal(a[0], b) for a, b in zip(run.results, local.results))
+    assert run.results[0][1], "the first chunk should have finished after the second"
     assert progress == list(range(len(chunks) + 1))
     # four tasks at once need both two-CPU nodes; placements name them
     assert run.nodes == worker_nodes() and len(run.nodes) == 2
@@ -119,7 +135,7 @@ def seeded_scenes_marked(chunk):
     if marks is not None:
         node = ray.get_runtime_context().get_node_id()
         (marks / f"{node}-{index}-{os.getpid()}").touch()
-    return seeded_scenes(inner)[0]
+    return seeded_scenes(inner)
 
 
 def test_a_worker_node_killed_mid_run_costs_a_retry_not_the_run(cluster, tmp_path):
