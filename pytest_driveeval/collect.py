@@ -16,7 +16,7 @@ from .errors import ScenarioError
 from .failure import ScenarioFailed
 from .scenario import NotAScenario, Scenario, load_scenario
 from .settings import DECLARED_SUFFIXES, get_settings
-from .usecase import Case
+from .usecase import Case, usecase_of
 
 
 def is_scenario_file(path: Path, patterns: Iterable[str]) -> bool:
@@ -54,8 +54,9 @@ def _scenario_function(scenario: Scenario) -> object:
             raise ScenarioFailed(outcome)
 
     scenario_test.pytestmark = [m.mark for m in _marks(scenario)]
-    if scenario.usecase.fixtures:
-        scenario_test.pytestmark.append(pytest.mark.usefixtures(*scenario.usecase.fixtures).mark)
+    usecase = usecase_of(scenario)
+    if usecase.fixtures:
+        scenario_test.pytestmark.append(pytest.mark.usefixtures(*usecase.fixtures).mark)
     return scenario_test
 
 
@@ -93,7 +94,7 @@ class ScenarioFile(pytest.File):
         try:
             scenario = load_scenario(self.path, data_root=settings.data_root,
                                      envelope_optional=not self.path.name.endswith(DECLARED_SUFFIXES))
-            cases = scenario.cases()
+            cases = usecase_of(scenario).cases(scenario)
         except NotAScenario:
             return
         except ScenarioError as error:

@@ -24,7 +24,7 @@ from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions
 from .runs import start_run
 from .settings import get_settings, item_seed
-from .usecase import Case, RunContext
+from .usecase import Case, RunContext, usecase_of
 
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
@@ -84,7 +84,7 @@ def _binding(request: pytest.FixtureRequest) -> tuple[Scenario, Case]:
         )
     path = Path(str(node.path)).parent / mark.args[0]
     scenario = load_scenario(path, data_root=get_settings(request.config).data_root)
-    cases = scenario.cases()
+    cases = usecase_of(scenario).cases(scenario)
     wanted = mark.kwargs.get("dataset")
     chosen = [c for c in cases if wanted is None or (c.dataset is not None and c.dataset.name == wanted)]
     if not chosen:
@@ -133,14 +133,14 @@ def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenar
 @pytest.fixture
 def driveeval_dataset(driveeval_context: RunContext) -> Any:
     """The dataset the scenario names, as its use case opens it."""
-    return driveeval_context.scenario.usecase.load_dataset(driveeval_context)
+    return usecase_of(driveeval_context.scenario).load_dataset(driveeval_context)
 
 
 @pytest.fixture
 def driveeval_model(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Any:
     """The model (policy) under test: --driveeval-model if given, else the scenario's."""
     spec = get_settings(request.config).model
-    return driveeval_context.scenario.usecase.load_model(driveeval_context, spec)
+    return usecase_of(driveeval_context.scenario).load_model(driveeval_context, spec)
 
 
 @pytest.fixture
@@ -148,7 +148,7 @@ def driveeval_pointclouds(driveeval_context: RunContext, driveeval_dataset: Any)
     """The point clouds under test, as the use case reads them from the dataset
     (the ``driveeval_dataset`` fixture, so an override of it applies here too)."""
     driveeval_context.fixtures.setdefault("driveeval_dataset", driveeval_dataset)
-    return driveeval_context.scenario.usecase.load_pointclouds(driveeval_context)
+    return usecase_of(driveeval_context.scenario).load_pointclouds(driveeval_context)
 
 
 def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome) -> None:
@@ -172,7 +172,7 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
 
     def run(**overrides: Any) -> Outcome:
         ctx = driveeval_context
-        usecase = ctx.scenario.usecase
+        usecase = usecase_of(ctx.scenario)
         seconds = ctx.scenario.time_limit or get_settings(request.config).time_limit
         try:
             with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})"):

@@ -21,7 +21,7 @@ from .errors import DataError, ModelError
 
 if TYPE_CHECKING:
     from .outcome import Outcome
-    from .scenario import DatasetRef, Scenario
+    from .scenario.loaded import DatasetRef, Scenario
 
 ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
 
@@ -161,6 +161,14 @@ def get_usecase(name: str) -> UseCase | None:
     if name not in _registry:
         _load_entry_points()
     return _registry.get(name)
+
+
+def usecase_of(scenario: "Scenario") -> UseCase:
+    """The use case a loaded scenario names (``load_scenario`` refuses a name that is not registered)."""
+    found = get_usecase(scenario.use_case)
+    if found is None:
+        raise LookupError(f"scenario {scenario.path} names use case '{scenario.use_case}', which is not registered")
+    return found
 
 
 def known_usecases() -> list[str]:

@@ -13,8 +13,8 @@ import time
 from collections import deque
 from typing import Any, Callable
 
-from pytest_driveeval.execute.chunks import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
-                                             describe_chunk, failure_message)
+from pytest_driveeval.execute.chunk_results import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
+                                                    describe_chunk, failure_message)
 from pytest_driveeval.execute.spec import ExecutorSpec
 
 __all__ = ["default_in_flight", "disconnect", "run_on_ray", "run_one"]

@@ -13,7 +13,7 @@ import threading
 
 import numpy as np
 
-from .pointcloud import Area, BoxSet, CloudCounts, xyz_columns
+from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 try:
     from numba import njit

@@ -15,7 +15,7 @@ import threading
 import numpy as np
 
 from ..geometry.polygons import points_in_polygon
-from .pointcloud import Area, BoxSet, CloudCounts, xyz_columns
+from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 
 MULTI = -2  # grid label of a cell touched by several boxes

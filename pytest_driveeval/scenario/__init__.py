@@ -5,6 +5,7 @@ key's line), checks the envelope (``envelope``) and the use case's own part,
 and turns every pydantic error into a located problem (``problems``).
 """
 from .envelope import XFailSpec
-from .load import DatasetRef, NotAScenario, Scenario, load_scenario
+from .load import NotAScenario, load_scenario
+from .loaded import DatasetRef, Scenario
 
 __all__ = ["DatasetRef", "NotAScenario", "Scenario", "XFailSpec", "load_scenario"]

@@ -6,65 +6,20 @@ mistakes lists them all at once, each at its line.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
 from ..errors import Problem, ScenarioError
-from ..usecase import Case, UseCase, get_usecase, known_usecases
+from ..usecase import UseCase, get_usecase, known_usecases
 from .envelope import DatasetOptions, Envelope, EvaluationHead, XFailSpec
+from .loaded import DatasetRef, Scenario
 from .problems import did_you_mean, problems_from_validation
 from .source import SourceMap, load_yaml_with_lines
 
 SUPPORTED_SCENARIO_FORMATS = ("2", "3")  # major versions of ScenarioFormatVersion
 COMMON_EVALUATION_KEYS = ("UseCaseName", "UseCaseFormatVersion", "Datasets")
-
-
-@dataclass(frozen=True)
-class DatasetRef:
-    name: str
-    path: Path
-    options: dict[str, Any]
-    line: int | None
-
-
-@dataclass
-class Scenario:
-    path: Path
-    name: str
-    description: str
-    use_case: str
-    format_version: str
-    datasets: list[DatasetRef]
-    config: Any
-    raw: dict
-    source: SourceMap
-    marks: list[str] = field(default_factory=list)
-    skip: str | None = None
-    xfail: XFailSpec | None = None
-    time_limit: float | None = None
-
-    @property
-    def folder(self) -> Path:
-        return self.path.parent
-
-    def line_of(self, *keypath: Any) -> int | None:
-        return self.source.line_of(keypath)
-
-    def resolve(self, relative: str | os.PathLike) -> Path:
-        """A path written in the scenario, relative to the scenario's folder."""
-        return (self.folder / os.path.expandvars(os.path.expanduser(str(relative)))).resolve()
-
-    @property
-    def usecase(self) -> UseCase:
-        found = get_usecase(self.use_case)
-        assert found is not None  # checked at load time
-        return found
-
-    def cases(self) -> list[Case]:
-        return self.usecase.cases(self)
 
 
 def _dataset_refs(head: EvaluationHead, path: Path, source: SourceMap, data_root: Path | None) -> list[DatasetRef]:

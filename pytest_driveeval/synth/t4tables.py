@@ -7,14 +7,11 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..geometry.quaternions import quat_wxyz_from_yaw
-
-if TYPE_CHECKING:
-    from .t4gen import Road
+from .road import Road
 
 
 def token(seed: int, *key) -> str:

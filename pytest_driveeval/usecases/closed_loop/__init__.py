@@ -16,7 +16,8 @@ from pytest_driveeval.errors import ModelError, display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
-from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
+from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
+from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig, replayed_agents
 from pytest_driveeval.usecases.closed_loop.evaluate import (
     KINDS,
     judge_scene,
@@ -28,27 +29,6 @@ from pytest_driveeval.usecases.closed_loop.evaluate import (
 if TYPE_CHECKING:
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
     from pytest_driveeval.strategies import StartPerturbation
-
-BASELINES = ("constant_velocity", "log_replay")
-
-
-def baseline(name: str, config: ClosedLoopConfig | None = None):
-    from pytest_driveeval.policies.baselines import (
-        ConstantVelocityPolicy,
-        ReplayLogPolicy,
-    )
-
-    if name == "constant_velocity":
-        spec = config.ConstantVelocity if config is not None else None
-        return ConstantVelocityPolicy(first_step=spec.FirstStep if spec else "heading").eval()
-    return {"log_replay": ReplayLogPolicy}[name]().eval()
-
-
-def replayed_agents(spec):
-    """The engine's ReplayedAgents from the YAML's ``Unroll.Agents``."""
-    from pytest_driveeval.sim.logreplay import ReplayedAgents
-
-    return ReplayedAgents(labels=spec.Labels, label_threshold=spec.LabelThreshold, within_at_start=spec.WithinAtStart)
 
 
 @register_usecase

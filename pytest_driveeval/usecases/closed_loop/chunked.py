@@ -52,7 +52,7 @@ class SceneResults:
 
 def _policy(chunk: SceneChunk) -> Any:
     from pytest_driveeval.policies.loading import load_model
-    from pytest_driveeval.usecases.closed_loop import BASELINES, baseline
+    from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
 
     if chunk.model in BASELINES:
         return baseline(chunk.model, chunk.config)
@@ -63,7 +63,7 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     """A chunk's scenes unrolled, judged and drawn, on whichever process runs it."""
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.torch_threads import one_torch_thread
-    from pytest_driveeval.usecases.closed_loop import replayed_agents
+    from pytest_driveeval.usecases.closed_loop.config import replayed_agents
     from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_gif
     from pytest_driveeval.usecases.closed_loop.evaluate import collision_events, judge_scene, unroll_scenes
 
@@ -116,7 +116,7 @@ def run_search_chunk(chunk: SearchChunk) -> list:
     """The chunk's examples judged as the local search judges them (robustness.closed_loop_searchable)."""
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.torch_threads import one_torch_thread
-    from pytest_driveeval.usecases.closed_loop import replayed_agents
+    from pytest_driveeval.usecases.closed_loop.config import replayed_agents
     from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
 
     scenes = chunk.scenes

@@ -126,6 +126,13 @@ class AgentsSpec(_Strict):
         return self
 
 
+def replayed_agents(spec: AgentsSpec):
+    """The engine's ReplayedAgents from the YAML's ``Unroll.Agents``."""
+    from pytest_driveeval.sim.logreplay import ReplayedAgents
+
+    return ReplayedAgents(labels=spec.Labels, label_threshold=spec.LabelThreshold, within_at_start=spec.WithinAtStart)
+
+
 class InputsSpec(_Strict):
     """What the policy is given each step.  ``Kind: vector`` (the default): the
     l5kit-keyed agent and ego histories (sim.logreplay.inputs).  ``Kind:

@@ -16,21 +16,10 @@ from typing import Any
 from pytest_driveeval.errors import display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Outcome
 from pytest_driveeval.usecase import Case, RunContext, UseCase, register_usecase
+from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig
 
 __all__ = ["PolicyBenchmark", "baseline", "load_policy"]
-
-
-def baseline(name: str) -> Any:
-    from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction
-
-    if name == "random":
-        return RandomAction()
-    if name == "constant":
-        return ConstantAction()
-    from pytest_driveeval.policies.idm_expert import IDMExpert  # reads the simulator's lanes
-
-    return IDMExpert()
 
 
 def vet_policy_spec(ctx: RunContext, name: str, spec: str, from_option: bool = False) -> None:

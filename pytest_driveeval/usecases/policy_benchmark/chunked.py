@@ -39,7 +39,7 @@ class PolicySource:
 
     def load(self) -> Any:
         from pytest_driveeval.policies.loading import load_model
-        from pytest_driveeval.usecases.policy_benchmark import baseline
+        from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 
         if self.spec in BASELINES:
             return baseline(self.spec)
