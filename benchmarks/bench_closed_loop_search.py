@@ -23,7 +23,7 @@ arithmetic per example hardly shrinks with the batch (model time 2.5x; the
 harness's own time 9.3-9.7x), 4.1-4.3x against ``unroll_scenes``; with
 ``--model constant_velocity`` 12.3x and 17.6-18.4x.
 
-    python benchmarks/bench_closed_loop_search.py [--batch 32] [--generations 4]
+    python benchmarks/bench_closed_loop_search.py [--batch 32] [--generations 4] [--smoke]
 """
 from __future__ import annotations
 
@@ -57,6 +57,7 @@ from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searcha
 
 SCENARIO = ROOT / "scenario_tests" / "robustness" / "real_scene_lateral.scenario.yaml"
 TARGET = 10.0
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 
 
 class Timed:
@@ -94,11 +95,16 @@ def main() -> None:
     parser.add_argument("--generations", type=int, default=4, help="generations of random examples timed")
     parser.add_argument("--model", default=None, help="instead of the scenario's model: a model file or "
                                                       "constant_velocity (the harness alone, nearly)")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
     torch.set_num_threads(1)
 
     scenario = load_scenario(SCENARIO)
     config = scenario.config
+    if args.smoke:
+        args.batch, args.generations = 2, 1
+        config.Unroll.Steps, config.Perturbation.Examples = 5, 4
+        print("smoke run: tiny sizes, 5 steps per example; the figures mean nothing")
     dataset = L5Dataset.open(scenario.datasets[0].path)
     if args.model == "constant_velocity":
         from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
@@ -162,7 +168,8 @@ def main() -> None:
     print(f"whole search: {result.examples} examples in {t_search:.2f} s = {result.examples / t_search:.1f} "
           f"examples/s ({result.examples / t_search / rate_alone:.1f}x one at a time); engine share "
           f"{100 * recorded.seconds / t_search:.0f} %; {len(sizes)} engine calls, {sizes.count(1)} of one example; "
-          f"phases {result.evaluations}; minimal lateral {result.minimal.perturbation.lateral:.4f} m")
+          f"phases {result.evaluations}; " + (f"minimal lateral {result.minimal.perturbation.lateral:.4f} m"
+                                             if result.minimal is not None else "no failing example found"))
 
 
 if __name__ == "__main__":

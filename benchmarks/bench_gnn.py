@@ -16,7 +16,7 @@ Part 2: :func:`~pytest_driveeval.policies.graph.graph_observation` +
 Single-threaded (``--threads``, default 1, and OMP_NUM_THREADS=1 unless set).
 Each figure is the median of ``--rounds`` timed rounds.  Nothing is asserted.
 
-    python benchmarks/bench_gnn.py [--batch 256] [--rounds 7] [--episodes 16] [--agents 12] [--threads 1]
+    python benchmarks/bench_gnn.py [--batch 256] [--rounds 7] [--episodes 16] [--agents 12] [--threads 1] [--smoke]
 """
 from __future__ import annotations
 
@@ -45,6 +45,7 @@ from pytest_driveeval.policies.graph import (
 )
 
 TARGET = 200_000
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 # A 4-lane highway section 400 m long, as BARK-ML's highway blueprint.
 RANGES = ObservationRanges.from_bounding_box(0.0, -8.0, 400.0, 8.0)
 
@@ -103,7 +104,11 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=16)
     parser.add_argument("--agents", type=int, default=12)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.batch, args.rounds, args.calls, args.episodes = 16, 1, 2, 4
+        print("smoke run: tiny sizes; the figures mean nothing")
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"threads: torch {torch.get_num_threads()}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}; "

@@ -6,10 +6,11 @@ reference doing what perception_eval does: for each box and for the area, a
 crossing-number point-in-polygon test over all points (numpy over points, a
 Python loop over polygon vertices), boxes removed from the area's points one
 after another.  The kernels are timed in alternation, so both see the same load.
-Run: ``taskset -c 0 python benchmarks/bench_obstacle_frame.py``.
+Run: ``taskset -c 0 python benchmarks/bench_obstacle_frame.py [--smoke]``.
 """
 from __future__ import annotations
 
+import argparse
 import os
 import time
 
@@ -21,19 +22,20 @@ from pytest_driveeval.metrics import cloud_jit  # noqa: E402
 from pytest_driveeval.metrics.pointcloud import Area, BoxSet, box_corners_3d, crop_reference, evaluate_cloud  # noqa
 
 N_POINTS, N_BOXES, REPEAT = 200_000, 20, 101
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 AREA = np.array([[10.0, 1.5], [10.0, -1.5], [0.0, -1.5], [0.0, 1.5]])
 
 
-def frame(seed: int = 0):
+def frame(seed: int = 0, n_points: int = N_POINTS):
     """A lidar-like obstacle cloud (denser near the sensor) as Autoware publishes it: XYZIRC, float32."""
     rng = np.random.default_rng(seed)
     dtype = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1"), ("return_type", "u1"),
                       ("channel", "<u2")])
-    cloud = np.zeros(N_POINTS, dtype)
-    r = rng.exponential(18.0, N_POINTS) + 2.0
-    th = rng.uniform(-np.pi, np.pi, N_POINTS)
+    cloud = np.zeros(n_points, dtype)
+    r = rng.exponential(18.0, n_points) + 2.0
+    th = rng.uniform(-np.pi, np.pi, n_points)
     cloud["x"], cloud["y"] = r * np.cos(th), r * np.sin(th)
-    cloud["z"] = rng.uniform(-0.3, 3.0, N_POINTS)
+    cloud["z"] = rng.uniform(-0.3, 3.0, n_points)
     centers = np.c_[rng.uniform(-50, 50, N_BOXES), rng.uniform(-30, 30, N_BOXES), rng.uniform(0.7, 1.0, N_BOXES)]
     sizes = np.c_[rng.uniform(1.6, 2.6, N_BOXES), rng.uniform(3.5, 12.0, N_BOXES), rng.uniform(1.4, 3.2, N_BOXES)]
     boxes = BoxSet.from_ground_truth(centers, sizes, rng.uniform(-np.pi, np.pi, N_BOXES), 1.0, 1.2)
@@ -60,7 +62,13 @@ def median_ms(fns: dict, repeat: int) -> dict:
 
 
 def main() -> None:
-    cloud, boxes, area = frame()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
+    args = parser.parse_args()
+    n_points, repeat, reference_repeat = (N_POINTS, REPEAT, 11) if not args.smoke else (2_000, 3, 1)
+    if args.smoke:
+        print("smoke run: tiny sizes; the figures mean nothing")
+    cloud, boxes, area = frame(n_points=n_points)
     xyz = np.stack([cloud["x"], cloud["y"], cloud["z"]], axis=1).astype(np.float64)
     kernels = ["numba", "numpy"] if cloud_jit.AVAILABLE else ["numpy"]
     t0 = time.perf_counter()
@@ -69,9 +77,9 @@ def main() -> None:
     ref_counts, ref_area = reference(xyz, boxes)
     for k, ours in results.items():
         assert ours.counts.tolist() == ref_counts and len(ours.area_points) == ref_area, f"{k} differs"
-    fast = median_ms({k: (lambda k=k: evaluate_cloud(cloud, boxes, area, kernel=k)) for k in kernels}, REPEAT)
-    slow = median_ms({"reference": lambda: reference(xyz, boxes)}, 11)["reference"]
-    print(f"obstacle frame: {N_POINTS} points, {N_BOXES} boxes + area; {results[kernels[0]].candidates} candidate points")
+    fast = median_ms({k: (lambda k=k: evaluate_cloud(cloud, boxes, area, kernel=k)) for k in kernels}, repeat)
+    slow = median_ms({"reference": lambda: reference(xyz, boxes)}, reference_repeat)["reference"]
+    print(f"obstacle frame: {n_points} points, {N_BOXES} boxes + area; {results[kernels[0]].candidates} candidate points")
     for k in kernels:
         print(f"  evaluate_cloud, {k} kernel: median {fast[k]:.2f} ms   (target <= 2 ms)   "
               f"speed-up {slow / fast[k]:.0f}x (target >= 10x)")

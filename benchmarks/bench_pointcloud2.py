@@ -12,7 +12,7 @@ Both reduce each cloud (sum of x) so the payload is really touched.  The bag
 is read right after being written, so it is usually in the page cache: the
 figures measure decoding, not the disk.
 
-    python benchmarks/bench_pointcloud2.py --size-mb 1000 --storage sqlite3
+    python benchmarks/bench_pointcloud2.py --size-mb 1000 --storage sqlite3 [--smoke]
 """
 from __future__ import annotations
 
@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 
 
 def write_bag(path: Path, size_mb: float, points: int, storage: str) -> tuple[int, int]:
@@ -101,10 +103,14 @@ def main() -> None:
     ap.add_argument("--storage", choices=["sqlite3", "mcap"], default="sqlite3")
     ap.add_argument("--no-naive", action="store_true", help="skip the reference (it holds the whole bag in RAM)")
     ap.add_argument("--child", nargs=2, metavar=("MODE", "PATH"), help=argparse.SUPPRESS)
+    ap.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = ap.parse_args()
     if args.child:
         child(*args.child)
         return
+    if args.smoke:
+        args.size_mb, args.points = [1.0], 10_000
+        print("smoke run: tiny sizes; the figures mean nothing")
     with tempfile.TemporaryDirectory() as tmp:
         for size in args.size_mb:
             path = Path(tmp) / f"bag_{int(size)}"

@@ -20,7 +20,7 @@ hold, padding included) and *live* agent-steps (valid agents of episodes still
 running), the one compared with highway-env.  Nothing is asserted.
 
     python benchmarks/bench_policy_benchmark_step.py [--episodes 1 16 64 256] [--steps 50] [--batches 4]
-                                                     [--no-reference]
+                                                     [--no-reference] [--smoke]
 """
 from __future__ import annotations
 
@@ -54,6 +54,7 @@ FILL = {"highway": {}, "merging": {"main_span": (0.0, 95.0), "merge_span": (0.0,
         "intersection": {"traffic_span": (-95.0, 40.0)}}
 HIGHWAY_ENV = "highway-env==1.12.1"  # the newest 1.x on PyPI when this was written
 REFERENCE_VENV = Path.home() / ".cache" / "driveeval-bench" / "highway-env"
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 
 
 # --------------------------------------------------------------------------- HOOK: graph observation
@@ -190,7 +191,11 @@ def main() -> None:
     parser.add_argument("--reference-steps", type=int, default=600)
     parser.add_argument("--no-reference", action="store_true")
     parser.add_argument("--no-graph", action="store_true", help="time the simulator alone")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.episodes, args.steps, args.batches, args.no_reference = [2], 3, 1, True
+        print("smoke run: tiny sizes, highway-env's venv skipped; the figures mean nothing")
 
     print(f"one core: cpu {sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else '?'}, "
           f"OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}, numpy {np.__version__}; {AGENTS} agents per episode")

@@ -13,7 +13,7 @@ as an episode of its own (what a search that calls the simulator once per
 example would cost).  Torch runs on one thread and the process on one core.
 Target: >= 1,000 examples per minute per core.  Nothing is asserted.
 
-    python benchmarks/bench_policy_search.py [--examples 200] [--batch 32] [--cases gnn random gnn-wide]
+    python benchmarks/bench_policy_search.py [--examples 200] [--batch 32] [--cases gnn random gnn-wide] [--smoke]
 """
 from __future__ import annotations
 
@@ -35,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 TARGET = 1000.0  # examples per minute per core
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 MODERATE = {"Lateral": [-0.3, 0.3], "Heading": [-0.03, 0.03], "SpeedScale": [0.9, 1.1],
             "AgentsSpeedScale": [0.9, 1.1], "GapScale": [0.85, 1.2]}
 WIDE = {"Lateral": [-1.0, 1.0], "Heading": [-0.15, 0.15], "SpeedScale": [0.5, 1.5],
@@ -127,7 +128,11 @@ def main() -> None:
     parser.add_argument("--examples", type=int, default=200)
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--cases", nargs="+", choices=sorted(CASES), default=["gnn", "random", "gnn-wide"])
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.examples, args.batch, args.cases = 4, 2, ["gnn-wide"]
+        print("smoke run: tiny sizes; the figures mean nothing")
     import torch
 
     torch.set_num_threads(1)

@@ -13,7 +13,7 @@ closed loop on this machine: 123-154 scene-steps/s (one scene), 190-223
 every step and drawing again into one ``Canvas`` (what the closed loop's
 raster inputs do).  Nothing is asserted.
 
-    python benchmarks/bench_raster.py [--copies 64] [--history 10] [--repeats 3]
+    python benchmarks/bench_raster.py [--copies 64] [--history 10] [--repeats 3] [--smoke]
     python benchmarks/bench_raster.py --write-map DIR   # the map as semantic_map.pb + meta.json, for l5kit
 """
 from __future__ import annotations
@@ -32,7 +32,9 @@ from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene  # noqa: E402
 from pytest_driveeval.raster import RasterParams, Rasterizer  # noqa: E402
 from pytest_driveeval.sim.logreplay.logarrays import stack_scenes  # noqa: E402
 
-SCENE = Path(__file__).resolve().parents[2] / "shared" / "data" / "l5kit" / "single_scene.zarr"
+# The repository's copy of l5kit's test scene (fixtures/SOURCES.md), so a plain checkout has it.
+SCENE = Path(__file__).resolve().parents[1] / "fixtures" / "l5kit" / "single_scene.zarr"
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 # A Lyft meta.json's world_to_ecef (Palo Alto), so the map round-trips through l5kit's reader.
 WORLD_TO_ECEF = np.array([[0.846617444, 0.323463078, -0.422623402, -2698767.44],
                           [-0.532201938, 0.514559352, -0.672301845, -4293151.58],
@@ -101,7 +103,11 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=112)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--write-map", type=Path, help="write the scene's map for l5kit and stop")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.copies, args.history, args.repeats = 2, 2, 1
+        print("smoke run: tiny sizes; the figures mean nothing")
     scene = L5Dataset.open(args.zarr).scene(0)
     smap = scene_map(scene)
     if args.write_map:

@@ -22,7 +22,8 @@ parallel efficiency = (chunks here) / (wall x cores used).  On a 2-core machine 
 shares the cores with the workers, so efficiency is bounded below 1.
 Whether the results are identical is printed, never asserted.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_ray.py [--episodes 10000] [--scenes 1000] [--steps 50]
+    OMP_NUM_THREADS=1 python benchmarks/bench_ray.py [--episodes 10000] [--scenes 1000] [--steps 50] [--no-cluster]
+                                                     [--smoke]
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ import argparse
 import contextlib
 import logging
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -43,6 +45,8 @@ from pytest_driveeval.execute import ExecutorSpec, run_chunks  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
 PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt"
+SMOKE_HELP = ("every part at tiny sizes in seconds, no cluster (the chunks run here only): checks the script runs, "
+              "measures nothing")
 
 
 @contextlib.contextmanager
@@ -81,6 +85,9 @@ def report(name: str, run, wall: float, slots: float, sequential: float, one_bat
 
 
 def on_clusters(args, work, task_fn, warm_work, compare, sequential: float, one_batch: float) -> None:
+    if args.no_cluster:
+        print("  clusters skipped (--no-cluster)")
+        return
     cores = os.cpu_count() or 1
     for nodes in (2, args.big_nodes):
         label = f"{nodes} worker nodes x 1 CPU" + (f" (simulated: {cores / nodes:.2g} core each)" if nodes > cores
@@ -187,7 +194,21 @@ def main() -> None:
     parser.add_argument("--big-nodes", type=int, default=8)
     parser.add_argument("--data", default="~/.cache/driveeval-bench")
     parser.add_argument("--only", choices=("policy", "closed_loop"))
+    parser.add_argument("--no-cluster", action="store_true", help="one batch and chunks here only")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        with tempfile.TemporaryDirectory() as data:
+            args.episodes, args.episode_chunk, args.scenes, args.scene_chunk, args.steps = 16, 8, 4, 2, 5
+            args.no_cluster, args.data = True, data
+            print("smoke run: tiny sizes, no cluster, scenes generated in a temporary folder; the figures mean "
+                  "nothing")
+            run(args)
+    else:
+        run(args)
+
+
+def run(args) -> None:
     torch.set_num_threads(1)
     print(f"{os.cpu_count()} cores; torch on 1 thread here and in every chunk")
     if args.only != "closed_loop":

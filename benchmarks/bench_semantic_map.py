@@ -1,6 +1,6 @@
 """Time read_semantic_map on a generated map about the size of the real L5 one.
 
-Run: ``python benchmarks/bench_semantic_map.py [--lanes 15000] [--points 30] [--repeat 3]``.
+Run: ``python benchmarks/bench_semantic_map.py [--lanes 15000] [--points 30] [--repeat 3] [--smoke]``.
 
 The map is a grid of gently curved lanes (``--points`` vertices per boundary),
 one crosswalk per 15 lanes and a traffic light with three faces per 10 lanes,
@@ -22,6 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pytest_driveeval.io.l5_semantic_map import (  # noqa: E402
     GREEN, RED, YELLOW, Polylines, SemanticMap, read_semantic_map, write_semantic_map)
 from pytest_driveeval.synth.scenegen import WORLD_TO_ECEF  # noqa: E402
+
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 
 
 def big_map(num_lanes: int, points: int, seed: int = 0) -> SemanticMap:
@@ -58,7 +60,11 @@ def main() -> None:
     parser.add_argument("--lanes", type=int, default=15_000)
     parser.add_argument("--points", type=int, default=30)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.lanes, args.points, args.repeat = 100, 5, 1
+        print("smoke run: tiny sizes; the figures mean nothing")
     smap = big_map(args.lanes, args.points)
     with tempfile.TemporaryDirectory() as tmp:
         pb, meta = Path(tmp) / "semantic_map.pb", Path(tmp) / "meta.json"

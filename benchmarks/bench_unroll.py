@@ -47,7 +47,7 @@ beside two busy processes; 1 thread: 10.8 % and 10.9 %.
 Part 1's reference uses shapely, which only the ``test`` extra installs;
 without it part 1 prints the engine's rates alone and says so.
 
-    python benchmarks/bench_unroll.py [--model policy.pt] [--scenes 64] [--frames 250] [--threads 1] [--repeats 5]
+    python benchmarks/bench_unroll.py [--model policy.pt] [--scenes 64] [--frames 250] [--threads 1] [--repeats 5] [--smoke]
 """
 from __future__ import annotations
 
@@ -78,6 +78,7 @@ from pytest_driveeval.synth.scenegen import generate_scenes
 SAMPLE = Path(__file__).resolve().parents[1] / "fixtures" / "l5kit" / "single_scene.zarr"
 H, F, N, RADIUS, DT = 10, 12, 30, 35.0, 0.1
 KEEP = np.arange(3, 16)  # l5kit's PERCEPTION_LABELS_TO_KEEP
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
 CONFIG = UnrollConfig(history_frames=H, future_frames=F, max_agents=N, agents_radius=RADIUS,
                       drift_threshold=10.0, freeze_on_collision=True)
 TARGET_RATE = 40_000  # scene-steps/s for 64 scenes, metrics included (issue 14)
@@ -258,7 +259,11 @@ def main() -> None:
     parser.add_argument("--copies", type=int, default=64, help="copies of the real scene batched in part 1")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (the figures are comparable at 1)")
     parser.add_argument("--repeats", type=int, default=5, help="unrolls timed per engine figure (median)")
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.copies, args.scenes, args.frames, args.repeats = 2, 2, 30, 1
+        print("smoke run: tiny sizes; the figures mean nothing")
     torch.set_num_threads(args.threads)
     print(f"threads: torch {torch.get_num_threads()}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}")
     # Steady state: the compiled paths from the start (a process pays ~0.5 s once for numba, in the warm-ups).

@@ -4,7 +4,7 @@ Scenes are generated in memory (no zarr) and streamed through the engine in
 chunks of the batch size, so the peak is one chunk's arrays plus the
 per-frame records kept for every scene.  Prints peak RSS (target < 2 GB).
 
-    python benchmarks/bench_unroll_memory.py [--scenes 1000] [--frames 250] [--batch 64]
+    python benchmarks/bench_unroll_memory.py [--scenes 1000] [--frames 250] [--batch 64] [--smoke]
 """
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.sim.logreplay import UnrollConfig, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
 
+SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: checks the script runs, measures nothing"
+
 
 def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux reports KiB
@@ -29,7 +31,11 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=1000)
     parser.add_argument("--frames", type=int, default=250)
     parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--smoke", action="store_true", help=SMOKE_HELP)
     args = parser.parse_args()
+    if args.smoke:
+        args.scenes, args.frames, args.batch = 4, 20, 2
+        print("smoke run: tiny sizes; the figures mean nothing")
     torch.set_num_threads(1)
     policy = torch.jit.script(ConstantVelocityPolicy())
     cfg = UnrollConfig(drift_threshold=10.0, freeze_on_collision=True)

@@ -1,0 +1,75 @@
+"""Every benchmark script runs, start to end, at its ``--smoke`` size: tiny inputs, reference venvs
+and clusters skipped, the full code path otherwise.  A script that rots (a changed signature, a
+renamed option) fails here rather than on the day someone wants its figures.
+
+Each script must print its headline figure; the test reads the number from it.  The figures of a
+smoke run mean nothing and are never compared with a target.
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+from conftest import REPO_ROOT
+
+BENCHMARKS = REPO_ROOT / "benchmarks"
+NUMBER = r"([0-9][0-9,]*(?:\.[0-9]+)?)"
+
+# script: (the line that carries its figure, with the number as group 1; modules it needs beyond the core install)
+SMOKED = {
+    "bench_closed_loop_search.py": (rf"^ratio: {NUMBER}x \(target", ("torch", "hypothesis")),
+    "bench_gnn.py": (rf"^ours, eager: {NUMBER}x the reference;", ("torch",)),
+    "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),
+    "bench_obstacle_frame.py": (rf"evaluate_cloud, numpy kernel: median {NUMBER} ms", ()),
+    "bench_pointcloud2.py": (rf"^  stream vs naive: {NUMBER}x faster", ("rosbags",)),
+    "bench_policy_benchmark_step.py": (rf"ours merging\s+E=\s*2:\s+{NUMBER} live agent-steps/s", ()),
+    # The row's columns: case (10), outcome (44), examples, search s, engine %, examples per minute.
+    "bench_policy_search.py": (rf"^gnn-wide   .{{44}} +\d+ +[0-9.]+ +\d+% +{NUMBER} ", ("torch", "hypothesis")),
+    "bench_raster.py": (rf"^box_debug .*new arrays\s+1 scene: {NUMBER}/s", ()),
+    "bench_raster_closed_loop.py": (rf"^\s+2 scene\(s\):\s+{NUMBER} scene-steps/s", ("torch",)),
+    "bench_ray.py": (rf"^  chunks here: .* speed-up over one batch {NUMBER}x; results identical", ("torch",)),
+    "bench_semantic_map.py": (rf"read best of 1: {NUMBER} s", ()),
+    "bench_unroll.py": (rf"^engine vs issue 14: {NUMBER} scene-steps/s", ("torch",)),
+    "bench_unroll_memory.py": (rf"^peak RSS {NUMBER} MB", ("torch",)),
+}
+# Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs them where l5kit's venv exists.
+NOT_SMOKED = {
+    "l5kit_oracle/compare_rasters.py": "compares with l5kit itself, in its own venv",
+    "l5kit_oracle/oracle_venv.py": "creates l5kit's venv: pip installs, minutes",
+    "l5kit_oracle/rasterize.py": "imports l5kit: runs inside its venv only",
+}
+
+
+def run_smoke(script: str) -> subprocess.CompletedProcess:
+    # This checkout's package, not whichever one the environment has installed.
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, str(BENCHMARKS / script), "--smoke"], capture_output=True, text=True,
+                          timeout=600, check=False, cwd=REPO_ROOT, env=env)
+
+
+@pytest.mark.parametrize("script", sorted(SMOKED))
+def test_the_script_runs_at_smoke_size_and_prints_its_figure(script):
+    pattern, needs = SMOKED[script]
+    for module in needs:
+        if importlib.util.find_spec(module) is None:
+            pytest.skip(f"{script} needs {module}")
+    done = run_smoke(script)
+    assert done.returncode == 0, f"{script} --smoke failed:\n{done.stderr[-3000:]}"
+    assert "smoke run:" in done.stdout, "a smoke run says so, so its figures are not mistaken for real ones"
+    found = re.search(pattern, done.stdout, re.MULTILINE)
+    assert found, f"{script} printed no line matching {pattern!r}:\n{done.stdout[-3000:]}"
+    figure = float(found.group(1).replace(",", ""))
+    assert math.isfinite(figure) and figure >= 0
+
+
+def test_every_benchmark_script_has_a_smoke_run_or_a_reason():
+    scripts = {p.relative_to(BENCHMARKS).as_posix() for p in BENCHMARKS.rglob("*.py")}
+    assert scripts - set(SMOKED) - set(NOT_SMOKED) == set(), "add the new script to SMOKED (give it --smoke)"
+    assert set(SMOKED) | set(NOT_SMOKED) <= scripts, "SMOKED or NOT_SMOKED names a script that is gone"
+    for script in SMOKED:
+        assert '"--smoke"' in (BENCHMARKS / script).read_text(encoding="utf-8"), f"{script} has no --smoke option"
