@@ -147,3 +147,16 @@ def test_modules_imported_before_do_not_change_the_search(tmp_path):
         digests.add(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True
                                    ).stdout.strip())
     assert len(digests) == 1
+
+
+def test_a_slow_machine_searches_the_same_examples(monkeypatch):
+    # Hypothesis stops generating 10 s after the first failure when it may report several
+    # bugs; a search on a loaded machine then saw fewer examples (and could report another
+    # minimum) than on a quiet one.  Here every clock read jumps a minute.
+    quiet = run(Edge(), derandomize=True)
+    import hypothesis.internal.conjecture.engine as conjecture_engine
+
+    clock = iter(range(0, 10**9, 60))
+    monkeypatch.setattr(conjecture_engine.time, "monotonic", lambda: float(next(clock)))
+    slow = run(Edge(), derandomize=True)
+    assert (slow.examples, slow.failures, slow.minimal) == (quiet.examples, quiet.failures, quiet.minimal)
