@@ -113,6 +113,10 @@ def damaged_entry(output_dir: Path, folders: tuple[str, ...] = ()) -> str | None
               **{name: "folder" for name in folders}}
     for name, kind in wanted.items():
         found = _kind(output_dir / name)
+        if name == HISTORY_NAME and found == "file" and (output_dir / name).stat().st_nlink > 1:
+            # Appended in place: a second name may be a file outside the output folder.
+            return (f"{output_dir / name} has {(output_dir / name).stat().st_nlink - 1} other hard link(s); "
+                    "the plugin appends to it only when it is the file's one name: copy it")
         if found is None or found == kind:
             continue
         if found == "link":
@@ -174,6 +178,8 @@ def _append_line(path: Path, line: str) -> None:
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(0, "not a regular file", str(path))
+        if os.fstat(fd).st_nlink > 1:
+            raise OSError(0, "a file with other hard links", str(path))
         # Locked so that the look at the last byte and the write are one step
         # for the sessions appending at the same time.
         fcntl.flock(fd, fcntl.LOCK_EX)

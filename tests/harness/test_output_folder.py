@@ -76,6 +76,8 @@ def test_pruning_never_follows_a_linked_folder_inside_an_old_run(project):
     ("summary folder", "*driveeval-results/summary.json is a folder, where the plugin keeps its own file*"),
     ("runs file", "*driveeval-results/runs is a file, where the plugin keeps the folder of its runs: move it away*"),
     ("runs link", "*driveeval-results/runs is a symbolic link (to ../theirs)*"),
+    ("history hardlink", "*driveeval-results/history.jsonl has 1 other hard link(s); the plugin appends to it only "
+                         "when it is the file's one name: copy it*"),
 ])
 @pytest.mark.parametrize("xdist", [(), ("-n", "2")], ids=["plain", "xdist"])
 def test_damaged_output_files_are_a_usage_error_before_anything_runs(project, damage, message, xdist):
@@ -88,6 +90,8 @@ def test_damaged_output_files_are_a_usage_error_before_anything_runs(project, da
     kind = damage.split()[1]
     if kind == "link":
         (out / name).symlink_to(f"../theirs{'.jsonl' if name == 'history.jsonl' else ''}")
+    elif kind == "hardlink":
+        os.link(project.path / "theirs.jsonl", out / name)
     elif kind == "loop":
         (out / name).symlink_to(name)
     elif kind == "folder":
@@ -142,21 +146,33 @@ def test_an_old_run_with_a_broken_manifest_is_kept_with_a_warning(project, files
     assert [json.loads(line)["run"]["id"] for line in history] == [old.name, new]
 
 
-def test_the_summary_damaged_while_the_session_runs_is_a_warning_and_the_rest_is_written(project):
+@pytest.mark.parametrize("damage, warning", [
+    ("Path('driveeval-results/summary.json').mkdir(parents=True)",
+     "cannot write the latest summary: Is a directory (*driveeval-results/summary.json)"),
+    ("Path('driveeval-results').mkdir(); Path('driveeval-results/history.jsonl').symlink_to('../theirs.jsonl')",
+     "cannot add this session to history.jsonl: Too many levels of symbolic links "
+     "(*driveeval-results/history.jsonl)"),
+], ids=["summary folder", "history link"])
+def test_the_output_damaged_while_the_session_runs_is_a_warning_and_the_rest_is_written(project, damage, warning):
+    (project.path / "theirs.jsonl").write_text('{"theirs": 1}\n')
     # Collected first (files by name), so it runs before the scenario item.
-    project.makepyfile(test_damage="from pathlib import Path\n\n"
-                                   "def test_damage():\n"
-                                   "    Path('driveeval-results/summary.json').mkdir(parents=True)\n")
+    project.makepyfile(test_damage=f"from pathlib import Path\n\ndef test_damage():\n    {damage}\n")
     project.makefile(".scenario.yaml", zgood=GOOD)
     result = project.runpytest("-q", "-p", "no:randomly")
     result.assert_outcomes(passed=2)
-    result.stdout.fnmatch_lines(["driveeval warning: cannot write the latest summary: Is a directory "
-                                 "(*driveeval-results/summary.json)"])
+    result.stdout.fnmatch_lines([f"driveeval warning: {warning}"])
+    assert (project.path / "theirs.jsonl").read_text() == '{"theirs": 1}\n'
     out = project.path / "driveeval-results"
-    (line,) = [json.loads(text) for text in (out / "history.jsonl").read_text().splitlines()]
-    own = json.loads((out / line["summary"]).read_text())
+    (run,) = (out / "runs").iterdir()
+    own = json.loads((run / "summary.json").read_text())
     assert own["counts"] == {"passed": 1} and own["results"][0]["nodeid"] == "zgood.scenario.yaml::speed_limit[slow.csv]"
-    assert (out / "summary.md").is_file() and (out / "summary.json").is_dir()
+    assert json.loads((run / "run.json").read_text())["state"] == "finished"
+    assert (out / "summary.md").is_file()
+    if "history" in warning:
+        assert json.loads((out / "summary.json").read_text()) == own
+    else:
+        (line,) = [json.loads(text) for text in (out / "history.jsonl").read_text().splitlines()]
+        assert line["run"]["id"] == run.name
 
 
 def test_a_history_whose_last_line_lacks_its_newline_keeps_every_session_on_a_line_of_its_own(project):
