@@ -97,7 +97,7 @@ def _kind(path: Path) -> str | None:
     """What is at ``path`` without following a link: None when nothing."""
     try:
         mode = path.lstat().st_mode
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         return None
     if stat.S_ISLNK(mode):
         return "link"
