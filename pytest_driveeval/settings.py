@@ -207,11 +207,11 @@ def check_output_dir(path: Path) -> None:
         raise pytest.UsageError(f"driveeval output {path} {what} {where}")
     try:
         try:
-            _try_writing(path, existing)
+            _try_writing(path)
         except FileNotFoundError:
             # Another session starting now may have made the folder for its own
             # trial and removed it again under ours.
-            _try_writing(path, existing if existing.exists() else path.parent)
+            _try_writing(path)
     except OSError as exc:
         raise pytest.UsageError(f"driveeval output {path} cannot be written: "
                                 f"{exc.strerror or exc} ({exc.filename or path}) {where}") from None
@@ -220,15 +220,22 @@ def check_output_dir(path: Path) -> None:
         raise pytest.UsageError(f"driveeval output {path}: {problem} {where}")
 
 
-def _try_writing(path: Path, existing: Path) -> None:
+def _try_writing(path: Path) -> None:
     """Create and remove a file in ``path`` (and the folders it needs): the
     permission bits do not say what a read-only mount or root refuses.  A
     session without scenario items leaves no folder behind."""
+    missing, folder = [], path
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
     created = []
     try:
-        for folder in reversed([path, *path.parents][: len(path.parts) - len(existing.parts)]):
-            folder.mkdir()
-            created.append(folder)
+        for folder in reversed(missing):
+            try:
+                folder.mkdir()
+                created.append(folder)
+            except FileExistsError:
+                pass  # another session made it at the same time
         fd, trial = tempfile.mkstemp(prefix=".driveeval-write-test.", dir=path)
         os.close(fd)
         os.unlink(trial)

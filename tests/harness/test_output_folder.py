@@ -187,3 +187,19 @@ def test_a_history_whose_last_line_lacks_its_newline_keeps_every_session_on_a_li
     lines = (out / "history.jsonl").read_text().split("\n")
     assert lines[:2] == ['{"old": 1}', "{not json"] and lines[-1] == ""
     assert [json.loads(line)["run"]["id"] for line in lines[2:-1]] == ids
+
+
+def test_a_folder_that_refuses_a_file_is_a_usage_error_whatever_its_permission_bits_say(tmp_path, monkeypatch):
+    # Root, or a read-only mount, passes os.access; only creating a file tells.
+    import tempfile
+
+    from pytest_driveeval.settings import check_output_dir
+
+    def refuse(dir, **kw):
+        raise PermissionError(13, "Permission denied", str(dir))
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    with pytest.raises(pytest.UsageError, match=r"driveeval output .*ro/out cannot be written: Permission denied "
+                                                r"\(.*ro/out\)"):
+        check_output_dir(tmp_path / "ro" / "out")
+    assert list(tmp_path.iterdir()) == []  # the folders made for the trial are gone
