@@ -29,21 +29,6 @@ def display_path(path: Path | str) -> str:
         return str(path)
 
 
-EXCERPT_CHARS = 24
-
-
-def excerpt(text: str | bytes, limit: int = EXCERPT_CHARS) -> str:
-    """A short, printable quote of what a file holds where it fails to parse.
-
-    Data files can be anything (a mistyped ``Path`` may point at a secret or
-    a binary); a message shows a few characters, never a whole line of it.
-    """
-    if isinstance(text, bytes):
-        text = text.decode("utf-8", errors="replace")
-    shown = "".join(ch if ch.isprintable() else "?" for ch in text[:limit])
-    return repr(shown + ("..." if len(text) > limit else ""))
-
-
 class DriveEvalError(Exception):
     """Base of the errors that are reported without a traceback.
 

@@ -136,6 +136,7 @@ class ResultsReporter:
     def __init__(self, config: pytest.Config) -> None:
         self.settings = get_settings(config)
         self.collector = ResultCollector()
+        self.warnings: list[str] = []
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.collector.add(report)
@@ -157,8 +158,9 @@ class ResultsReporter:
         if not self.collector.records:
             return
         run = self.settings.run
-        finish_run(self.settings.output_dir, run,
-                   self.collector.summary(exitstatus, self.settings.seed, run.to_json()), self.settings.keep_runs)
+        self.warnings = finish_run(self.settings.output_dir, run,
+                                   self.collector.summary(exitstatus, self.settings.seed, run.to_json()),
+                                   self.settings.keep_runs)
 
     def pytest_terminal_summary(self, terminalreporter, exitstatus: int, config: pytest.Config) -> None:
         records = self.collector.sorted_records()
@@ -169,3 +171,5 @@ class ResultsReporter:
         for line in terminal_table(records, tr._tw.fullwidth):
             tr.write_line(line)
         tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME} (run {self.settings.run.id})")
+        for warning in self.warnings:
+            tr.write_line(f"driveeval warning: {warning}", yellow=True)

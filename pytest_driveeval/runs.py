@@ -12,19 +12,22 @@ A run id is unique (start time and random bits), so concurrent sessions never
 write the same file, and a killed one leaves its folder marked ``running``
 beside the results of the others.  Artefact paths in every summary are
 relative to the output folder.  Old runs are pruned file by file from their
-manifest, so nothing the plugin did not write is ever deleted.
+manifest, so nothing the plugin did not write is ever deleted, and nothing is
+written or deleted through a symbolic link: a link may lead out of the folder.
 """
 from __future__ import annotations
 
 import datetime as dt
+import fcntl
 import json
 import os
 import secrets
 import socket
+import stat
 import subprocess
 from dataclasses import asdict, dataclass
-from pathlib import Path
-from typing import Any
+from pathlib import Path, PurePosixPath
+from typing import Any, Callable
 
 from .atomic import create_exclusive, write_json_atomic
 
@@ -86,42 +89,111 @@ def start_run(output_dir: Path, identity: RunIdentity) -> Path:
 
 
 def _files_under(folder: Path) -> list[str]:
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+    # Regular files only: a link someone put here is not ours to delete later.
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file() and not p.is_symlink())
 
 
-def finish_run(output_dir: Path, identity: RunIdentity, summary: dict[str, Any], keep: int) -> None:
+def _kind(path: Path) -> str | None:
+    """What is at ``path`` without following a link: None when nothing."""
+    try:
+        mode = path.lstat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    if stat.S_ISLNK(mode):
+        return "link"
+    return "folder" if stat.S_ISDIR(mode) else "file" if stat.S_ISREG(mode) else "special"
+
+
+def damaged_entry(output_dir: Path, folders: tuple[str, ...] = ()) -> str | None:
+    """Why the output folder's own files cannot take this session's results,
+    or None: each is absent or of its kind, and none is a symbolic link."""
+    from .report.summary import MARKDOWN_NAME, SUMMARY_NAME
+
+    wanted = {RUNS_FOLDER: "folder", HISTORY_NAME: "file", SUMMARY_NAME: "file", MARKDOWN_NAME: "file",
+              **{name: "folder" for name in folders}}
+    for name, kind in wanted.items():
+        found = _kind(output_dir / name)
+        if name == HISTORY_NAME and found == "file" and (output_dir / name).stat().st_nlink > 1:
+            # Appended in place: a second name may be a file outside the output folder.
+            return (f"{output_dir / name} has {(output_dir / name).stat().st_nlink - 1} other hard link(s); "
+                    "the plugin appends to it only when it is the file's one name: copy it")
+        if found is None or found == kind:
+            continue
+        if found == "link":
+            return (f"{output_dir / name} is a symbolic link (to {os.readlink(output_dir / name)}); "
+                    "the plugin writes nothing through a link: remove it")
+        what = {"folder": "the folder of its runs", "file": "its own file"}[kind]
+        found = {"folder": "a folder", "file": "a file"}.get(found, "not a regular file")
+        return f"{output_dir / name} is {found}, where the plugin keeps {what}: move it away"
+    return None
+
+
+Warn = Callable[[str], None]
+
+
+def finish_run(output_dir: Path, identity: RunIdentity, summary: dict[str, Any], keep: int) -> list[str]:
     """Write the session's summary into its run folder, make it the latest,
-    add it to the history and prune runs beyond the ``keep`` newest."""
+    add it to the history and prune runs beyond the ``keep`` newest.  Returns
+    warnings: each step that fails (the folder damaged while the session ran)
+    is one, and the other steps still write what they can."""
     from .report.summary import write_summary
 
-    folder = start_run(output_dir, identity)
-    write_summary(folder, summary, step_summary=False)
+    warnings: list[str] = []
+
+    def step(what: str, action: Callable[[], Any]) -> None:
+        try:
+            action()
+        except OSError as exc:
+            warnings.append(f"{what}: {exc.strerror or exc} ({exc.filename2 or exc.filename or output_dir})")
+
+    folder = run_dir(output_dir, identity.id)
     finished = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
-    write_json_atomic(folder / RUN_FILE, {
-        "run": identity.to_json(), "state": "finished", "finished": finished,
-        "exit_status": summary["exit_status"], "counts": summary["counts"],
-        # What this session wrote: pruning deletes these and nothing else.
-        "files": _files_under(folder),
-    })
-    write_summary(output_dir, summary)
+
+    def write_run() -> None:
+        start_run(output_dir, identity)
+        write_summary(folder, summary, step_summary=False)
+        write_json_atomic(folder / RUN_FILE, {
+            "run": identity.to_json(), "state": "finished", "finished": finished,
+            "exit_status": summary["exit_status"], "counts": summary["counts"],
+            # What this session wrote: pruning deletes these and nothing else.
+            "files": _files_under(folder),
+        })
+
+    step("cannot write this session's run folder", write_run)
+    step("cannot write the latest summary", lambda: write_summary(output_dir, summary))
     line = {"run": identity.to_json(), "finished": finished, "exit_status": summary["exit_status"],
             "counts": summary["counts"], "summary": f"{RUNS_FOLDER}/{identity.id}/summary.json"}
-    _append_line(output_dir / HISTORY_NAME, json.dumps(line, sort_keys=True))
+    step(f"cannot add this session to {HISTORY_NAME}",
+         lambda: _append_line(output_dir / HISTORY_NAME, json.dumps(line, sort_keys=True)))
     if keep > 0:
-        prune_runs(output_dir, keep, current=identity.id)
+        step("cannot prune old runs", lambda: prune_runs(output_dir, keep, current=identity.id, warn=warnings.append))
+    return warnings
 
 
 def _append_line(path: Path, line: str) -> None:
     # One write of a whole line on an O_APPEND descriptor: concurrent sessions
-    # add lines, they never interleave or overwrite one another's.
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+    # add lines, they never interleave or overwrite one another's.  Never
+    # through a link, never into a folder or a pipe.
+    fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK, 0o666)
     try:
-        os.write(fd, (line + "\n").encode("utf-8"))
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(0, "not a regular file", str(path))
+        if os.fstat(fd).st_nlink > 1:
+            raise OSError(0, "a file with other hard links", str(path))
+        # Locked so that the look at the last byte and the write are one step
+        # for the sessions appending at the same time.
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        size = os.fstat(fd).st_size
+        # A last line without its newline (a crash, a hand edit) would swallow ours.
+        lead = b"\n" if size and os.pread(fd, 1, size - 1) != b"\n" else b""
+        os.write(fd, lead + (line + "\n").encode("utf-8"))
     finally:
         os.close(fd)
 
 
 def read_run(folder: Path) -> dict[str, Any] | None:
+    if _kind(folder / RUN_FILE) != "file":  # a link's run.json is another folder's
+        return None
     try:
         data = json.loads((folder / RUN_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -129,21 +201,54 @@ def read_run(folder: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) and isinstance(data.get("run"), dict) else None
 
 
-def prune_runs(output_dir: Path, keep: int, current: str) -> list[str]:
-    """Remove finished runs beyond the ``keep`` newest; running or killed runs
-    and files not in a run's manifest stay.  Returns the pruned run ids."""
+def _manifest(data: dict[str, Any]) -> list[PurePosixPath] | None:
+    """The run's files as paths inside its folder, or None when the manifest
+    is not a list of such paths (an old or hand-edited run.json)."""
+    files = data.get("files", [])
+    if not isinstance(files, list) or not all(isinstance(name, str) and name for name in files):
+        return None
+    paths = [PurePosixPath(name) for name in files]
+    if any(p.is_absolute() or any(part in ("", ".", "..") for part in p.parts) for p in paths):
+        return None
+    return paths
+
+
+def _unlink_own(folder: Path, name: PurePosixPath) -> None:
+    """Delete ``folder/name`` if it is a regular file reached through real folders only."""
+    target = folder
+    for part in name.parts[:-1]:
+        target = target / part
+        if _kind(target) != "folder":
+            return
+    target = target / name.parts[-1]
+    if _kind(target) == "file":
+        target.unlink(missing_ok=True)
+
+
+def prune_runs(output_dir: Path, keep: int, current: str, warn: Warn = lambda message: None) -> list[str]:
+    """Remove finished runs beyond the ``keep`` newest; running or killed runs,
+    files not in a run's manifest and anything reached through a symbolic link
+    stay.  A run whose manifest is not a list of its files is kept, with a
+    warning.  Returns the pruned run ids."""
     root = output_dir / RUNS_FOLDER
+    if _kind(root) != "folder":
+        return []
     finished = []
-    for folder in sorted(root.iterdir() if root.is_dir() else (), key=lambda p: p.name):
+    for folder in sorted(root.iterdir(), key=lambda p: p.name):
+        if _kind(folder) != "folder":  # a link to a run elsewhere is not ours to prune
+            continue
         data = read_run(folder)
         if folder.name != current and data is not None and data.get("state") == "finished":
             finished.append((folder, data))
     pruned = []
     for folder, data in finished[: max(0, len(finished) + 1 - keep)]:
-        for name in [*data.get("files", []), RUN_FILE]:
-            target = (folder / name)
-            if target.resolve().is_relative_to(folder.resolve()):  # a manifest cannot point outside
-                target.unlink(missing_ok=True)
+        files = _manifest(data)
+        if files is None:
+            warn(f"{folder / RUN_FILE}: 'files' is not a list of paths inside the run's folder; "
+                 "that run is kept, delete it by hand")
+            continue
+        for name in [*files, PurePosixPath(RUN_FILE)]:
+            _unlink_own(folder, name)
         for sub in sorted((p for p in folder.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)):
             _rmdir_if_empty(sub)
         _rmdir_if_empty(folder)

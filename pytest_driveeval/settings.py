@@ -4,12 +4,13 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-from .runs import DEFAULT_KEEP_RUNS, RunIdentity, new_identity, run_dir
+from .runs import DEFAULT_KEEP_RUNS, RunIdentity, damaged_entry, new_identity, run_dir
 
 # ``*.scenario.yaml`` declares a scenario by its name; the others are
 # driving_log_replayer's names (scenario.yaml, scenario.ja.yaml,
@@ -18,6 +19,7 @@ from .runs import DEFAULT_KEEP_RUNS, RunIdentity, new_identity, run_dir
 DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario*.yaml", "scenario*.yml"]
 DECLARED_SUFFIXES = (".scenario.yaml", ".scenario.yml")
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
+SEARCH_DATABASE = "search-examples"
 
 
 @dataclass(frozen=True)
@@ -40,7 +42,7 @@ class Settings:
     @property
     def search_database(self) -> Path:
         """The example database of robustness searches: failures found are replayed first next time."""
-        return self.output_dir / "search-examples"
+        return self.output_dir / SEARCH_DATABASE
 
     @property
     def run_dir(self) -> Path:
@@ -183,8 +185,18 @@ def settings_from_config(config: pytest.Config) -> Settings:
 RUN_KEY = "driveeval_run"
 
 
+# Kernel views, not storage: as root, os.access says yes to them all.
+VIRTUAL_ROOTS = (Path("/proc"), Path("/sys"))
+
+
 def check_output_dir(path: Path) -> None:
-    """Fail at the start, not after an hour of evaluation, when results cannot be written."""
+    """Fail at the start, not after an hour of evaluation, when results cannot
+    be written there or the folder's own files are damaged."""
+    where = "(set --driveeval-output or driveeval_output)"
+    virtual = next((root for root in VIRTUAL_ROOTS if path.is_relative_to(root)), None)
+    if virtual is not None:
+        raise pytest.UsageError(f"driveeval output {path} is in {virtual}, a view of the kernel, "
+                                f"not a place for files {where}")
     existing = path
     while not existing.exists():
         if existing.is_symlink():  # a dangling link: mkdir would fail later
@@ -192,10 +204,47 @@ def check_output_dir(path: Path) -> None:
         existing = existing.parent
     if not existing.is_dir():
         what = "is not a folder" if existing == path else f"cannot be created: {existing} is not a folder"
-        raise pytest.UsageError(f"driveeval output {path} {what} (set --driveeval-output or driveeval_output)")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise pytest.UsageError(f"driveeval output {path}: {existing} is not writable "
-                                "(set --driveeval-output or driveeval_output)")
+        raise pytest.UsageError(f"driveeval output {path} {what} {where}")
+    try:
+        try:
+            _try_writing(path)
+        except FileNotFoundError:
+            # Another session starting now may have made the folder for its own
+            # trial and removed it again under ours.
+            _try_writing(path)
+    except OSError as exc:
+        raise pytest.UsageError(f"driveeval output {path} cannot be written: "
+                                f"{exc.strerror or exc} ({exc.filename or path}) {where}") from None
+    problem = damaged_entry(path, folders=(SEARCH_DATABASE,))
+    if problem is not None:
+        raise pytest.UsageError(f"driveeval output {path}: {problem} {where}")
+
+
+def _try_writing(path: Path) -> None:
+    """Create and remove a file in ``path`` (and the folders it needs): the
+    permission bits do not say what a read-only mount or root refuses.  A
+    session without scenario items leaves no folder behind."""
+    missing, folder = [], path
+    while not folder.exists():
+        missing.append(folder)
+        folder = folder.parent
+    created = []
+    try:
+        for folder in reversed(missing):
+            try:
+                folder.mkdir()
+                created.append(folder)
+            except FileExistsError:
+                pass  # another session made it at the same time
+        fd, trial = tempfile.mkstemp(prefix=".driveeval-write-test.", dir=path)
+        os.close(fd)
+        os.unlink(trial)
+    finally:
+        for folder in reversed(created):
+            try:
+                folder.rmdir()
+            except OSError:
+                pass  # another session has started writing there
 
 
 SETTINGS_KEY = pytest.StashKey[Settings]()

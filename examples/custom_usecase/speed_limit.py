@@ -12,7 +12,6 @@ import numpy as np
 from pydantic import BaseModel, PositiveFloat
 
 from pytest_driveeval import ConditionsModel, DataError, Outcome, UseCase, register_usecase
-from pytest_driveeval.errors import excerpt
 from pytest_driveeval.verdict import within
 
 
@@ -22,8 +21,8 @@ class Limits(BaseModel, extra="forbid"):
 
 
 def read_trajectory(path: Path) -> np.ndarray:
-    """Rows of t,x,y under a header line.  Errors quote only a short excerpt of
-    the file: a mistyped path may point at anything."""
+    """Rows of t,x,y under a header line.  Errors name the file and line and
+    quote nothing of it: a mistyped path may point at a secret."""
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
@@ -35,7 +34,7 @@ def read_trajectory(path: Path) -> np.ndarray:
         except ValueError:
             row = []
         if len(row) != 3:
-            raise DataError(f"{path}:{number}: not a CSV of t,x,y: expected 3 numbers, found {excerpt(line)}")
+            raise DataError(f"{path}:{number}: not a CSV of t,x,y: expected 3 numbers separated by commas")
         rows.append(row)
     if len(rows) < 3:
         raise DataError(f"{path}: expected >= 3 rows of t,x,y, found {len(rows)}")

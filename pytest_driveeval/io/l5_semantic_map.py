@@ -229,7 +229,7 @@ def _global_id(buf: bytes, start: int, end: int) -> str:
     try:
         return value.decode("utf-8")
     except UnicodeDecodeError:
-        raise WireError(start, f"element id {value[:32]!r} is not UTF-8") from None
+        raise WireError(start, f"element id ({len(value)} bytes) is not UTF-8") from None
 
 
 def _geo_frame(buf: bytes, start: int, end: int, lat: int, lng: int) -> tuple[int, int]:

@@ -113,11 +113,11 @@ def _parse_header(path: Path, raw: bytes) -> PCDHeader:
         try:
             out = tuple(int(t) for t in toks)
         except ValueError:
-            raise _header_error(path, ln, f"{key} must be integers, got {toks}") from None
+            raise _header_error(path, ln, f"{key} must be whole numbers, one per field") from None
         if len(out) != n:
             raise _header_error(path, ln, f"{key} has {len(out)} entries for {n} FIELDS")
         if any(v <= 0 for v in out):
-            raise _header_error(path, ln, f"{key} entries must be positive, got {toks}")
+            raise _header_error(path, ln, f"{key} entries must be positive, got {list(out)}")
         return out
 
     sizes = ints("SIZE")
@@ -126,12 +126,14 @@ def _parse_header(path: Path, raw: bytes) -> PCDHeader:
     types = tuple(t.upper() for t in types)
     if len(types) != n:
         raise _header_error(path, type_line, f"TYPE has {len(types)} entries for {n} FIELDS")
-    for name, t, s in zip(fields, types, sizes):
+    for index, (t, s) in enumerate(zip(types, sizes), start=1):
         if (t, s) not in _TYPE_CODES:
-            raise _header_error(path, type_line, f"field {name!r}: unsupported TYPE {t} SIZE {s}")
+            known = ", ".join(sorted({f"{t} {s}" for t, s in _TYPE_CODES}))
+            raise _header_error(path, type_line, f"field {index} of {n}: unsupported TYPE for its SIZE "
+                                                 f"{s} (TYPE SIZE pairs read: {known})")
     named = [f for f in fields if f != "_"]
     if len(set(named)) != len(named):
-        raise _header_error(path, fields_line, f"duplicate field names in {fields}")
+        raise _header_error(path, fields_line, "FIELDS names a field twice")
 
     def one_int(key, default=None):
         ln, toks = get(key, default)
@@ -139,7 +141,7 @@ def _parse_header(path: Path, raw: bytes) -> PCDHeader:
             (v,) = toks
             v = int(v)
         except ValueError:
-            raise _header_error(path, ln, f"{key} must be one integer, got {toks}") from None
+            raise _header_error(path, ln, f"{key} must be one whole number") from None
         if v < 0:
             raise _header_error(path, ln, f"{key} must be >= 0, got {v}")
         return v
@@ -154,12 +156,12 @@ def _parse_header(path: Path, raw: bytes) -> PCDHeader:
     try:
         viewpoint = tuple(float(v) for v in vp)
     except ValueError:
-        raise _header_error(path, vp_line, f"VIEWPOINT must be 7 numbers, got {vp}") from None
+        raise _header_error(path, vp_line, "VIEWPOINT must be 7 numbers") from None
     if len(viewpoint) != 7:
-        raise _header_error(path, vp_line, f"VIEWPOINT must be 7 numbers, got {vp}")
+        raise _header_error(path, vp_line, f"VIEWPOINT must be 7 numbers, found {len(viewpoint)}")
     data_line, data = get("DATA")
     if len(data) != 1 or data[0].lower() not in _DATA_KINDS:
-        raise _header_error(path, data_line, f"DATA must be one of {_DATA_KINDS}, got {data}")
+        raise _header_error(path, data_line, f"DATA must be one of {', '.join(_DATA_KINDS)}")
     version = values.get("VERSION", (0, ["0.7"]))[1]
     return PCDHeader(tuple(fields), sizes, types, counts, width, height, points,
                      data[0].lower(), viewpoint, version[0] if version else "", pos)
@@ -226,10 +228,21 @@ def _decode_ascii(path, header: PCDHeader, payload: bytes, first_line: int = 1) 
                 # Integer columns written as "3.0" or "nan": go through float.
                 try:
                     target[...] = cells.astype(np.float64)
-                except ValueError as exc:
-                    raise PCDError(f"{path}: field {name!r}: {exc}") from None
+                except ValueError:
+                    # numpy's message quotes the cell; a file is named by its line instead.
+                    row = next(i for i, values in enumerate(cells) if not _numbers(values))
+                    raise PCDError(f"{path}:{rows[row][0]}: field {name!r}: expected "
+                                   f"{'a number' if count == 1 else f'{count} numbers'}") from None
         col += count
     return out
+
+
+def _numbers(values) -> bool:
+    try:
+        [float(v) for v in values]
+    except ValueError:
+        return False
+    return True
 
 
 def _decode_compressed(path, header: PCDHeader, payload) -> np.ndarray:

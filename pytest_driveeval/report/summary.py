@@ -133,12 +133,19 @@ def policy_table_html(records: list[dict[str, Any]]) -> str:
 
 def write_summary(output_dir: Path, summary: dict[str, Any], step_summary: bool = True) -> None:
     """summary.json and summary.md in ``output_dir``; the Markdown also goes to
-    the CI step summary when ``step_summary``."""
-    write_json_atomic(output_dir / SUMMARY_NAME, summary)
+    the CI step summary when ``step_summary``.  One that cannot be written
+    does not keep the others from being written; its error is raised last."""
     markdown = markdown_summary(summary)
-    write_text_atomic(output_dir / MARKDOWN_NAME, markdown)
+    failed: OSError | None = None
+    for name, write in ((SUMMARY_NAME, write_json_atomic), (MARKDOWN_NAME, write_text_atomic)):
+        try:
+            write(output_dir / name, summary if name == SUMMARY_NAME else markdown)
+        except OSError as exc:
+            failed = failed or exc
     step_file = os.environ.get(STEP_SUMMARY_ENV)
     if step_summary and step_file:
         # CI systems show this file on the run's page; others may have written to it too.
         with open(step_file, "a", encoding="utf-8") as handle:
             handle.write(markdown)
+    if failed is not None:
+        raise failed

@@ -201,6 +201,13 @@ def test_corrupt_file_names_the_file(tmp_path, damage):
         read_semantic_map(bad, tmp_path / "meta.json")
 
 
+def test_an_element_id_that_is_not_text_is_counted_never_quoted(tmp_path):
+    pb, meta = _write(tmp_path, _element(b"SECRET\xff\xfeKEY", 3, _ld(3, b"")))
+    with pytest.raises(DataError, match=r"semantic_map\.pb.*byte \d+: element id \(11 bytes\) is not UTF-8") as raised:
+        read_semantic_map(pb, meta)
+    assert "SECRET" not in str(raised.value)
+
+
 def test_mismatched_delta_counts_are_an_error(tmp_path):
     lane = _ld(3, _ld(1, _zz([1, 2])) + _ld(2, _zz([1])))
     pb, meta = _write(tmp_path, _element(b"L", 3, lane))

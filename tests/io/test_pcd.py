@@ -200,3 +200,20 @@ def test_bytes_after_the_compressed_block_are_refused(tmp_path):
     with pytest.raises(PCDError, match=r"c\.pcd: binary_compressed data: the size words announce (\d+) "
                                        r"compressed bytes, (\d+) follow them"):
         read_pcd(tmp_path / "c.pcd")
+
+
+@pytest.mark.parametrize("header, line, expected", [
+    ("FIELDS x\nSIZE SECRETKEY\nTYPE F\nWIDTH 1\nDATA ascii\n1\n", 2, "SIZE must be whole numbers, one per field"),
+    ("FIELDS x\nSIZE 4\nTYPE SECRETKEY\nWIDTH 1\nDATA ascii\n1\n", 3, "field 1 of 1: unsupported TYPE for its SIZE 4"),
+    ("FIELDS x\nSIZE 4\nTYPE F\nWIDTH SECRETKEY\nDATA ascii\n1\n", 4, "WIDTH must be one whole number"),
+    ("FIELDS x\nSIZE 4\nTYPE F\nWIDTH 1\nVIEWPOINT SECRETKEY\nDATA ascii\n1\n", 5, "VIEWPOINT must be 7 numbers"),
+    ("FIELDS x\nSIZE 4\nTYPE F\nWIDTH 1\nDATA SECRETKEY\n1\n", 5, "DATA must be one of ascii, binary"),
+    ("FIELDS x y\nSIZE 4 4\nTYPE F F\nWIDTH 2\nDATA ascii\n1 2\n3 SECRETKEY\n", 7, "field 'y': expected a number"),
+])
+def test_a_bad_pcd_is_named_by_line_and_never_quoted(tmp_path, header, line, expected):
+    path = tmp_path / "p.pcd"
+    path.write_text(header)
+    with pytest.raises(PCDError) as raised:
+        read_pcd(path)
+    assert str(raised.value).startswith(f"{path}:{line}: ") and expected in str(raised.value)
+    assert "SECRET" not in str(raised.value)
