@@ -7,12 +7,24 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from conftest import GAIN_SCENARIO
 from test_fixtures import summary
 
-SLOW_MODEL = "import os, time\n\ndef double(x):\n    time.sleep(float(os.environ['DELAY']))\n    return 2 * x\n"
+# With GATE set, the model waits (bounded) until that file exists: a test orders sessions by
+# files it creates, not by how long a loaded machine takes to start them.
+SLOW_MODEL = """import os, time
+
+def double(x):
+    time.sleep(float(os.environ['DELAY']))
+    gate = os.environ.get('GATE')
+    give_up = time.monotonic() + 120
+    while gate and not os.path.exists(gate) and time.monotonic() < give_up:
+        time.sleep(0.02)
+    return 2 * x
+"""
 
 
 def run_ids(pytester, folder="driveeval-results") -> list[str]:
@@ -102,10 +114,11 @@ def test_files_the_plugin_did_not_write_are_never_deleted(gain):
     assert len(finished) == 2 and summary(gain)["run"]["id"] in finished
 
 
-def _session(pytester, delay: float) -> subprocess.Popen:
+def _session(pytester, delay: float, gate: Path | None = None) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": ".", "DELAY": str(delay), "GATE": str(gate or "")}
     return subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
                              "--driveeval-model", "slowmod:double"], cwd=pytester.path,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONPATH": ".", "DELAY": str(delay)})
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
 
 
 def _wait_for_items(pytester, count: int, timeout: float = 60) -> None:
@@ -121,10 +134,13 @@ def _wait_for_items(pytester, count: int, timeout: float = 60) -> None:
 def test_concurrent_sessions_each_keep_their_records_and_items(gain):
     gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
     gain.path.joinpath("slowmod.py").write_text(SLOW_MODEL)
-    first = _session(gain, 2.0)
+    gate = gain.path / "second-finished"
+    first = _session(gain, 0.0, gate=gate)
     _wait_for_items(gain, 1)
     second = _session(gain, 0.0)  # starts later, finishes first
-    assert second.wait(60) == 0 and first.wait(60) == 0, first.stdout.read().decode()
+    assert second.wait(120) == 0, second.stdout.read().decode()
+    gate.touch()
+    assert first.wait(120) == 0, first.stdout.read().decode()
     lines = history(gain)
     assert len(lines) == 2
     for line in lines:
