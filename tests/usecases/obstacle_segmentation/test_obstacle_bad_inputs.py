@@ -120,3 +120,25 @@ def test_each_bad_dataset_fails_alone_with_its_message(pytester, generated):
     bare = next(r for r in data["results"] if r["nodeid"].startswith("bare_mcap"))
     good = next(r for r in data["results"] if r["nodeid"].startswith("good"))
     assert bare["status"] == "passed" and bare["figures"]["frames"] == good["figures"]["frames"] == 8
+
+
+def test_a_missing_input_bag_is_named_once_and_the_dataset_beside_it_passes(pytester):
+    """Without input_bag/ the clouds fall back to the lidar sweeps, but the map's lanelets still need
+    the ego's pose from the bag's TF: one error naming the bag, not one per frame."""
+    from conftest import REPO_ROOT
+
+    text = (REPO_ROOT / "scenario_tests" / "obstacle_segmentation" / "clean" / "scenario.yaml").read_text()
+    for name in ("good", "nobag"):
+        shutil.copytree(REPO_ROOT / "fixtures" / "t4" / "clean", pytester.path / "data" / name)
+        pytester.makefile(".scenario.yaml", **{name: text.replace("../../../fixtures/t4/clean", f"data/{name}")})
+    shutil.rmtree(pytester.path / "data" / "nobag" / "input_bag")
+    result = pytester.runpytest("-q", "-W", "ignore::pytest.PytestUnknownMarkWarning")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines([
+        "*DataError: t4_dataset */data/nobag: its input bag */data/nobag/input_bag is missing: the NonDetection area "
+        "is cut to the road lanelets of */data/nobag/map/lanelet2_map.osm at the ego's pose (TF map -> base_link), "
+        "which the bag's /tf holds"])
+    out = result.stdout.str()
+    assert "TF has none" not in out and "could not be evaluated" not in out
+    records = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]
+    assert {r["nodeid"].split(".")[0]: r["status"] for r in records} == {"good": "passed", "nobag": "failed"}
