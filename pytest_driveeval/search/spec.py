@@ -112,7 +112,9 @@ class SearchSpec(BaseModel):
         searched = self.ranges().get(field)
         if searched is not None:
             low, high = searched
-            if not low <= value <= high:
+            # A drawn value is neutral + offset in floats, so an edge can come out an ulp past the range.
+            slack = 1e-9 * max(1.0, abs(low), abs(high))
+            if not low - slack <= value <= high + slack:
                 return f"outside the scenario's range {key}: [{low:g}, {high:g}]"
             return None
         lowest, highest, what = self.BOUNDS.get(key, (-math.inf, math.inf, ""))

@@ -12,6 +12,7 @@ from pytest_driveeval.usecases.policy_benchmark.config import PolicyPerturbation
 @pytest.mark.parametrize("spec, field, value, problem", [
     (StartSearchSpec(Lateral=(-1, 1)), "lateral", 1.0, None),
     (StartSearchSpec(Lateral=(-1, 1)), "lateral", 1.01, "outside the scenario's range Lateral: [-1, 1]"),
+    (StartSearchSpec(Lateral=(-1, 1)), "lateral", 1.0 + 2e-16, None),  # a drawn edge an ulp past the range
     (StartSearchSpec(Lateral=(-1, 1)), "lateral", float("nan"), "a finite number is needed"),
     (StartSearchSpec(Lateral=(-1, 1)), "heading", 0.3, None),  # not searched, and no bound: a what-if
     (StartSearchSpec(Lateral=(-1, 1)), "speed_scale", 0.0, "a speed scale must stay above 0"),
