@@ -21,7 +21,7 @@ from .execute import ExecutorSpec, Progress, executor_from_option, terminal_prog
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
-from .search.spec import SearchOptions
+from .search.spec import SearchOptions, parse_replay
 from .runs import start_run
 from .settings import get_settings, item_seed
 from .usecase import Case, RunContext, usecase_of
@@ -39,6 +39,19 @@ def session_executor(config: pytest.Config) -> ExecutorSpec | None:
         except ValueError as exc:
             raise pytest.UsageError(f"--driveeval-executor / driveeval_executor: {exc}") from None
     return config.stash[_EXECUTOR_KEY]
+
+
+def session_search_options(config: pytest.Config) -> SearchOptions:
+    """What the session's options set for every robustness search; a malformed --driveeval-replay is a
+    usage error here, before collection, rather than one failure per item."""
+    settings = get_settings(config)
+    if settings.replay:
+        try:
+            parse_replay(settings.replay)
+        except ValueError as exc:
+            raise pytest.UsageError(f"--driveeval-replay: {exc}") from None
+    return SearchOptions(examples=settings.search_examples, replay=settings.replay, profile=settings.search_profile,
+                         database=settings.search_database, seed=settings.seed)
 
 
 class _LiveTerminal:
@@ -121,9 +134,7 @@ def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenar
                       driveeval_output_dir: Path, driveeval_seed: int) -> RunContext:
     _, case = _binding(request)
     settings = get_settings(request.config)
-    search = SearchOptions(examples=settings.search_examples, replay=settings.replay,
-                           profile=settings.search_profile, database=settings.search_database,
-                           seed=settings.seed)
+    search = session_search_options(request.config)
     return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
                       output_dir=driveeval_output_dir, seed=driveeval_seed,
                       allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search,

@@ -7,7 +7,7 @@ import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .execute import disconnect
-from .fixtures import session_executor
+from .fixtures import session_executor, session_search_options
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 
@@ -26,6 +26,7 @@ def pytest_configure(config: pytest.Config) -> None:
     )
     settings = get_settings(config)  # fail early on a bad option value
     session_executor(config)
+    session_search_options(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")

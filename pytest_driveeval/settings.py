@@ -5,6 +5,7 @@ import hashlib
 import os
 import re
 import tempfile
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario*.yaml", "scen
 DECLARED_SUFFIXES = (".scenario.yaml", ".scenario.yml")
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
 SEARCH_DATABASE = "search-examples"
+SEED_LIMIT = 2 ** 63
 
 
 @dataclass(frozen=True)
@@ -126,23 +128,23 @@ def settings_from_config(config: pytest.Config) -> Settings:
     invocation = Path(config.invocation_params.dir)
     ini_base = Path(config.inipath).parent if config.inipath else config.rootpath
 
-    def pick(option: str, ini: str, env: str | None = None) -> tuple[str | None, Path]:
+    def pick(option: str, ini: str) -> tuple[str | None, Path]:
         value = config.getoption(option)
         if value not in (None, ""):
             return str(value), invocation
-        if env and os.environ.get(env):
-            return os.environ[env], invocation
         value = config.getini(ini)
         return (str(value) if value not in (None, "") else None), ini_base
 
     output, base = pick("driveeval_output", "driveeval_output")
-    data_root, data_base = pick("driveeval_data_root", "driveeval_data_root", DATA_ROOT_ENV)
     model, _ = pick("driveeval_model", "driveeval_model")
     seed, _ = pick("driveeval_seed", "driveeval_seed")
     try:
         seed_value = int(seed or 0)
     except ValueError:
-        raise pytest.UsageError(f"driveeval seed must be an integer, got {seed!r}") from None
+        seed_value = -1
+    if not 0 <= seed_value < SEED_LIMIT:
+        raise pytest.UsageError(f"driveeval seed (--driveeval-seed / driveeval_seed) must be a whole number from 0 "
+                                f"to 2**63 - 1, as numpy's generators take, got {seed!r}")
     limit, _ = pick("driveeval_time_limit", "driveeval_time_limit")
     try:
         time_limit = float(limit) if limit else None
@@ -166,7 +168,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
     return Settings(
         output_dir=(base / (output or "driveeval-results")).resolve(),
-        data_root=(data_base / data_root).resolve() if data_root else None,
+        data_root=_data_root(config, invocation, ini_base),
         model=model,
         seed=seed_value,
         patterns=tuple(config.getini("driveeval_patterns") or DEFAULT_PATTERNS),
@@ -180,6 +182,29 @@ def settings_from_config(config: pytest.Config) -> Settings:
         search_profile=profile,
         executor=executor,
     )
+
+
+def _data_root(config: pytest.Config, invocation: Path, ini_base: Path) -> Path | None:
+    """The data root, checked here: a mistyped one would otherwise only show as every dataset
+    missing, one item at a time."""
+    given = (("--driveeval-data-root", config.getoption("driveeval_data_root"), invocation),
+             (f"environment variable {DATA_ROOT_ENV}", os.environ.get(DATA_ROOT_ENV), invocation),
+             ("ini driveeval_data_root", config.getini("driveeval_data_root"), ini_base))
+    where, text, base = next(((w, str(v), b) for w, v, b in given if v not in (None, "")), (None, None, None))
+    if text is None:
+        return None
+    # repr escapes control characters, so a stray escape sequence is shown, not played on the terminal.
+    if any(unicodedata.category(ch) == "Cc" for ch in text):
+        raise pytest.UsageError(f"{where}: the data root {text!r} holds control characters; give a folder's path")
+    try:
+        path = (base / text).resolve()
+    except (RuntimeError, OSError) as exc:  # a symlink loop (RuntimeError before Python 3.13)
+        raise pytest.UsageError(f"{where}: cannot resolve the data root {text!r}: {exc}") from None
+    if not path.exists():
+        raise pytest.UsageError(f"{where}: the data root {text!r} does not exist ({path})")
+    if not path.is_dir():
+        raise pytest.UsageError(f"{where}: the data root {text!r} is not a folder ({path})")
+    return path
 
 
 RUN_KEY = "driveeval_run"

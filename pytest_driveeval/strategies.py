@@ -12,6 +12,7 @@ and what tests written with ``@given`` use:
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Callable, TypeVar
 
@@ -69,6 +70,8 @@ class CloudPerturbation:
 
 def _check(name: str, bounds: Range, neutral: float) -> Range:
     low, high = (float(bounds[0]), float(bounds[1]))
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise ValueError(f"{name}: a range of finite numbers is needed, got {bounds}")
     if not low <= neutral <= high:
         # Shrinking aims at the neutral value; a range without it has no "smallest" perturbation.
         raise ValueError(f"{name}: the range {bounds} must contain {neutral:g} (no change)")

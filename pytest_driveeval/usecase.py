@@ -34,10 +34,17 @@ _BUILTIN: dict[str, str] = {
 }
 
 
-class ConditionsModel(BaseModel):
-    """Base for use-case models: unknown keys are errors, so typos are caught."""
+class Section(BaseModel):
+    """A mapping of a scenario: unknown keys are errors, so typos are caught; a number is finite,
+    since ``.inf`` or ``.nan`` in a YAML file is a slip, and would surface only deep in a run."""
 
-    model_config = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class ConditionsModel(Section):
+    """Base for use-case models (a :class:`Section`)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, arbitrary_types_allowed=True)
 
 
 def located_error(loc: str | tuple, value: Any, message: str) -> ValidationError:

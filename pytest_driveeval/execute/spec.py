@@ -29,7 +29,7 @@ _ADDRESS = re.compile(rf"auto|local|ray://{_HOST_PORT}|{_HOST_PORT}")
 
 
 class ExecutorSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     Kind: Literal["local", "ray"] = "local"
     Address: str | None = None

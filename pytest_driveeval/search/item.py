@@ -54,7 +54,7 @@ def run_item(use_case: str, searchable: Searchable, spec: SearchSpec, ctx: Any) 
     options: SearchOptions = getattr(ctx, "search", None) or SearchOptions()
     replay = options.replay or _replay_from_spec(spec)
     if replay:
-        return _replay(use_case, searchable, replay, ctx, from_option=bool(options.replay))
+        return _replay(use_case, searchable, spec, replay, ctx, from_option=bool(options.replay))
     derandomize = options.profile == "ci"
     database = None
     if not derandomize and options.database is not None:
@@ -96,7 +96,8 @@ def _replay_from_spec(spec: SearchSpec) -> str | None:
     return ",".join(f"{k}={v!r}" for k, v in spec.Replay.items())
 
 
-def _replay(use_case: str, searchable: Searchable, text: str, ctx: Any, from_option: bool) -> Outcome:
+def _replay(use_case: str, searchable: Searchable, spec: SearchSpec, text: str, ctx: Any,
+            from_option: bool) -> Outcome:
     where = "--driveeval-replay" if from_option else f"{ctx.scenario.path}: Evaluation.Perturbation.Replay"
     try:
         values = parse_replay(text)
@@ -113,6 +114,10 @@ def _replay(use_case: str, searchable: Searchable, text: str, ctx: Any, from_opt
     if unknown:
         raise DataError(f"{where}: {', '.join(unknown)} not a perturbation of {use_case}; known: "
                         f"{', '.join(sorted(known))} (or as YAML keys: {', '.join(map(key_name, sorted(known)))})")
+    for name, value in values.items():
+        problem = spec.replay_problem(name, value)
+        if problem:
+            raise DataError(f"{where}: {name}={value!r}: {problem}")
     kinds = {name: type(getattr(searchable.perturbation_type(), name)) for name in values}
     perturbation = searchable.perturbation_type(**{k: kinds[k](v) for k, v in values.items()})
     example = Example(searchable.case_labels.index(label), perturbation)

@@ -50,12 +50,14 @@ class SearchOptions:
 
 
 class SearchSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     #: keys of the subclass that are ranges, with their no-change value
     NEUTRAL: ClassVar[dict[str, float]] = {}
     #: keys whose values are bounded: (lowest, highest, what to say when a range leaves them)
     BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {}
+    #: keys whose values are whole numbers (a count of points, say)
+    WHOLE: ClassVar[frozenset[str]] = frozenset()
 
     Examples: PositiveInt = 100
     Batch: PositiveInt = Field(32, le=4096)
@@ -76,6 +78,9 @@ class SearchSpec(BaseModel):
             bounds = [given, given] if _number(given) else given
             if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(map(_number, bounds)):
                 raise located_error(key, given, f"a range [low, high] is needed, got {given!r}")
+            if not all(math.isfinite(b) for b in bounds):
+                raise located_error(key, given, f"a range of finite numbers is needed, got {given!r}: the "
+                                                "search draws from it and the simulator takes what it draws")
             low, high = sorted(float(b) for b in bounds)
             if not low <= neutral <= high:
                 raise located_error(key, given, f"the range [{low:g}, {high:g}] must contain {neutral:g} (no change), "
@@ -84,6 +89,38 @@ class SearchSpec(BaseModel):
             if low < lowest or high > highest:
                 raise located_error(key, given, f"{what}, got [{low:g}, {high:g}]")
         return data
+
+    @model_validator(mode="after")
+    def _replay_within_the_ranges(self):
+        for key, value in (self.Replay or {}).items():
+            problem = self.replay_problem(field_name(key), value)
+            if problem:
+                raise located_error(("Replay", key), value, f"{problem}; got {value!r}")
+        return self
+
+    def replay_problem(self, field: str, value: float) -> str | None:
+        """Why ``value`` of perturbation ``field`` cannot be replayed, or None.  The rules of a range:
+        finite, within the scenario's range for a key it searches, else (a what-if the search
+        did not try) within the key's bounds."""
+        key = key_name(field)
+        if key not in self.NEUTRAL:
+            return None  # a case label (scene, seed) or a field the use case itself checks
+        if not math.isfinite(value):
+            return "a finite number is needed"
+        if key in self.WHOLE and value != int(value):
+            return "a whole number is needed"
+        searched = self.ranges().get(field)
+        if searched is not None:
+            low, high = searched
+            # A drawn value is neutral + offset in floats, so an edge can come out an ulp past the range.
+            slack = 1e-9 * max(1.0, abs(low), abs(high))
+            if not low - slack <= value <= high + slack:
+                return f"outside the scenario's range {key}: [{low:g}, {high:g}]"
+            return None
+        lowest, highest, what = self.BOUNDS.get(key, (-math.inf, math.inf, ""))
+        if not lowest <= value <= highest:
+            return what
+        return None
 
     @model_validator(mode="after")
     def _something_to_search(self):
@@ -135,7 +172,10 @@ def parse_replay(text: str) -> dict[str, float]:
         if not sep:
             raise ValueError(f"'{part}' is not name=value")
         try:
-            out[field_name(name.strip()) if name.strip()[:1].isupper() else name.strip()] = float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"'{part}': {value!r} is not a number") from None
+        if not math.isfinite(number):
+            raise ValueError(f"'{part}': a finite number is needed")
+        out[field_name(name.strip()) if name.strip()[:1].isupper() else name.strip()] = number
     return out

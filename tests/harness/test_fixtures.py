@@ -96,6 +96,48 @@ def test_dataset_names_resolve_under_the_data_root(project, monkeypatch, how):
     project.runpytest(*args).assert_outcomes(passed=1)
 
 
+@pytest.mark.parametrize("how, where", [("option", "--driveeval-data-root"), ("ini", "ini driveeval_data_root"),
+                                        ("env", "environment variable DRIVEEVAL_DATA_ROOT")])
+@pytest.mark.parametrize("root, problem", [
+    ("nowhere", "the data root 'nowhere' does not exist ("),
+    ("a-file.csv", "the data root 'a-file.csv' is not a folder ("),
+    ("data\x1b[2J\nroot", r"the data root 'data\x1b[2J\nroot' holds control characters; give a folder's path"),
+])
+def test_a_bad_data_root_is_a_usage_error_naming_where_it_was_set(project, monkeypatch, how, where, root, problem):
+    """Up front, before any item: otherwise each item would fail on its own missing dataset. Control
+    characters are shown escaped, never sent to the terminal."""
+    good = project.path / "datasets"
+    good.mkdir()
+    (project.path / "fast.csv").rename(good / "fast.csv")
+    (project.path / "a-file.csv").write_text("t,x,y\n")
+    project.makefile(".scenario.yaml", a=speed_scenario("a", datasets=("fast.csv",), max_speed=25))
+    project.runpytest("-q", "--driveeval-data-root", str(good)).assert_outcomes(passed=1)
+    args = ["-q"]
+    if how == "option":
+        args += ["--driveeval-data-root", root]
+    elif how == "ini":
+        if "\n" in root:
+            pytest.skip("an ini value is one line")
+        project.makeini(f"[pytest]\ndriveeval_data_root = {root}\n")
+    else:
+        monkeypatch.setenv("DRIVEEVAL_DATA_ROOT", root)
+    result = project.runpytest(*args)
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    err = result.stderr.str()
+    assert f"ERROR: {where}: {problem}" in err, err
+    assert "\x1b" not in err + result.stdout.str()
+
+
+@pytest.mark.parametrize("seed", ["-1", str(2 ** 63)])
+def test_a_seed_numpy_cannot_take_is_a_usage_error(gain, seed):
+    gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"))
+    gain.runpytest("-q", "--driveeval-seed", str(2 ** 63 - 1)).assert_outcomes(passed=1)
+    result = gain.runpytest("-q", "--driveeval-seed", seed)
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    assert f"must be a whole number from 0 to 2**63 - 1, as numpy's generators take, got '{seed}'" in \
+        result.stderr.str()
+
+
 def test_item_seeds_are_stable_distinct_and_follow_the_seed_option(gain):
     gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
 

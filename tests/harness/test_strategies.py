@@ -1,6 +1,8 @@
 """The public perturbation strategies: values in range, and failures shrink to the smallest change."""
 from __future__ import annotations
 
+import math
+
 import pytest
 from hypothesis import find, given
 from hypothesis import settings as hsettings
@@ -61,6 +63,9 @@ def test_cloud_dropout_shrinks_towards_none():
     (lambda: start_perturbations(lateral=(0.5, 2.0)), "lateral: the range (0.5, 2.0) must contain 0"),
     (lambda: start_perturbations(speed_scale=(1.1, 1.5)), "speed_scale: the range (1.1, 1.5) must contain 1"),
     (lambda: cloud_perturbations(dropout=(0.0, 1.5)), "dropout: a fraction range within [0, 1]"),
+    (lambda: start_perturbations(lateral=(-math.inf, math.inf)), "lateral: a range of finite numbers is needed"),
+    (lambda: episode_perturbations(gap_scale=(math.nan, 1.0)), "gap_scale: a range of finite numbers is needed"),
+    (lambda: cloud_perturbations(range_noise=(0.0, math.inf)), "range_noise: a range of finite numbers is needed"),
 ])
 def test_a_range_without_the_unperturbed_value_is_refused(make, message):
     with pytest.raises(ValueError) as error:

@@ -39,17 +39,13 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import (BaseModel, ConfigDict, Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
+from pydantic import (Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, PositiveInt,
                       ValidationInfo, field_validator, model_validator)
 
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.sim.agents import TrafficModel
-from pytest_driveeval.usecase import ConditionsModel
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+from pytest_driveeval.usecase import ConditionsModel, Section
 
 
 _IDM = TrafficModel()
@@ -58,7 +54,7 @@ IDM_KEYS = {"TimeHeadway": "time_headway", "MinGap": "min_gap", "ComfortAccel": 
             "ComfortDecel": "comfort_decel", "MaxBrake": "max_brake", "Delta": "delta"}
 
 
-class AgentsSpec(_Strict):
+class AgentsSpec(Section):
     """Which logged agents replay (and can be hit); see sim.logreplay.selection.
     And how they move: ``Mode: log`` replays them (l5kit's closed loop),
     ``Mode: reactive`` lets vehicles brake by IDM for what is in their way
@@ -133,7 +129,7 @@ def replayed_agents(spec: AgentsSpec):
     return ReplayedAgents(labels=spec.Labels, label_threshold=spec.LabelThreshold, within_at_start=spec.WithinAtStart)
 
 
-class InputsSpec(_Strict):
+class InputsSpec(Section):
     """What the policy is given each step.  ``Kind: vector`` (the default): the
     l5kit-keyed agent and ego histories (sim.logreplay.inputs).  ``Kind:
     raster``: those plus ``image``, l5kit's bird's-eye raster drawn from the
@@ -184,7 +180,7 @@ class InputsSpec(_Strict):
                             filter_agents_threshold=self.FilterAgentsThreshold)
 
 
-class UnrollSpec(_Strict):
+class UnrollSpec(Section):
     Scenes: list[NonNegativeInt] | None = None
     SceneStride: PositiveInt | None = None
     StartFrame: NonNegativeInt = 0
@@ -212,14 +208,14 @@ class UnrollSpec(_Strict):
         return self
 
 
-class CollisionLimits(_Strict):
+class CollisionLimits(Section):
     Front: NonNegativeInt = 0
     Side: NonNegativeInt = 0
     Rear: NonNegativeInt = 0
     AtFaultOnly: bool = False
 
 
-class RangeLimit(_Strict):
+class RangeLimit(Section):
     """A per-frame figure must stay <= Max; up to Duration seconds above it are tolerated."""
 
     Max: NonNegativeFloat
@@ -235,7 +231,7 @@ class ReferenceLimit(RangeLimit):
     Measure: Literal["polyline", "l5kit"] = "polyline"
 
 
-class ClosedLoopConditions(_Strict):
+class ClosedLoopConditions(Section):
     Collisions: CollisionLimits = Field(default_factory=CollisionLimits)
     Displacement: RangeLimit | None = None
     DistanceToReference: ReferenceLimit | None = None
@@ -244,12 +240,12 @@ class ClosedLoopConditions(_Strict):
     ScenePassRate: float = Field(100.0, ge=0.0, le=100.0)
 
 
-class ArtefactSpec(_Strict):
+class ArtefactSpec(Section):
     Animations: Literal["all", "failing", "none"] = "failing"
     Charts: bool = True
 
 
-class ConstantVelocitySpec(_Strict):
+class ConstantVelocitySpec(Section):
     """``FirstStep``: where the constant_velocity baseline goes from a frame
     without a past: ``heading`` (its speed along the heading) or
     ``logged_next`` (to the logged next position, as in l5kit's closed loop)."""

@@ -60,7 +60,14 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
         if not path.is_file():
             raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
                             f"MapType py_semantic; give Inputs.{key} to point elsewhere)")
-    return read_semantic_map(pb_path, meta_path)
+    semantic_map = read_semantic_map(pb_path, meta_path)
+    if len(semantic_map.lane_ids) == 0 and len(semantic_map.crosswalk_ids) == 0:
+        # An empty message decodes as an empty map; the rasters would show no road and no error.
+        raise DataError(f"{pb_path}: the semantic map holds no lanes and no crosswalks "
+                        f"({pb_path.stat().st_size} bytes), so it cannot be the map of {dataset_path} "
+                        "that Inputs: raster with MapType py_semantic draws; give Inputs.SemanticMap to point at "
+                        "the dataset's map, or MapType: box_debug for rasters without one")
+    return semantic_map
 
 
 def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike) -> Any:

@@ -48,6 +48,8 @@ Where we differ from driving_log_replayer (deliberately):
   error for that frame: both parts Fail, the jsonl line carries ``Error`` and the
   outcome a finding; never an identity transform.
 - No map in the dataset: the area is the ProposedArea prism alone (DLR needs one).
+  A map with no TF to place it (input_bag/ missing, or a bag without /tf) is one
+  error naming the bag, not a failed lookup in every frame.
 - Overlapping lanelets: a point counts once (union), not once per lanelet.
 - ProposedArea must be clockwise by signed area (DLR's check is wrong for
   non-rectangles); counter-clockwise or self-intersecting polygons are errors at

@@ -43,8 +43,6 @@ from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     NonNegativeInt,
     PositiveFloat,
@@ -56,20 +54,16 @@ from pydantic import (
 
 from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
 from ...search.spec import SearchSpec
-from ...usecase import ConditionsModel
+from ...usecase import ConditionsModel, Section
 
 V3 = "0.3.0"
 LEGACY = ("0.1.0", "0.2.0")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
 RATE = Field(ge=0.0, le=100.0)
 
 
-class Window(_Strict):
+class Window(Section):
     """Seconds of the cloud's header stamp (absolute ROS time, as driving_log_replayer compares)."""
 
     Start: float | None = None
@@ -82,7 +76,7 @@ class Window(_Strict):
         return self
 
 
-class DetectionCondition(_Strict):
+class DetectionCondition(Section):
     PassRate: float = RATE
     BoundingBoxConfig: list[dict[str, Window | None]] | None = None
 
@@ -97,7 +91,7 @@ class DetectionCondition(_Strict):
         return out
 
 
-class LegacyDetectionCondition(_Strict):
+class LegacyDetectionCondition(Section):
     PassRate: float = RATE
 
 
@@ -120,7 +114,7 @@ def polygon_problem(vertices: np.ndarray) -> str | None:
     return None
 
 
-class ProposedAreaSpec(_Strict):
+class ProposedAreaSpec(Section):
     polygon_2d: list[tuple[float, float]]
     z_min: float
     z_max: float
@@ -144,12 +138,12 @@ class ProposedAreaSpec(_Strict):
         return np.asarray(self.polygon_2d, dtype=np.float64)
 
 
-class NonDetectionCondition(_Strict):
+class NonDetectionCondition(Section):
     PassRate: float = RATE
     ProposedArea: ProposedAreaSpec
 
 
-class ConditionsSpec(_Strict):
+class ConditionsSpec(Section):
     Detection: DetectionCondition | None = None
     ObstacleDetection: LegacyDetectionCondition | None = None  # 0.1.0 / 0.2.0 name
     NonDetection: NonDetectionCondition | None = None
@@ -178,7 +172,7 @@ class ConditionsSpec(_Strict):
         return "ObstacleDetection" if self.ObstacleDetection is not None else "Detection"
 
 
-class EvaluationConfigDict(_Strict):
+class EvaluationConfigDict(Section):
     evaluation_task: Literal["sensing"] = "sensing"
     target_uuids: list[str] | None = None
     box_scale_0m: PositiveFloat = 1.0
@@ -187,17 +181,17 @@ class EvaluationConfigDict(_Strict):
     label_prefix: str | None = None  # driving_log_replayer sets it to "autoware"; unused here
 
 
-class SensingSpec(_Strict):
+class SensingSpec(Section):
     evaluation_config_dict: EvaluationConfigDict = Field(default_factory=EvaluationConfigDict)
 
 
-class PointCloudOptions(_Strict):
+class PointCloudOptions(Section):
     Topic: str = "/perception/obstacle_segmentation/pointcloud"
     RawTopic: str | None = "/sensing/lidar/concatenated/pointcloud"  # None: the dataset's lidar sweeps
     TopicRateDiagnostic: str = "topic_state_monitor_obstacle_segmentation_pointcloud"
 
 
-class ArtefactOptions(_Strict):
+class ArtefactOptions(Section):
     FailingFramePlots: NonNegativeInt = 5
 
 
@@ -208,6 +202,7 @@ class ObstaclePerturbation(SearchSpec):
     BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
         "Dropout": (0.0, 1.0, "a fraction of the points, within [0, 1]"),
         "RangeNoise": (0.0, float("inf"), "a standard deviation (m) cannot be negative")}
+    WHOLE: ClassVar[frozenset[str]] = frozenset({"GhostPoints"})
 
     Dropout: tuple[float, float] | None = None
     RangeNoise: tuple[float, float] | None = None

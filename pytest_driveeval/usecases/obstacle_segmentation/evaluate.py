@@ -99,6 +99,15 @@ def _auto_inputs(dataset: T4Dataset, tf, diagnostics, lanelets):
     return tf, diagnostics, lanelets
 
 
+def _no_tf_for_the_map(dataset: T4Dataset) -> str:
+    """Why no frame could place the NonDetection area: said once, rather than as every frame's error."""
+    need = (f"the NonDetection area is cut to the road lanelets of {dataset.lanelet2_map} at the ego's pose "
+            "(TF map -> base_link), which the bag's /tf holds")
+    if dataset.input_bag is None:
+        return f"t4_dataset {dataset.root}: its input bag {dataset.root / 'input_bag'} is missing: {need}"
+    return f"{dataset.input_bag}: the bag has no /tf or /tf_static: {need}"
+
+
 def _area(cond, lanelets, map_T_base) -> Area:
     poly = cond.ProposedArea.vertices
     zmin, zmax = cond.ProposedArea.z_min, cond.ProposedArea.z_max
@@ -135,7 +144,10 @@ class ObstacleEvaluation:
         ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
         cfg = _config(config)
         check_uuids(ds, cfg)
+        tf_from_bag = isinstance(tf, str)
         tf, diagnostics, lanelets = _auto_inputs(ds, tf, diagnostics, lanelets)
+        if tf_from_bag and tf is None and lanelets is not None and cfg.Conditions.NonDetection is not None:
+            raise DataError(_no_tf_for_the_map(ds))
         return cls(ds, cfg, tf, lanelets, _diagnostic_lookup(diagnostics, cfg.PointCloud.TopicRateDiagnostic))
 
     def run(self, pointclouds: Iterable[tuple], on_frame: FrameSink | None = None) -> ObstacleResult:

@@ -47,21 +47,19 @@ import math
 
 from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeInt, PositiveInt, model_validator
+from pydantic import Field, NonNegativeInt, PositiveInt, model_validator
 
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
-from pytest_driveeval.usecase import ConditionsModel, located_error
+from pytest_driveeval.usecase import ConditionsModel, Section, located_error
 
 BASELINES = ("random", "constant", "idm_expert")
+# The episodes' seeds are one int64 array (numpy's generators take any seed >= 0, the array does not).
+SEED_LIMIT = 2 ** 63
 METRICS = ("goal_rate", "collision_rate", "return")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class BlueprintSpec(_Strict):
+class BlueprintSpec(Section):
     Name: Literal["highway", "merging", "intersection"]
     Params: dict[str, Any] = Field(default_factory=dict)
 
@@ -78,7 +76,7 @@ class BlueprintSpec(_Strict):
         return self
 
 
-class RateLimit(_Strict):
+class RateLimit(Section):
     AtLeast: float | None = Field(None, ge=0.0, le=100.0)
     AtMost: float | None = Field(None, ge=0.0, le=100.0)
 
@@ -89,13 +87,13 @@ class RateLimit(_Strict):
         return self
 
 
-class BeatsSpec(_Strict):
+class BeatsSpec(Section):
     Baseline: str
     Metric: Literal["goal_rate", "collision_rate", "return"] = "goal_rate"
     Rule: Literal["improvement", "difference"] = "improvement"
 
 
-class BenchmarkConditions(_Strict):
+class BenchmarkConditions(Section):
     Confidence: float = Field(95.0, gt=50.0, lt=100.0)
     GoalRate: RateLimit | None = None
     CollisionRate: RateLimit | None = None
@@ -103,7 +101,7 @@ class BenchmarkConditions(_Strict):
     Beats: list[BeatsSpec] = Field(default_factory=list)
 
 
-class BenchmarkArtefacts(_Strict):
+class BenchmarkArtefacts(Section):
     Animations: Literal["all", "failing", "none"] = "failing"
     ComparisonPlot: bool = True
 
@@ -146,6 +144,11 @@ class PolicyBenchmarkConfig(ConditionsModel):
 
     @model_validator(mode="after")
     def _consistent(self):
+        last = self.FirstSeed + self.Episodes - 1
+        if last >= SEED_LIMIT:
+            raise located_error("FirstSeed", self.FirstSeed,
+                                f"the episodes' seeds (FirstSeed .. FirstSeed + Episodes - 1) must stay below 2**63 "
+                                f"= {SEED_LIMIT}; the last would be {last}")
         if self.AgentLimit < 1:
             raise located_error("AgentLimit", self.AgentLimit,
                            "the agent limit counts the ego, so it is at least 1")
@@ -153,11 +156,18 @@ class PolicyBenchmarkConfig(ConditionsModel):
             if name not in self.Policies:
                 raise located_error(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
                                                         f"({', '.join(self.Policies)})")
+        judged = self.judged()
         for index, beats in enumerate(self.Conditions.Beats):
             if beats.Baseline not in self.Policies:
                 raise located_error(("Conditions", "Beats", index, "Baseline"), beats.Baseline,
                                f"'{beats.Baseline}' is not one of this scenario's Policies "
                                f"({', '.join(self.Policies)})")
+            if beats.Baseline in judged:
+                why = "Judged lists it" if self.Judged is not None else \
+                    "without Judged, every policy that is not a baseline is judged"
+                raise located_error(("Conditions", "Beats", index, "Baseline"), beats.Baseline,
+                                    f"'{beats.Baseline}' is judged ({why}), and a policy cannot be its own "
+                                    "baseline: compare with another policy, or leave it out of Judged")
         return self
 
     def blueprint_params(self) -> dict[str, Any]:

@@ -76,8 +76,6 @@ def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: Benchmark
             findings.append(Finding(decision.message, figure=f"{outcome}_rate",
                                     keypath=("Evaluation", "Conditions", key)))
     for index, spec in enumerate(conditions.Beats):
-        if spec.Baseline == run.policy:
-            continue  # a policy listed as its own baseline: nothing to compare
         other = baselines[spec.Baseline]
         result = comparison(run, other, spec.Metric, conditions.Confidence, seed)
         label = f"'{run.policy}' beats '{other.policy}' on {spec.Metric.replace('_', ' ')}"

@@ -54,3 +54,33 @@ def test_the_demo_l5kit_scenario_uses_the_l5kit_setup():
     agents = config.Unroll.Agents
     assert (agents.Labels, agents.LabelThreshold, agents.WithinAtStart) == (["CAR"], 0.5, 50.0)
     assert config.Conditions.DistanceToReference.Measure == "l5kit"
+
+
+@pytest.mark.parametrize("extra, expected", [
+    ("  Perturbation:\n    Lateral: [-.inf, .inf]\n",
+     "k:8: Evaluation.Perturbation.Lateral: a range of finite numbers is needed, got [-inf, inf]"),
+    ("  Perturbation:\n    SpeedScale: [0.9, .nan]\n",
+     "k:8: Evaluation.Perturbation.SpeedScale: a range of finite numbers is needed, got [0.9, nan]"),
+    ("  Perturbation:\n    Lateral: [-1, 1]\n    Replay: {Scene: 0, Lateral: 1.5}\n",
+     "k:9: Evaluation.Perturbation.Replay.Lateral: outside the scenario's range Lateral: [-1, 1]; got 1.5"),
+    ("  Perturbation:\n    Lateral: [-1, 1]\n    Replay: {Scene: 0, SpeedScale: -1}\n",
+     "k:9: Evaluation.Perturbation.Replay.SpeedScale: a speed scale must stay above 0; got -1.0"),
+    ("  Perturbation:\n    Lateral: [-1, 1]\n    Replay: {Scene: .nan}\n",
+     "k:9: Evaluation.Perturbation.Replay.Scene: expected a finite number; found nan (float)"),
+    ("  Unroll:\n    DriftThreshold: .inf\n",
+     "k:8: Evaluation.Unroll.DriftThreshold: expected a finite number; found inf (float)"),
+    ("  Unroll:\n    Agents: {Mode: reactive, TimeHeadway: .nan}\n",
+     "k:8: Evaluation.Unroll.Agents.TimeHeadway: expected a finite number; found nan (float)"),
+    ("  Unroll:\n    Inputs: {Kind: raster, PixelSize: [.inf, 0.5]}\n",
+     "k:8: Evaluation.Unroll.Inputs.PixelSize[0]: expected a finite number; found inf (float)"),
+    ("  Conditions:\n    Displacement: {Max: .nan}\n",
+     "k:8: Evaluation.Conditions.Displacement.Max: expected a finite number; found nan (float)"),
+    ("  Conditions:\n    ScenePassRate: .nan\n",
+     "k:8: Evaluation.Conditions.ScenePassRate: expected a finite number; found nan (float)"),
+    ("  Executor: {Kind: ray, NumCpus: .inf}\n",
+     "k:7: Evaluation.Executor.NumCpus: expected a finite number; found inf (float)"),
+])
+def test_a_number_that_is_not_finite_is_located_wherever_it_is_declared(tmp_path, extra, expected):
+    """``.inf`` and ``.nan`` are valid YAML floats; taken, they surface deep in an unroll."""
+    found = problems(tmp_path, extra)
+    assert len(found) == 1 and found[0].startswith(expected), found

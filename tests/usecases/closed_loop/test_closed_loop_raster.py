@@ -157,19 +157,31 @@ Evaluation:
 
 
 @pytest.mark.skipif(not GENERATED.exists(), reason="demo data not generated")
-def test_a_raster_scenario_runs_with_the_map_beside_the_dataset(pytester):
+def test_a_raster_scenario_runs_with_the_map_beside_the_dataset_and_an_empty_or_missing_map_is_named(pytester):
     shutil.copytree(GENERATED, pytester.path / "gen.zarr")
     for name in ("semantic_map.pb", "meta.json"):
         shutil.copy(GENERATED.parent / name, pytester.path / name)
+    # A 0-byte semantic_map.pb decodes as a map without a road: the rasters would lack it silently.
+    (pytester.path / "empty.pb").write_bytes(b"")
     model = REPO_ROOT / "fixtures" / "models" / "raster_model.pt"
     if not model.exists():
         pytest.skip("raster model not trained")
-    pytester.makefile(".scenario.yaml", raster=SCENE.format(model=model))
-    pytester.runpytest("-q").assert_outcomes(passed=1)
-    result = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"][0]
+    scene = SCENE.format(model=model)
+    pytester.makefile(".scenario.yaml", raster=scene,
+                      empty=scene.replace("RasterSize: [112, 112]", "RasterSize: [112, 112], SemanticMap: empty.pb"))
+    out = pytester.runpytest("-q")
+    out.assert_outcomes(passed=1, failed=1)
+    out.stdout.fnmatch_lines(["*empty.pb: the semantic map holds no lanes and no crosswalks (0 bytes), so it "
+                              "cannot be the map of *gen.zarr that Inputs: raster with MapType py_semantic draws; "
+                              "give Inputs.SemanticMap to point at the dataset's map, or MapType: box_debug*"])
+    results = {r["nodeid"]: r for r in
+               json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]}
+    result = results["raster.scenario.yaml::closed_loop[logs]"]
+    assert result["status"] == "passed"
     assert result["figures"]["scenes"] == 2 and result["figures"]["steps"] > 0
     # Without its map beside the dataset the item fails and names the missing file.
     (pytester.path / "semantic_map.pb").unlink()
-    out = pytester.runpytest("-q")
+    out = pytester.runpytest("-q", "raster.scenario.yaml")
     out.assert_outcomes(failed=1)
     out.stdout.fnmatch_lines(["*semantic_map.pb: no such file*"])
+

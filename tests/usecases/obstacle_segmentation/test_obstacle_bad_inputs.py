@@ -120,3 +120,49 @@ def test_each_bad_dataset_fails_alone_with_its_message(pytester, generated):
     bare = next(r for r in data["results"] if r["nodeid"].startswith("bare_mcap"))
     good = next(r for r in data["results"] if r["nodeid"].startswith("good"))
     assert bare["status"] == "passed" and bare["figures"]["frames"] == good["figures"]["frames"] == 8
+
+
+def test_a_missing_input_bag_is_named_once_and_the_dataset_beside_it_passes(pytester):
+    """Without input_bag/ the clouds fall back to the lidar sweeps, but the map's lanelets still need
+    the ego's pose from the bag's TF: one error naming the bag, not one per frame."""
+    from conftest import REPO_ROOT
+
+    text = (REPO_ROOT / "scenario_tests" / "obstacle_segmentation" / "clean" / "scenario.yaml").read_text()
+    for name in ("good", "nobag"):
+        shutil.copytree(REPO_ROOT / "fixtures" / "t4" / "clean", pytester.path / "data" / name)
+        pytester.makefile(".scenario.yaml", **{name: text.replace("../../../fixtures/t4/clean", f"data/{name}")})
+    shutil.rmtree(pytester.path / "data" / "nobag" / "input_bag")
+    result = pytester.runpytest("-q", "-W", "ignore::pytest.PytestUnknownMarkWarning")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines([
+        "*DataError: t4_dataset */data/nobag: its input bag */data/nobag/input_bag is missing: the NonDetection area "
+        "is cut to the road lanelets of */data/nobag/map/lanelet2_map.osm at the ego's pose (TF map -> base_link), "
+        "which the bag's /tf holds"])
+    out = result.stdout.str()
+    assert "TF has none" not in out and "could not be evaluated" not in out
+    records = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]
+    assert {r["nodeid"].split(".")[0]: r["status"] for r in records} == {"good": "passed", "nobag": "failed"}
+
+
+def test_a_bag_without_tf_under_a_map_is_named_before_any_frame(tmp_path):
+    from conftest import REPO_ROOT
+    from pytest_driveeval.errors import DataError
+    from pytest_driveeval.io.t4dataset import T4Dataset
+    from pytest_driveeval.scenario import load_scenario
+    from pytest_driveeval.usecases.obstacle_segmentation.evaluate import ObstacleEvaluation
+
+    root = tmp_path / "notf"
+    shutil.copytree(REPO_ROOT / "fixtures" / "t4" / "clean", root)
+    (root / "input_bag" / "metadata.yaml").unlink()  # it lists the topics removed below
+    with sqlite3.connect(root / "input_bag" / "input_bag.db3") as con:
+        con.execute("DELETE FROM messages WHERE topic_id IN (SELECT id FROM topics WHERE name LIKE '/tf%')")
+        con.execute("DELETE FROM topics WHERE name LIKE '/tf%'")
+    con.close()
+    config = load_scenario(REPO_ROOT / "scenario_tests" / "obstacle_segmentation" / "clean" / "scenario.yaml").config
+    with pytest.raises(DataError) as failed:
+        ObstacleEvaluation.load(T4Dataset(root), config)
+    assert str(failed.value).startswith(f"{root / 'input_bag'}: the bag has no /tf or /tf_static: the NonDetection "
+                                        f"area is cut to the road lanelets of {root / 'map' / 'lanelet2_map.osm'}")
+    # Without NonDetection the map is not needed, and the same bag loads.
+    without = config.model_copy(update={"Conditions": config.Conditions.model_copy(update={"NonDetection": None})})
+    assert ObstacleEvaluation.load(T4Dataset(root), without).tf is None
