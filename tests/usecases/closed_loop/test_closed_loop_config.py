@@ -54,3 +54,19 @@ def test_the_demo_l5kit_scenario_uses_the_l5kit_setup():
     agents = config.Unroll.Agents
     assert (agents.Labels, agents.LabelThreshold, agents.WithinAtStart) == (["CAR"], 0.5, 50.0)
     assert config.Conditions.DistanceToReference.Measure == "l5kit"
+
+
+def test_the_demo_reactive_scenario_is_its_log_replay_twin():
+    """The demo shows reactive agents beside log replay; the comparison means something only
+    while the two files differ in ``Unroll.Agents.Mode`` alone."""
+    from conftest import REPO_ROOT
+
+    demo = REPO_ROOT / "scenario_tests" / "closed_loop"
+    log, reactive = (load_scenario(demo / name) for name in ("real_scene.scenario.yaml",
+                                                            "real_scene_reactive.scenario.yaml"))
+    assert (log.config.Unroll.Agents.Mode, reactive.config.Unroll.Agents.Mode) == ("log", "reactive")
+    assert reactive.config.Unroll.Agents.reactive() is not None
+    apart_from_mode = {"Unroll": {"Agents": {"Mode"}}}
+    assert reactive.config.model_dump(exclude=apart_from_mode) == log.config.model_dump(exclude=apart_from_mode)
+    assert [(d.name, d.path) for d in reactive.datasets] == [(d.name, d.path) for d in log.datasets]
+    assert (reactive.marks, reactive.xfail, reactive.skip) == (log.marks, log.xfail, log.skip)
