@@ -1,5 +1,5 @@
 """What README.md names exists: repository paths, the scripts' options, the pytest
-options and ini keys, the Python names its snippets import.
+options, ini keys, marks and extras, the Python names its snippets import.
 
 A new user copies these first; a renamed file or option must fail here, not in
 their terminal.  Only code (spans, fenced blocks) and link targets are read: prose
@@ -106,6 +106,21 @@ def test_every_script_option_in_the_readme_is_the_scripts():
     unknown = [(script, option) for script, options in commands for option in options
                if f'"{option}"' not in (REPO_ROOT / script).read_text()]
     assert unknown == []
+
+
+def test_every_extra_and_mark_the_readme_installs_or_selects_exists():
+    import tomllib
+
+    project = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())
+    extras = set(project["project"]["optional-dependencies"])
+    markers = {line.split(":", 1)[0] for line in project["tool"]["pytest"]["ini_options"]["markers"]}
+    text = "\n".join(_code())
+    installed = {extra for spec in re.findall(r"pip install [^\n]*?['\"]?[.\w-]*\[([\w,-]+)\]", text)
+                 for extra in spec.split(",")}
+    selected = {word for expression in re.findall(r"(?<!python )-m (\w+|\"[^\"]+\"|'[^']+')", text)
+                for word in re.findall(r"\w+", expression)} - {"not", "and", "or"}
+    assert {"all", "test", "ray"} <= installed and {"demo", "slow"} <= selected
+    assert sorted(installed - extras) == [] and sorted(selected - markers) == []
 
 
 def _package_source() -> str:
