@@ -191,3 +191,14 @@ def test_the_layout_lists_what_is_there():
             if not any((base / name).exists() for base in (folder.parent, folder)):
                 missing.append(f"{name} (near {folder.relative_to(REPO_ROOT)})")
     assert checked > 30 and missing == []
+
+
+def test_the_demo_counts_in_the_readme_are_the_demos(pytester):
+    """Every demo item passes or fails as it declares (the lead's demo run checks that);
+    so its counts are the items collected and those marked xfail."""
+    claimed = re.search(r"It ends `(\d+) passed, (\d+) xfailed`", README.read_text())
+    assert claimed, "the README no longer states the demo's counts"
+    recorder = pytester.inline_run("--collect-only", "-p", "no:cacheprovider", str(REPO_ROOT / "scenario_tests"))
+    items = recorder.getcalls("pytest_collection_finish")[0].session.items
+    xfail = sum(item.get_closest_marker("xfail") is not None for item in items)
+    assert (len(items) - xfail, xfail) == tuple(map(int, claimed.groups()))
