@@ -193,12 +193,24 @@ def test_the_layout_lists_what_is_there():
     assert checked > 30 and missing == []
 
 
+def _demo_items(pytester) -> list[pytest.Item]:
+    recorder = pytester.inline_run("--collect-only", "-p", "no:cacheprovider", str(REPO_ROOT / "scenario_tests"))
+    return recorder.getcalls("pytest_collection_finish")[0].session.items
+
+
+def test_the_demo_items_the_readme_names_exist(pytester):
+    named = {m.group(0) for chunk in _code() for m in re.finditer(r"scenario_tests/[\w./-]+::[\w\[\].-]+", chunk)}
+    assert "scenario_tests/speed/urban.scenario.yaml::speed_limit[urban_stop]" in named
+    collected = {Path(item.path).relative_to(REPO_ROOT).as_posix() + "::" + item.name
+                 for item in _demo_items(pytester)}
+    assert sorted(named - collected) == []
+
+
 def test_the_demo_counts_in_the_readme_are_the_demos(pytester):
     """Every demo item passes or fails as it declares (the lead's demo run checks that);
     so its counts are the items collected and those marked xfail."""
     claimed = re.search(r"It ends `(\d+) passed, (\d+) xfailed`", README.read_text())
     assert claimed, "the README no longer states the demo's counts"
-    recorder = pytester.inline_run("--collect-only", "-p", "no:cacheprovider", str(REPO_ROOT / "scenario_tests"))
-    items = recorder.getcalls("pytest_collection_finish")[0].session.items
+    items = _demo_items(pytester)
     xfail = sum(item.get_closest_marker("xfail") is not None for item in items)
     assert (len(items) - xfail, xfail) == tuple(map(int, claimed.groups()))
