@@ -16,6 +16,14 @@ import pytest
 
 from conftest import REPO_ROOT
 
+try:
+    # The names below import torch.  A pytester run earlier in the session (the browser
+    # test's) drops the modules first imported inside it, and torch cannot be imported
+    # twice in one process; imported at collection it is kept.
+    import torch  # noqa: F401
+except ImportError:
+    pass
+
 README = REPO_ROOT / "README.md"
 PACKAGE = REPO_ROOT / "pytest_driveeval"
 # The repository's top-level folders: a path starting with one of them is meant to be a
