@@ -50,6 +50,10 @@ def scene_sets() -> list[tuple[str, object, Path]]:
                 continue
             dataset = REAL_SCENE
         spec = scenario.config.Unroll
+        if spec.Inputs.Kind != "vector":
+            # Both policies compared here read vector inputs; a raster scenario's set-up would only add rasters.
+            print(f"skipped {path.name}: Inputs {spec.Inputs.Kind}")
+            continue
         key = (dataset, spec.model_dump_json(exclude={"Agents": {"Mode"}}))
         if key not in seen:
             seen.add(key)

@@ -72,7 +72,7 @@ Evaluation:
         })()""")
 
     first = shown_image()
-    target = os.environ.get("DRIVEEVAL_REPORT_SCREENSHOT")  # to refresh docs/report.png
+    target = os.environ.get("DRIVEEVAL_REPORT_SCREENSHOT")  # docs/make_report_picture.py: the README picture
     page.screenshot(path=target or str(pytester.path / "report.png"))
     page.click(".media-container__nav--right")
     second = shown_image()

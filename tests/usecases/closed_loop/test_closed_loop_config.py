@@ -84,3 +84,18 @@ def test_a_number_that_is_not_finite_is_located_wherever_it_is_declared(tmp_path
     """``.inf`` and ``.nan`` are valid YAML floats; taken, they surface deep in an unroll."""
     found = problems(tmp_path, extra)
     assert len(found) == 1 and found[0].startswith(expected), found
+
+
+def test_the_demo_reactive_scenario_is_its_log_replay_twin():
+    """The demo shows reactive agents beside log replay; the comparison means something only
+    while the two files differ in ``Unroll.Agents.Mode`` alone."""
+    from conftest import REPO_ROOT
+
+    demo = REPO_ROOT / "scenario_tests" / "closed_loop"
+    log, reactive = (load_scenario(demo / name) for name in ("real_scene.scenario.yaml",
+                                                            "real_scene_reactive.scenario.yaml"))
+    assert (log.config.Unroll.Agents.Mode, reactive.config.Unroll.Agents.Mode) == ("log", "reactive")
+    apart_from_mode = {"Unroll": {"Agents": {"Mode"}}}
+    assert reactive.config.model_dump(exclude=apart_from_mode) == log.config.model_dump(exclude=apart_from_mode)
+    assert [(d.name, d.path) for d in reactive.datasets] == [(d.name, d.path) for d in log.datasets]
+    assert (reactive.marks, reactive.xfail, reactive.skip) == (log.marks, log.xfail, log.skip)
