@@ -31,6 +31,13 @@ if numba is not None:
     # registration"). One compile here, before any pytester run, makes them permanent.
     numba.njit(lambda: 0)()
 
+try:
+    # The same trap for torch: an in-process pytester run that first imports it drops it
+    # afterwards, and torch imported a second time in one process crashes it.
+    import torch  # noqa: F401
+except ImportError:
+    pass
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
