@@ -133,6 +133,9 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
             allure.dynamic.description(scenario.description)
     if dataset:
         allure.dynamic.parameter("dataset", dataset)
+    if outcome.details.get("model"):
+        # Part of allure's history id: another model's result is not this test's trend.
+        allure.dynamic.parameter("model", outcome.details["model"])
     for key, value in scalar_figures(outcome).items():
         # Excluded from allure's history id: a figure changing is the news, not a new test.
         allure.dynamic.parameter(key, value, excluded=True)

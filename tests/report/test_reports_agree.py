@@ -146,7 +146,7 @@ def test_a_model_from_the_option_is_named_in_the_failure_the_table_and_the_html(
     monkeypatch.setenv("COLUMNS", "120")
     gain.makefile(".scenario.yaml", tight=GAIN.format(name="tight", extra="", max_output=8.0))
     result = gain.runpytest("--driveeval-model", "mymodels:triple", "--html=report.html", "--self-contained-html",
-                            *workers)
+                            "--alluredir=allure", *workers)
     result.assert_outcomes(failed=1)
     said = "model: --driveeval-model mymodels:triple, not the scenario's own"
     failure = result.stdout.str().split("FAILURES")[1].split("driveeval: 1 scenario")[0]
@@ -157,6 +157,8 @@ def test_a_model_from_the_option_is_named_in_the_failure_the_table_and_the_html(
     shown = [html.unescape(e["content"]) for p in phases for e in p["extras"] if e["format_type"] == "html"]
     shown += [html.unescape(p["log"]) for p in phases]
     assert any(said in text for text in shown)
+    (allure,) = [json.loads(p.read_text()) for p in (gain.path / "allure").glob("*-result.json")]
+    assert {"name": "model", "value": "'--driveeval-model mymodels:triple'"} in allure["parameters"]
 
 
 def test_an_expected_failure_that_passes_with_another_model_says_which(gain):
