@@ -13,12 +13,17 @@ from typing import NamedTuple
 import pytest
 
 from .errors import DriveEvalError, ScenarioError, display_path
-from .outcome import Outcome, format_figure
+from .outcome import Outcome, format_figure, replaced_model
 from .scenario import Scenario
 
 
-class ScenarioFailed(DriveEvalError):
-    """Raised by a scenario item whose evaluation did not pass."""
+class ScenarioFailed(DriveEvalError, AssertionError):
+    """Raised by a scenario item whose evaluation did not pass.
+
+    An AssertionError too: a scenario's conditions are its assertions, so
+    reports that tell a failed check from a broken test (allure) say failed;
+    bad input (DataError, ModelError) stays broken.
+    """
 
     def __init__(self, outcome: Outcome, where: str = ""):
         self.outcome = outcome
@@ -76,6 +81,9 @@ class Failure:
             lines.append(f"  {outcome.verdict.upper()}: {outcome.summary}")
         else:
             lines.append(f"  {type(exc).__name__}: {exc}")
+        model = replaced_model(outcome.details) if outcome is not None else None
+        if model:
+            lines.append(f"  {model}")
         if outcome is not None:
             lines += self._outcome_lines(outcome)
         return lines
@@ -92,6 +100,10 @@ class Failure:
         if outcome.figures:
             lines.append("  figures: " + ", ".join(f"{k}={format_figure(v)}" for k, v in outcome.figures.items()))
         lines += [f"  artefact {name}: {path}" for name, path in outcome.artefacts.items()]
+        replay = (outcome.details.get("search") or {}).get("replay")
+        if replay:
+            # Last and alone on its line, so that it pastes into a shell as it is.
+            lines += ["  replay this case:", f"    {replay}"]
         return lines
 
     def __str__(self) -> str:

@@ -10,13 +10,14 @@ A plain Python test gets the same fixtures by naming a scenario:
 """
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 from typing import Any, Callable
 
 import pytest
 
 from .deadline import time_limit
-from .errors import DriveEvalError
+from .errors import DriveEvalError, display_path
 from .execute import ExecutorSpec, Progress, executor_from_option, terminal_progress
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
@@ -24,7 +25,7 @@ from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions, parse_replay
 from .runs import start_run
 from .settings import get_settings, item_seed
-from .usecase import Case, RunContext, usecase_of
+from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
@@ -151,6 +152,8 @@ def driveeval_dataset(driveeval_context: RunContext) -> Any:
 def driveeval_model(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Any:
     """The model (policy) under test: --driveeval-model if given, else the scenario's."""
     spec = get_settings(request.config).model
+    if spec is not None:  # the reports name it; a use case that keeps an item's own model drops the note
+        driveeval_context.notes[MODEL_OPTION_NOTE] = spec
     return usecase_of(driveeval_context.scenario).load_model(driveeval_context, spec)
 
 
@@ -162,11 +165,35 @@ def driveeval_pointclouds(driveeval_context: RunContext, driveeval_dataset: Any)
     return usecase_of(driveeval_context.scenario).load_pointclouds(driveeval_context)
 
 
-def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome) -> None:
+def model_origin(request: pytest.FixtureRequest, ctx: RunContext, overrides: dict[str, Any]) -> str | None:
+    """What stood in for the scenario's own model, as the reports name it; None when it ran its own.
+
+    A conftest.py fixture or --driveeval-model changes what a verdict is about (a baseline's
+    expected failure may pass), so every report says which one ran."""
+    if "driveeval_model" not in usecase_of(ctx.scenario).fixtures:
+        return None
+    if "driveeval_model" in overrides:
+        return "the model given to driveeval_run()"
+    info = getattr(request.node, "_fixtureinfo", None)
+    defs = info.name2fixturedefs.get("driveeval_model") if info is not None else None
+    func = defs[-1].func if defs else None
+    if func is not None and getattr(func, "__module__", __name__) != __name__:
+        try:
+            where = f"{display_path(inspect.getsourcefile(func))}:{inspect.getsourcelines(func)[1]}"
+        except (TypeError, OSError):
+            where = func.__module__
+        return f"the driveeval_model fixture of {where}"
+    spec = ctx.notes.get(MODEL_OPTION_NOTE)
+    return f"--driveeval-model {spec}" if spec else None
+
+
+def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome, origin: str | None = None) -> None:
     """Keep the outcome on the item for the summary, and give it to the reports
     that run inside the test (allure) or read the item (JUnit properties)."""
     if outcome.scenario is None:
         outcome.scenario = f"{ctx.scenario.name} [{ctx.case.name}]"
+    if origin:
+        outcome.details["model"] = origin
     setattr(request.node, OUTCOME_ATTR, outcome)
     request.node.user_properties.extend(junit_properties(outcome))
     if allure_wanted(request.config):
@@ -185,16 +212,18 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
         ctx = driveeval_context
         usecase = usecase_of(ctx.scenario)
         seconds = ctx.scenario.time_limit or get_settings(request.config).time_limit
+        origin = None
         try:
             with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})"):
                 for name in usecase.fixtures:
                     ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
+                origin = model_origin(request, ctx, overrides)
                 outcome = usecase.run(ctx.scenario.config, ctx)
         except DriveEvalError as exc:
             if isinstance(exc.outcome, Outcome):
-                _keep(request, ctx, exc.outcome)
+                _keep(request, ctx, exc.outcome, origin)
             raise
-        _keep(request, ctx, outcome)
+        _keep(request, ctx, outcome, origin)
         return outcome
 
     return run

@@ -71,6 +71,13 @@ class Outcome:
         }
 
 
+def replaced_model(details: dict[str, Any]) -> str | None:
+    """How every report says that another model than the scenario's own ran (``details["model"]``:
+    --driveeval-model, a conftest.py fixture), or None."""
+    origin = details.get("model")
+    return f"model: {origin}, not the scenario's own" if origin else None
+
+
 def _jsonable(value: Any) -> Any:
     """Plain JSON values; numpy scalars and arrays included, NaN as null."""
     if isinstance(value, dict):

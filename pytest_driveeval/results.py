@@ -17,9 +17,9 @@ import pytest
 from .collect import InvalidScenarioItem
 from .errors import DriveEvalError
 from .failure import Failure
-from .outcome import OUTCOME_ATTR, Outcome
+from .outcome import OUTCOME_ATTR, Outcome, replaced_model
 from .report.attachments import html_extras, html_wanted
-from .report.summary import SUMMARY_NAME, policy_table_html, terminal_table
+from .report.summary import SUMMARY_NAME, policy_table_html, terminal_table, verdict_reason
 from .runs import finish_run
 from .settings import RUN_KEY, get_settings
 
@@ -55,13 +55,19 @@ def item_record(item: pytest.Item, failure: Failure | None, with_outcome: bool) 
 def annotate_report(item: pytest.Item, call: pytest.CallInfo, report: pytest.TestReport) -> None:
     """Give a phase's report what it carries for us: our errors as a located
     failure (no traceback), the item's record, html extras."""
-    error = call.excinfo.value if call.excinfo is not None and report.failed else None
+    expected = hasattr(report, "wasxfail")
+    error = call.excinfo.value if call.excinfo is not None and (report.failed or expected) else None
     failure = Failure.of(item, error) if error is not None else None
     if isinstance(error, DriveEvalError):
         # Bad input, in any phase (a fixture that cannot open a dataset fails
-        # in setup, where repr_failure is not asked): the message, no traceback.
+        # in setup, where repr_failure is not asked), and an expected failure
+        # (pytest-html shows its longrepr): the message, no traceback.
         report.longrepr = failure
     outcome = getattr(item, OUTCOME_ATTR, None)
+    model = replaced_model(outcome.details) if outcome is not None else None
+    if model and report.failed and error is None and str(report.longrepr).startswith("[XPASS(strict)]"):
+        # The expected failure was the scenario's own model's; say why it passed.
+        report.longrepr = f"{report.longrepr}\n  {model}"
     fresh = outcome is not None and not getattr(item, SENT_ATTR, False)
     if fresh:
         setattr(item, SENT_ATTR, True)
@@ -173,3 +179,10 @@ class ResultsReporter:
         tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME} (run {self.settings.run.id})")
         for warning in self.warnings:
             tr.write_line(f"driveeval warning: {warning}", yellow=True)
+        for record in records:
+            replay = (record.get("details") or {}).get("replay")
+            # pytest shows a failure's text itself, but of an expected failure or a pass only a letter.
+            if replay and record.get("status") not in ("failed", "error"):
+                tr.write_sep("-", f"driveeval: replayed {replay} ({record.get('status')})")
+                for line in (record.get("message") or verdict_reason(record)).splitlines():
+                    tr.write_line(line)

@@ -24,6 +24,9 @@ if TYPE_CHECKING:
     from .scenario.loaded import DatasetRef, Scenario
 
 ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
+#: RunContext.notes key of the --driveeval-model spec, so that the reports say it ran; a use case
+#: whose load_model keeps the scenario's own model for an item removes it
+MODEL_OPTION_NOTE = "model_option"
 
 # Built-in use cases live in modules that import heavy libraries; they are
 # imported only when a scenario names them.
@@ -70,6 +73,9 @@ class UseCase:
     config_model: ClassVar[type[BaseModel]] = ConditionsModel
     #: fixtures ``run`` receives in ``ctx.fixtures`` (overridable in conftest.py)
     fixtures: ClassVar[tuple[str, ...]] = ()
+    #: model names the use case builds itself (no file), and what it calls a model
+    baselines: ClassVar[tuple[str, ...]] = ()
+    model_noun: ClassVar[str] = "model"
 
     def cases(self, scenario: "Scenario") -> list[Case]:
         if not scenario.datasets:
@@ -176,6 +182,22 @@ def usecase_of(scenario: "Scenario") -> UseCase:
     if found is None:
         raise LookupError(f"scenario {scenario.path} names use case '{scenario.use_case}', which is not registered")
     return found
+
+
+def foreign_baseline(spec: str, usecase: UseCase) -> ModelError | None:
+    """The error for a --driveeval-model that names another use case's baseline (a session
+    holds several use cases; the option reaches them all), or None: said as that, not as a
+    missing model file."""
+    if spec in usecase.baselines or Path(spec).suffix or ":" in spec or Path(spec).exists():
+        return None
+    owners = [name for name in known_usecases()
+              if name != usecase.name and spec in getattr(get_usecase(name), "baselines", ())]
+    if not owners:
+        return None
+    own = f"its baselines are {', '.join(usecase.baselines)}; " if usecase.baselines else ""
+    return ModelError(f"--driveeval-model {spec} names a {' / '.join(owners)} baseline, not a {usecase.name} "
+                      f"{usecase.model_noun} ({own}give a model file or package.module:factory, or run "
+                      f"the {usecase.name} scenarios without the option)")
 
 
 def known_usecases() -> list[str]:

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from ..outcome import Outcome, format_figure
+from ..outcome import Outcome, format_figure, replaced_model
 
 IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 TEXT_TYPES = {".json": "json", ".jsonl": "text", ".txt": "text", ".csv": "text", ".md": "text"}
@@ -42,8 +42,10 @@ def _figures_table(outcome: Outcome) -> str:
 
     rows = "".join(f"<tr><td>{escape(k)}</td><td>{escape(format_figure(v))}</td></tr>"
                    for k, v in scalar_figures(outcome).items())
+    model = replaced_model(outcome.details)
+    model = f"<p class='driveeval-model'>{escape(model)}</p>" if model else ""
     return (f"<div class='driveeval'><p><b>{escape(outcome.use_case)}: {escape(outcome.verdict)}</b> "
-            f"{escape(outcome.summary)}</p><table>{rows}</table></div>")
+            f"{escape(outcome.summary)}</p>{model}<table>{rows}</table></div>")
 
 
 def search_lines(outcome: Outcome) -> list[str]:
@@ -131,6 +133,9 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
             allure.dynamic.description(scenario.description)
     if dataset:
         allure.dynamic.parameter("dataset", dataset)
+    if outcome.details.get("model"):
+        # Part of allure's history id: another model's result is not this test's trend.
+        allure.dynamic.parameter("model", outcome.details["model"])
     for key, value in scalar_figures(outcome).items():
         # Excluded from allure's history id: a figure changing is the news, not a new test.
         allure.dynamic.parameter(key, value, excluded=True)

@@ -18,6 +18,11 @@ COLLISION = (211, 47, 47)
 TEXT = (33, 33, 33)
 
 
+def frame_label(title: str, frame: int, collision: bool) -> str:
+    """The caption of one frame of the animation."""
+    return f"{title}  frame {frame}" + ("  COLLISION" if collision else "")
+
+
 def render_unroll_gif(
     path: Path,
     ego_xy: np.ndarray,          # (T, 2) driven
@@ -30,6 +35,7 @@ def render_unroll_gif(
     agent_available: np.ndarray,  # (T, A) bool
     collision: np.ndarray,       # (T,) bool
     title: str = "",
+    frame_numbers: np.ndarray | None = None,  # (T,) each row's frame as the findings name it; default 0..T-1
     size: int = 320,
     meters: float = 60.0,
     max_frames: int = 80,
@@ -44,6 +50,7 @@ def render_unroll_gif(
     ego_corners = box_corners(ego_xy, ego_yaw, np.broadcast_to(ego_extent[:2], ego_xy.shape))
     agent_corners = box_corners(agent_xy, agent_yaw, agent_extent)
 
+    numbers = np.arange(len(ego_xy)) if frame_numbers is None else np.asarray(frame_numbers)
     images = []
     for t in shown:
         center = ego_xy[t]
@@ -57,7 +64,7 @@ def render_unroll_gif(
             draw.polygon(px(agent_corners[t, a]), outline=AGENT, fill=(207, 216, 220))
         colour = COLLISION if collision[t] else EGO
         draw.polygon(px(ego_corners[t]), outline=colour, fill=colour)
-        label = f"{title}  frame {t}" + ("  COLLISION" if collision[t] else "")
+        label = frame_label(title, int(numbers[t]), bool(collision[t]))
         draw.text((4, 4), label, fill=COLLISION if collision[t] else TEXT)
         images.append(image)
     return save_gif(path, images, frame_ms, colors=16)

@@ -8,11 +8,12 @@ new one, never half of one.
 from __future__ import annotations
 
 import os
+import textwrap
 from pathlib import Path
 from typing import Any
 
 from ..atomic import write_json_atomic, write_text_atomic
-from ..outcome import format_figure
+from ..outcome import format_figure, replaced_model
 
 SUMMARY_NAME = "summary.json"
 MARKDOWN_NAME = "summary.md"
@@ -25,18 +26,40 @@ def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
     return ", ".join(f"{k}={format_figure(v)}" for k, v in list(figures.items())[:limit])
 
 
+def verdict_reason(record: dict[str, Any]) -> str:
+    """What decided an item's verdict, in a line: its outcome's summary, else the error or the
+    skip's reason (a failure's message without the line that names the scenario)."""
+    if record.get("summary"):
+        return record["summary"]
+    lines = [line.strip() for line in (record.get("message") or "").splitlines() if line.strip()]
+    if lines and lines[0].startswith("scenario '") and len(lines) > 1:
+        lines = lines[1:]
+    if len(lines) > 1 and lines[0].endswith(":"):  # "invalid scenario file x:" and its first problem
+        return f"{lines[0]} {lines[1]}"
+    return lines[0] if lines else ""
+
+
 def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
-    rows = [(r.get("status", "?"), r["nodeid"], _key_figures(r) or (r.get("summary") or "")) for r in records]
+    """A row per item: verdict, node id, then what decided the verdict, the model when it was not
+    the scenario's own, and key figures.  Nothing is cut: a row that does not fit the terminal's
+    ``width`` puts the node id on its own line and wraps the rest below it."""
+    rows = []
+    for r in records:
+        parts = [verdict_reason(r), replaced_model(r.get("details") or {}), _key_figures(r)]
+        rows.append((r.get("status", "?"), r["nodeid"], [p for p in parts if p]))
     id_width = max(len("scenario"), *(len(r[1]) for r in rows))
-    header = f"{'verdict':<8}  {'scenario':<{id_width}}  key figures"
-    lines = [header if len(header) <= width else f"{'verdict':<8}  scenario / key figures"]
-    for status, nodeid, figures in rows:
-        line = f"{status:<8}  {nodeid:<{id_width}}  {figures}".rstrip()
-        if len(line) > width and figures:
-            # Narrow terminal: figures go on their own line rather than being cut.
-            lines.append(f"{status:<8}  {nodeid}")
-            line = f"{'':<8}  {figures}"
-        lines.append(line if len(line) <= width else line[: width - 3] + "...")
+    header = f"{'verdict':<8}  {'scenario':<{id_width}}  what decided it; key figures"
+    lines = [header if len(header) <= width else f"{'verdict':<8}  scenario / what decided it; key figures"]
+    indent = " " * 10
+    for status, nodeid, parts in rows:
+        line = f"{status:<8}  {nodeid:<{id_width}}  {'; '.join(parts)}".rstrip()
+        if len(line) <= width:
+            lines.append(line)
+            continue
+        lines.append(f"{status:<8}  {nodeid}")
+        for part in parts:
+            lines += textwrap.wrap(part, width=max(width, 40), initial_indent=indent, subsequent_indent=indent + "  ",
+                                   break_on_hyphens=False, break_long_words=False)
     return lines
 
 
@@ -54,8 +77,7 @@ def markdown_summary(summary: dict[str, Any]) -> str:
              "| verdict | scenario | use case | summary | key figures |", "|---|---|---|---|---|"]
     for r in summary["results"]:
         status = r.get("status", "?")
-        text = r.get("summary") or (r.get("message") or "").splitlines()[0:1]
-        text = text if isinstance(text, str) else " ".join(text)
+        text = "; ".join(p for p in (verdict_reason(r), replaced_model(r.get("details") or {})) if p)
         lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
                      f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
     return "\n".join(lines + policy_table(summary["results"]) + search_list(summary["results"])) + "\n"

@@ -80,7 +80,7 @@ def run_item(use_case: str, searchable: Searchable, spec: SearchSpec, ctx: Any) 
     where = ", ".join(f"{k} {v}" for k, v in verdict.where.items())
     message = (f"{describe(example.perturbation)} breaks it ({where}: {verdict.reason}); shrunk from "
                f"{describe(result.shrunk.perturbation)}; {result.examples} examples, {result.failures} failing, "
-               f"{result.seconds:.1f} s. Replay: {command}")
+               f"{result.seconds:.1f} s")
     stats.update(replay=command, shown_verdict=shown.verdict, minimal_text=describe(example.perturbation),
                  shrunk_text=describe(result.shrunk.perturbation))
     findings = [Finding(message, scene=verdict.where.get("scene"), frame=verdict.where.get("frame"),

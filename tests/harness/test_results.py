@@ -63,7 +63,7 @@ def test_terminal_table_shows_verdicts_and_figures(mixed, monkeypatch):
     result = mixed.runpytest("-q")
     result.stdout.fnmatch_lines([
         "*driveeval: 7 scenario item(s)*",
-        "verdict*scenario*key figures",
+        "verdict*scenario*what decided it; key figures",
         "failed*broken.scenario.yaml::scenario*",
         "xfailed*known.scenario.yaml::speed_limit[[]fast.csv[]]*max_speed=20*",
         "error*nodata.scenario.yaml::speed_limit[[]absent.csv[]]*",
@@ -75,12 +75,16 @@ def test_terminal_table_shows_verdicts_and_figures(mixed, monkeypatch):
     ])
 
 
-def test_narrow_terminal_puts_figures_on_their_own_line(mixed, monkeypatch):
+def test_narrow_terminal_wraps_the_verdicts_reason_and_figures_under_the_node_id(mixed, monkeypatch):
     monkeypatch.setenv("COLUMNS", "60")
     result = mixed.runpytest("-q")
-    result.stdout.fnmatch_lines(["passed    ok.scenario.yaml::speed_limit[[]slow.csv[]]", "          max_speed=10*"])
+    result.stdout.fnmatch_lines(["passed    ok.scenario.yaml::speed_limit[[]slow.csv[]]",
+                                 "          max speed 10.00 m/s, max |acceleration| 0.00 m/s^2",
+                                 "          max_speed=10*"])
     table = result.stdout.str().split("driveeval: 7")[1].split("results:")[0]
-    assert all(len(line) <= 60 for line in table.splitlines()[1:])
+    # Wider than the terminal only where one word is (a path in an error's message), never cut.
+    assert all(len(line) <= 60 or len(line.split()) == 1 for line in table.splitlines()[1:])
+    assert not any(line.endswith("...") for line in table.splitlines())
 
 
 def test_same_summary_with_two_workers(mixed):

@@ -81,3 +81,27 @@ Evaluation:
     assert second["name"] == "chart" and second["src"].startswith("data:image/png;base64")
     for image in (first, second):
         assert image["w"] > 0 and image["h"] > 0 and image["shown"] > 0, image
+
+
+def test_an_expected_failure_shows_its_finding_not_a_hidden_traceback(project, browser):
+    from conftest import speed_scenario
+
+    project.makefile(".scenario.yaml", known=speed_scenario("known", datasets=("fast.csv",),
+                                                            extra="XFail: {Reason: ticket 7, Strict: true}\n"))
+    project.runpytest("-q", "--html=report.html", "--self-contained-html").assert_outcomes(xfailed=1)
+    page = browser.new_page(viewport={"width": 1280, "height": 1100})
+    page.goto((project.path / "report.html").as_uri())
+    page.wait_for_load_state("load")
+    page.wait_for_selector("tbody.results-table-row .col-result")
+    shown = page.evaluate("""(() => {
+        const row = [...document.querySelectorAll('tbody.results-table-row')]
+            .find(r => (r.querySelector('.col-result') || {}).textContent === 'XFailed');
+        const log = row.querySelector('.log');
+        const box = log.getBoundingClientRect();
+        return {text: log.innerText, red: log.querySelectorAll('span.error').length, area: box.width * box.height};
+    })()""")
+    page.close()
+    assert shown["area"] > 0  # the row is open, its text on screen
+    assert "speed should be <= 14 m/s" in shown["text"] and "known.scenario.yaml:11" in shown["text"]
+    assert "ScenarioFailed" not in shown["text"] and "traceback" not in shown["text"]
+    assert shown["red"] == 0  # pytest-html paints lines starting with "E " red: an error, which this is not

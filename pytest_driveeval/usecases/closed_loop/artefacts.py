@@ -74,7 +74,9 @@ def scene_gif(path: Path, unroll: Unroll, row: int, scene: int) -> Path | None:
     return render_unroll_gif(path, r.driven_xy[row][keep], r.driven_yaw[row][keep],
                              np.asarray(EGO_EXTENT[:2], dtype=float), r.logged_xy[row][keep],
                              log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
-                             log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {scene}")
+                             log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {scene}",
+                             # the log's frame numbers, as closed_loop.json and the findings name them
+                             frame_numbers=np.flatnonzero(keep))
 
 
 def chart_counts(figures: dict) -> dict[str, int]:

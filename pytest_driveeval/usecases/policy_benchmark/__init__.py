@@ -15,7 +15,7 @@ from typing import Any
 
 from pytest_driveeval.errors import display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Outcome
-from pytest_driveeval.usecase import Case, RunContext, UseCase, register_usecase
+from pytest_driveeval.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, foreign_baseline, register_usecase
 from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig
 
@@ -48,6 +48,8 @@ class PolicyBenchmark(UseCase):
     format_versions = ("0.1.0",)
     config_model = PolicyBenchmarkConfig
     fixtures = ("driveeval_model",)
+    baselines = BASELINES
+    model_noun = "policy"
 
     def cases(self, scenario) -> list[Case]:
         return [Case(f"{self.name}[{policy}]", params={"policy": policy}) for policy in scenario.config.Policies]
@@ -60,9 +62,15 @@ class PolicyBenchmark(UseCase):
         own = ctx.scenario.config.Policies[policy]
         # --driveeval-model replaces the policy under test, never a baseline.
         if spec is not None and own not in BASELINES:
+            mistaken = foreign_baseline(spec, self)
+            if mistaken is not None:
+                raise mistaken
+            if spec == own:
+                ctx.notes.pop(MODEL_OPTION_NOTE, None)
             model = load_policy(ctx, policy, spec, from_option=True)
             source = PolicySource(spec, str(Path.cwd()))
         else:
+            ctx.notes.pop(MODEL_OPTION_NOTE, None)
             model = load_policy(ctx, policy, own)
             source = PolicySource(own, str(ctx.scenario.folder))
         # How a Ray worker loads the same policy; kept with the object, so that run() can tell
