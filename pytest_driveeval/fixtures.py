@@ -16,14 +16,14 @@ from typing import Any, Callable
 import pytest
 
 from .deadline import time_limit
-from .errors import DriveEvalError
+from .errors import DriveEvalError, display_path
 from .execute import ExecutorSpec, Progress, executor_from_option, terminal_progress
 from .outcome import OUTCOME_ATTR, Outcome
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions
 from .runs import start_run
-from .settings import get_settings, item_seed
+from .settings import TIME_LIMIT_KEYS, Settings, get_settings, item_seed
 from .usecase import Case, RunContext
 
 
@@ -162,6 +162,17 @@ def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome) -> 
         attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None)
 
 
+def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | None, str]:
+    """The item's time limit (None: none) and what the message says about where it comes from."""
+    if scenario.time_limit is not None:
+        return scenario.time_limit or None, (f"TimeLimit at {display_path(scenario.path)}:"
+                                             f"{scenario.line_of('TimeLimit')}")
+    if settings.time_limit_source == "default":
+        return settings.time_limit, (f"the default of {settings.time_limit:g} s; set TimeLimit in the scenario "
+                                     f"or {TIME_LIMIT_KEYS}, 0 for none")
+    return settings.time_limit, TIME_LIMIT_KEYS
+
+
 @pytest.fixture
 def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Callable[..., Outcome]:
     """Run the scenario's evaluation with the current fixtures; return its Outcome.
@@ -173,9 +184,9 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
     def run(**overrides: Any) -> Outcome:
         ctx = driveeval_context
         usecase = ctx.scenario.usecase
-        seconds = ctx.scenario.time_limit or get_settings(request.config).time_limit
+        seconds, source = _item_time_limit(ctx.scenario, get_settings(request.config))
         try:
-            with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})"):
+            with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})", source):
                 for name in usecase.fixtures:
                     ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
                 outcome = usecase.run(ctx.scenario.config, ctx)

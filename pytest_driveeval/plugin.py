@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
+from .deadline import session, session_ended, session_finishing
 from .execute import disconnect
 from .fixtures import session_executor
 from .results import ResultsReporter, annotate_report
@@ -16,6 +17,19 @@ pytest_plugins = ["pytest_driveeval.fixtures"]
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     add_options(parser)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_cmdline_main(config: pytest.Config):
+    with session():
+        exit_code = yield
+    session_ended(exit_code)
+    return exit_code
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    session_finishing(session.exitstatus)
 
 
 def pytest_configure(config: pytest.Config) -> None:
