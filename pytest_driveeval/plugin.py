@@ -11,6 +11,7 @@ from .execute import disconnect
 from .fixtures import session_executor
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
+from .usecase import set_memory_budget
 
 pytest_plugins = ["pytest_driveeval.fixtures"]
 
@@ -39,6 +40,7 @@ def pytest_configure(config: pytest.Config) -> None:
         "so it gets that scenario's driveeval_* fixtures",
     )
     settings = get_settings(config)  # fail early on a bad option value
+    set_memory_budget(settings.memory_limit)
     session_executor(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)

@@ -39,6 +39,8 @@ class Settings:
     time_limit: float | None = DEFAULT_TIME_LIMIT
     #: who set ``time_limit``, for the message of an item that meets it
     time_limit_source: str = "default"
+    #: bytes an item may plan to use (checked at the scenario's lines); None: half the machine's memory, 0: none
+    memory_limit: int | None = None
     keep_runs: int = DEFAULT_KEEP_RUNS
     search_examples: int | None = None
     replay: str | None = None
@@ -96,6 +98,10 @@ def add_options(parser: pytest.Parser) -> None:
     group.addoption("--driveeval-time-limit", metavar="SECONDS", default=None,
                     help="fail a scenario item that runs longer, naming where it was (a scenario's TimeLimit "
                          f"key wins; ini: driveeval_time_limit; default: {DEFAULT_TIME_LIMIT:g}; 0: none)")
+    group.addoption("--driveeval-memory-limit", metavar="GIB", default=None,
+                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points) "
+                         "would need more memory per item (ini: driveeval_memory_limit; default: half this "
+                         "machine's memory; 0: no check)")
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
                     help="let scenario files name code to run: 'Model: pickle:file' or 'module:factory' "
                          "(ini: driveeval_allow_scenario_code; off by default: scenario files travel with data)")
@@ -124,6 +130,8 @@ def add_options(parser: pytest.Parser) -> None:
                   type="bool", default=False)
     parser.addini("driveeval_time_limit", f"seconds a scenario item may run (default {DEFAULT_TIME_LIMIT:g}; 0: none)",
                   default="")
+    parser.addini("driveeval_memory_limit", "GiB of memory a scenario item may plan to use (default: half the "
+                  "machine's; 0: no check)", default="")
     parser.addini("driveeval_keep_runs", "finished runs kept under the output folder's runs/ (0: all)",
                   default=str(DEFAULT_KEEP_RUNS))
     parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
@@ -153,6 +161,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
         raise pytest.UsageError(f"driveeval seed must be an integer, got {seed!r}") from None
     limit, _ = pick("driveeval_time_limit", "driveeval_time_limit")
     time_limit = _time_limit(limit)
+    memory, _ = pick("driveeval_memory_limit", "driveeval_memory_limit")
     keep = config.getini("driveeval_keep_runs")
     if not str(keep).isdigit():
         raise pytest.UsageError(f"driveeval_keep_runs must be a whole number (0: keep all), got {keep!r}")
@@ -179,6 +188,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
         keep_runs=int(keep),
         time_limit=time_limit,
         time_limit_source=TIME_LIMIT_KEYS if limit else "default",
+        memory_limit=_memory_limit(memory),
         search_examples=int(examples) if examples else None,
         replay=config.getoption("driveeval_replay") or None,
         search_profile=profile,
@@ -196,6 +206,18 @@ def _time_limit(text: str | None) -> float | None:
     if not (math.isfinite(seconds) and seconds >= 0):
         raise pytest.UsageError(f"driveeval time limit must be a number of seconds >= 0 (0: none), got {text!r}")
     return seconds or None
+
+
+def _memory_limit(text: str | None) -> int | None:
+    if not text:
+        return None
+    try:
+        size = float(text)
+    except ValueError:
+        size = math.nan
+    if not (math.isfinite(size) and 0 <= size < 2 ** 33):
+        raise pytest.UsageError(f"driveeval memory limit must be a number of GiB >= 0 (0: no check), got {text!r}")
+    return int(size * 2 ** 30)
 
 
 RUN_KEY = "driveeval_run"
