@@ -107,3 +107,39 @@ def test_the_default_budget_is_half_the_machines_memory():
     budget, source = memory_budget()
     assert budget == os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
     assert source.startswith("half this machine's memory")
+
+
+def test_running_out_of_memory_while_loading_fails_that_file_alone(pytester):
+    # a use case whose validation allocates what no check foresaw
+    pytester.makeconftest('''
+from pydantic import model_validator
+from pytest_driveeval.usecase import ConditionsModel, UseCase, register_usecase
+
+
+class Greedy(ConditionsModel):
+    Size: int = 1
+
+    @model_validator(mode="after")
+    def _allocate(self):
+        if self.Size > 1:
+            raise MemoryError()
+        return self
+
+
+@register_usecase
+class GreedyUseCase(UseCase):
+    name = "greedy"
+    config_model = Greedy
+
+    def run(self, config, ctx):
+        from pytest_driveeval.outcome import Outcome, PASSED
+        return Outcome(use_case="greedy", verdict=PASSED, summary="fine")
+''')
+    scenario = ("ScenarioFormatVersion: 3.0.0\nScenarioName: {name}\nEvaluation:\n  UseCaseName: greedy\n"
+                "  UseCaseFormatVersion: 0.1.0\n  Size: {size}\n")
+    pytester.makefile(".scenario.yaml", big=scenario.format(name="big", size=10 ** 12),
+                      small=scenario.format(name="small", size=1))
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["  big.scenario.yaml: loading it ran out of memory (MemoryError): a size in it is too "
+                                 "large for this machine"])
