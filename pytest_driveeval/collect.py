@@ -12,7 +12,7 @@ from typing import Iterable
 
 import pytest
 
-from .errors import ScenarioError
+from .errors import Problem, ScenarioError
 from .failure import ScenarioFailed
 from .scenario import NotAScenario, Scenario, load_scenario
 from .settings import DECLARED_SUFFIXES, get_settings
@@ -98,6 +98,12 @@ class ScenarioFile(pytest.File):
         except NotAScenario:
             return
         except ScenarioError as error:
+            yield InvalidScenarioItem.from_parent(self, name="scenario", error=error)
+            return
+        except MemoryError:
+            # A size the checks at load time did not foresee: this file fails, the others still collect.
+            error = ScenarioError(self.path, [Problem("loading it ran out of memory (MemoryError): a size in it "
+                                                      "is too large for this machine")])
             yield InvalidScenarioItem.from_parent(self, name="scenario", error=error)
             return
         seen: set[str] = set()

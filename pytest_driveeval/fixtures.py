@@ -24,7 +24,7 @@ from .report.attachments import allure_wanted, attach_to_allure, junit_propertie
 from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions, parse_replay
 from .runs import start_run
-from .settings import get_settings, item_seed
+from .settings import TIME_LIMIT_KEYS, Settings, get_settings, item_seed
 from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 
@@ -200,6 +200,17 @@ def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome, ori
         attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None)
 
 
+def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | None, str]:
+    """The item's time limit (None: none) and what the message says about where it comes from."""
+    if scenario.time_limit is not None:
+        return scenario.time_limit or None, (f"TimeLimit at {display_path(scenario.path)}:"
+                                             f"{scenario.line_of('TimeLimit')}")
+    if settings.time_limit_source == "default":
+        return settings.time_limit, (f"the default of {settings.time_limit:g} s; set TimeLimit in the scenario "
+                                     f"or {TIME_LIMIT_KEYS}, 0 for none")
+    return settings.time_limit, TIME_LIMIT_KEYS
+
+
 @pytest.fixture
 def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext) -> Callable[..., Outcome]:
     """Run the scenario's evaluation with the current fixtures; return its Outcome.
@@ -211,10 +222,10 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
     def run(**overrides: Any) -> Outcome:
         ctx = driveeval_context
         usecase = usecase_of(ctx.scenario)
-        seconds = ctx.scenario.time_limit or get_settings(request.config).time_limit
+        seconds, source = _item_time_limit(ctx.scenario, get_settings(request.config))
         origin = None
         try:
-            with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})"):
+            with time_limit(seconds, f"scenario '{ctx.scenario.name}' ({ctx.case.name})", source):
                 for name in usecase.fixtures:
                     ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
                 origin = model_origin(request, ctx, overrides)

@@ -6,16 +6,31 @@ from pathlib import Path
 import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
+from .deadline import session, session_ended, session_finishing
 from .execute import disconnect
 from .fixtures import session_executor, session_search_options
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
+from .usecase import set_memory_budget
 
 pytest_plugins = ["pytest_driveeval.fixtures"]
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     add_options(parser)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_cmdline_main(config: pytest.Config):
+    with session():
+        exit_code = yield
+    session_ended(exit_code)
+    return exit_code
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    session_finishing(session.exitstatus)
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -25,6 +40,7 @@ def pytest_configure(config: pytest.Config) -> None:
         "so it gets that scenario's driveeval_* fixtures",
     )
     settings = get_settings(config)  # fail early on a bad option value
+    set_memory_budget(settings.memory_limit)
     session_executor(config)
     session_search_options(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import re
 import tempfile
@@ -22,6 +23,11 @@ DECLARED_SUFFIXES = (".scenario.yaml", ".scenario.yml")
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
 SEARCH_DATABASE = "search-examples"
 SEED_LIMIT = 2 ** 63
+#: seconds a scenario item may run when neither its TimeLimit nor the option says: half an hour, far
+#: above the slowest demo item (a few minutes on two cores shared with six other test runs), so that
+#: only a hang meets it, and CI never waits forever on one scenario
+DEFAULT_TIME_LIMIT = 1800.0
+TIME_LIMIT_KEYS = "--driveeval-time-limit / driveeval_time_limit"
 
 
 @dataclass(frozen=True)
@@ -33,7 +39,12 @@ class Settings:
     patterns: tuple[str, ...]
     allow_scenario_code: bool = False
     run: RunIdentity | None = None
-    time_limit: float | None = None
+    #: seconds per item, None: no limit (given as 0)
+    time_limit: float | None = DEFAULT_TIME_LIMIT
+    #: who set ``time_limit``, for the message of an item that meets it
+    time_limit_source: str = "default"
+    #: bytes an item may plan to use (checked at the scenario's lines); None: half the machine's memory, 0: none
+    memory_limit: int | None = None
     keep_runs: int = DEFAULT_KEEP_RUNS
     search_examples: int | None = None
     replay: str | None = None
@@ -90,7 +101,11 @@ def add_options(parser: pytest.Parser) -> None:
                     help="base seed; every item derives its own from it and its id (ini: driveeval_seed; default 0)")
     group.addoption("--driveeval-time-limit", metavar="SECONDS", default=None,
                     help="fail a scenario item that runs longer, naming where it was (a scenario's TimeLimit "
-                         "key wins; ini: driveeval_time_limit; default: none)")
+                         f"key wins; ini: driveeval_time_limit; default: {DEFAULT_TIME_LIMIT:g}; 0: none)")
+    group.addoption("--driveeval-memory-limit", metavar="GIB", default=None,
+                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points) "
+                         "would need more memory per item (ini: driveeval_memory_limit; default: half this "
+                         "machine's memory; 0: no check)")
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
                     help="let scenario files name code to run: 'Model: pickle:file' or 'module:factory' "
                          "(ini: driveeval_allow_scenario_code; off by default: scenario files travel with data)")
@@ -117,7 +132,10 @@ def add_options(parser: pytest.Parser) -> None:
     parser.addini("driveeval_seed", "base seed", default="0")
     parser.addini("driveeval_allow_scenario_code", "let scenario files name code to run (pickle:, module:factory)",
                   type="bool", default=False)
-    parser.addini("driveeval_time_limit", "seconds a scenario item may run (none by default)", default="")
+    parser.addini("driveeval_time_limit", f"seconds a scenario item may run (default {DEFAULT_TIME_LIMIT:g}; 0: none)",
+                  default="")
+    parser.addini("driveeval_memory_limit", "GiB of memory a scenario item may plan to use (default: half the "
+                  "machine's; 0: no check)", default="")
     parser.addini("driveeval_keep_runs", "finished runs kept under the output folder's runs/ (0: all)",
                   default=str(DEFAULT_KEEP_RUNS))
     parser.addini("driveeval_patterns", "file name patterns collected as scenarios", type="linelist",
@@ -146,12 +164,8 @@ def settings_from_config(config: pytest.Config) -> Settings:
         raise pytest.UsageError(f"driveeval seed (--driveeval-seed / driveeval_seed) must be a whole number from 0 "
                                 f"to 2**63 - 1, as numpy's generators take, got {seed!r}")
     limit, _ = pick("driveeval_time_limit", "driveeval_time_limit")
-    try:
-        time_limit = float(limit) if limit else None
-    except ValueError:
-        time_limit = -1.0
-    if time_limit is not None and not time_limit > 0:
-        raise pytest.UsageError(f"driveeval time limit must be a number of seconds > 0, got {limit!r}")
+    time_limit = _time_limit(limit)
+    memory, _ = pick("driveeval_memory_limit", "driveeval_memory_limit")
     keep = config.getini("driveeval_keep_runs")
     if not str(keep).isdigit():
         raise pytest.UsageError(f"driveeval_keep_runs must be a whole number (0: keep all), got {keep!r}")
@@ -177,6 +191,8 @@ def settings_from_config(config: pytest.Config) -> Settings:
         run=run,
         keep_runs=int(keep),
         time_limit=time_limit,
+        time_limit_source=TIME_LIMIT_KEYS if limit else "default",
+        memory_limit=_memory_limit(memory),
         search_examples=int(examples) if examples else None,
         replay=config.getoption("driveeval_replay") or None,
         search_profile=profile,
@@ -205,6 +221,30 @@ def _data_root(config: pytest.Config, invocation: Path, ini_base: Path) -> Path 
     if not path.is_dir():
         raise pytest.UsageError(f"{where}: the data root {text!r} is not a folder ({path})")
     return path
+
+
+def _time_limit(text: str | None) -> float | None:
+    if not text:
+        return DEFAULT_TIME_LIMIT
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds >= 0):
+        raise pytest.UsageError(f"driveeval time limit must be a number of seconds >= 0 (0: none), got {text!r}")
+    return seconds or None
+
+
+def _memory_limit(text: str | None) -> int | None:
+    if not text:
+        return None
+    try:
+        size = float(text)
+    except ValueError:
+        size = math.nan
+    if not (math.isfinite(size) and 0 <= size < 2 ** 33):
+        raise pytest.UsageError(f"driveeval memory limit must be a number of GiB >= 0 (0: no check), got {text!r}")
+    return int(size * 2 ** 30)
 
 
 RUN_KEY = "driveeval_run"

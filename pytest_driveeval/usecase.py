@@ -9,6 +9,7 @@ entry-point group.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -56,6 +57,51 @@ def located_error(loc: str | tuple, value: Any, message: str) -> ValidationError
     loc = loc if isinstance(loc, tuple) else (loc,)
     return ValidationError.from_exception_data("Evaluation", [InitErrorDetails(
         type=PydanticCustomError("located", "{message}", {"message": message}), loc=loc, input=value)])
+
+
+# The memory one item may plan to use, in bytes (0: unchecked; None: the default, half this machine's
+# memory).  Set once per process from --driveeval-memory-limit / driveeval_memory_limit (the plugin's
+# configure); read by the config models' validators, which run when a scenario file is loaded.
+_memory_budget: int | None = None
+MEMORY_KEYS = "--driveeval-memory-limit / driveeval_memory_limit"
+
+
+def set_memory_budget(limit: int | None) -> None:
+    global _memory_budget
+    _memory_budget = limit
+
+
+def _physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, OSError, ValueError):  # not POSIX
+        return None
+
+
+def memory_budget() -> tuple[int | None, str]:
+    """(bytes one item may plan to use or None for no check, where that figure comes from)."""
+    if _memory_budget is not None:
+        return (_memory_budget or None), MEMORY_KEYS
+    physical = _physical_memory()
+    if physical is None:
+        return None, "unchecked"
+    return physical // 2, f"half this machine's memory; {MEMORY_KEYS} sets another, 0: no check"
+
+
+def gib(size: float) -> str:
+    for unit, scale in (("TiB", 2 ** 40), ("GiB", 2 ** 30), ("MiB", 2 ** 20)):
+        if size >= scale:
+            return f"{size / scale:.3g} {unit}"
+    return f"{size / 2 ** 10:.3g} KiB"
+
+
+def check_fits(loc: str | tuple, value: Any, needed: float, what: str) -> None:
+    """Raise a located error at ``loc`` when ``what`` (about ``needed`` bytes) exceeds the memory
+    budget: refused at the scenario's line, before anything is allocated."""
+    budget, source = memory_budget()
+    if budget is not None and needed > budget:
+        raise located_error(loc, value, f"{what} would need about {gib(needed)} of memory, more than the "
+                                        f"{gib(budget)} an item may use ({source})")
 
 
 @dataclass

@@ -29,14 +29,16 @@ For whoever wires a use case to it
    one), ``.results`` holds the chunks that finished.  A worker or node that dies costs a
    new attempt of its chunks (``Retries``), not the run.
 6. Ray is optional (``pip install 'pytest-driveeval[ray]'``): only ``ray_path`` imports it.
+   A cluster that does not answer raises :class:`UnreachableCluster` at once for every item
+   after the first (one fast TCP probe of a host:port address per process, then ``ray.init``).
    :func:`disconnect` at the end of the session closes a connection this package opened and
    nothing else.
 """
-from pytest_driveeval.execute.chunks import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, run_chunks,
-                                             split)
+from pytest_driveeval.execute.chunks import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, UnreachableCluster,
+                                             run_chunks, split)
 from pytest_driveeval.execute.progress import terminal_progress
 from pytest_driveeval.execute.ray_path import disconnect
 from pytest_driveeval.execute.spec import ExecutorSpec, executor_from_option
 
-__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "ExecutorSpec", "Placement", "Progress", "disconnect",
-           "executor_from_option", "run_chunks", "split", "terminal_progress"]
+__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "ExecutorSpec", "Placement", "Progress", "UnreachableCluster",
+           "disconnect", "executor_from_option", "run_chunks", "split", "terminal_progress"]

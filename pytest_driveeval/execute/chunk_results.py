@@ -10,8 +10,8 @@ from typing import Any, Callable, Generic, TypeVar
 
 from pytest_driveeval.errors import DriveEvalError
 
-__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "Placement", "Progress", "Tally", "describe_chunk",
-           "failure_message"]
+__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "Placement", "Progress", "Tally", "UnreachableCluster",
+           "describe_chunk", "failure_message"]
 
 R = TypeVar("R")
 #: called with (chunks done, chunks in all), once with 0 before the first chunk ends
@@ -64,6 +64,15 @@ class ChunkRun(Generic[R]):
 
 class ExecutorError(DriveEvalError):
     """The executor cannot run at all: Ray missing, no cluster at the address."""
+
+
+class UnreachableCluster(ExecutorError):
+    """No Ray cluster answers at the executor's address (``address``: as the spec gives it, or None
+    for Ray's default); the item that asked for it can name the key that set it."""
+
+    def __init__(self, message: str, address: str | None):
+        super().__init__(message)
+        self.address = address
 
 
 class ChunkError(DriveEvalError):

@@ -8,11 +8,11 @@ import traceback
 from typing import Any, Callable, Sequence, TypeVar
 
 from pytest_driveeval.execute.chunk_results import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
-                                                    describe_chunk, failure_message)
+                                                    UnreachableCluster, describe_chunk, failure_message)
 from pytest_driveeval.execute.spec import ExecutorSpec
 
-__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "Placement", "Progress", "describe_chunk", "run_chunks",
-           "split"]
+__all__ = ["ChunkError", "ChunkRun", "ExecutorError", "Placement", "Progress", "UnreachableCluster", "describe_chunk",
+           "run_chunks", "split"]
 
 R = TypeVar("R")
 

@@ -14,7 +14,7 @@ from collections import deque
 from typing import Any, Callable
 
 from pytest_driveeval.execute.chunk_results import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
-                                                    describe_chunk, failure_message)
+                                                    UnreachableCluster, describe_chunk, failure_message)
 from pytest_driveeval.execute.spec import ExecutorSpec
 
 __all__ = ["default_in_flight", "disconnect", "run_on_ray", "run_one"]
@@ -33,17 +33,56 @@ def _ray():
     return ray
 
 
+#: seconds the reachability probe waits for a TCP connection: a cluster's port answers in
+#: milliseconds even across a data centre; a dead one must not cost each item Ray's own timeouts
+PROBE_SECONDS = 3.0
+# Per process and address, the message of a cluster that could not be reached: every item that
+# asks for it again fails at once with the same words instead of waiting for Ray once more.
+_unreachable: dict[str | None, str] = {}
+_HOST_PORT = re.compile(r"(?:ray://)?\[?([^\[\]]+?)\]?:(\d+)")
+
+
+def _probe(address: str) -> str | None:
+    """Why nothing answers at ``host:port`` / ``ray://host:port`` (None: something listens).  Ray
+    itself retries a GCS address forever and a Ray Client address for ~30 s, deaf to SIGTERM."""
+    found = _HOST_PORT.fullmatch(address)
+    if found is None:  # auto, local: Ray finds the cluster itself
+        return None
+    host, port = found.group(1), int(found.group(2))
+    try:
+        with socket.create_connection((host, port), timeout=PROBE_SECONDS):
+            return None
+    except ConnectionRefusedError:
+        return f"nothing listens on port {port} of {host} (connection refused)"
+    except socket.gaierror as exc:
+        return f"unknown host {host!r} ({exc.strerror})"
+    except TimeoutError:
+        return f"no answer from {host}:{port} within {PROBE_SECONDS:g} s"
+    except OSError as exc:
+        return f"{host}:{port}: {exc.strerror or exc}"
+
+
 def connect(spec: ExecutorSpec) -> None:
+    """Connect to the spec's cluster, or raise :class:`UnreachableCluster`: once per process and
+    address, after a fast TCP probe of an explicit host:port."""
     global _connected_here
     ray = _ray()
     if ray.is_initialized():
         return
-    try:
-        ray.init(address=spec.Address, logging_level=logging.WARNING)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        where = spec.Address or "Ray's default address (RAY_ADDRESS, or a local cluster)"
-        raise ExecutorError(f"cannot reach a Ray cluster at {where}: {exc}") from None
-    _connected_here = True
+    where = spec.Address or "Ray's default address (RAY_ADDRESS, or a local cluster)"
+    if spec.Address not in _unreachable:
+        why = _probe(spec.Address or os.environ.get("RAY_ADDRESS", ""))
+        if why is None:
+            try:
+                ray.init(address=spec.Address, logging_level=logging.WARNING)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                why = str(exc)
+            else:
+                _connected_here = True
+                return
+        _unreachable[spec.Address] = (f"cannot reach a Ray cluster at {where}: {why} (checked once per "
+                                      "session; every item that needs it fails with this message)")
+    raise UnreachableCluster(_unreachable[spec.Address], spec.Address)
 
 
 def disconnect() -> None:

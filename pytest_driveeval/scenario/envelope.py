@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, StringConstraints
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
 MarkName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
 
@@ -51,5 +51,6 @@ class Envelope(_Forbid):
     Marks: list[MarkName] = []
     Skip: str | None = None
     XFail: str | XFailSpec | None = None
-    TimeLimit: PositiveFloat | None = None  # seconds for the whole item; --driveeval-time-limit otherwise
+    # seconds for the whole item, 0: none; --driveeval-time-limit (or its default) otherwise
+    TimeLimit: float | None = Field(None, ge=0.0, allow_inf_nan=False)
     Evaluation: EvaluationHead

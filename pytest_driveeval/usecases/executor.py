@@ -15,8 +15,8 @@ from __future__ import annotations
 
 from typing import Any, Callable, Sequence
 
-from pytest_driveeval.errors import DriveEvalError
-from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, run_chunks
+from pytest_driveeval.errors import DriveEvalError, display_path
+from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, UnreachableCluster, run_chunks
 
 __all__ = ["ChunkLedger", "chunked_executor", "executor_details", "item_executor", "run_item_chunks"]
 
@@ -59,6 +59,8 @@ def run_item_chunks(ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: 
     progress = make_progress(label) if make_progress is not None else None
     try:
         return run_chunks(spec, work, task_fn, shared=shared, progress=progress)
+    except UnreachableCluster as exc:
+        raise UnreachableCluster(f"{_address_key(ctx)}: {exc}", exc.address) from None
     except ChunkError as exc:
         if isinstance(exc.cause, DriveEvalError):
             try:
@@ -67,6 +69,23 @@ def run_item_chunks(ctx: Any, spec: ExecutorSpec, work: Sequence[Any], task_fn: 
                 raise exc from None
             raise same_kind from exc
         raise
+
+
+def _address_key(ctx: Any) -> str:
+    """Where the item's executor address was set: the session option, or the scenario's line."""
+    session: ExecutorSpec | None = getattr(ctx, "executor", None)
+    given = session.model_fields_set if session is not None else set()
+    option = "--driveeval-executor / driveeval_executor"
+    if "Address" in given:
+        return f"{option}: Address"
+    scenario = ctx.scenario
+    line = scenario.line_of("Evaluation", "Executor", "Address")
+    if line is not None:
+        return f"{display_path(scenario.path)}:{line}: Evaluation.Executor.Address"
+    line = scenario.line_of("Evaluation", "Executor")
+    if "Kind" in given or line is None:
+        return f"{option}: Kind: ray with Ray's default address"
+    return f"{display_path(scenario.path)}:{line}: Evaluation.Executor"
 
 
 def _placements(run: ChunkRun, describe: Callable[[int], str]) -> list[dict]:

@@ -30,6 +30,7 @@ from pytest_driveeval.sim.blueprints.intersection import (
 )
 from pytest_driveeval.sim.blueprints.merging import MergingParams, merging
 from pytest_driveeval.sim.blueprints.road import (
+    RoadTooLarge,
     DrivableGrid,
     Lane,
     LaneProjection,
@@ -66,4 +67,10 @@ def make_blueprint(name: str, **params) -> Blueprint:
         if key not in known:
             raise ParameterError(name, key, f"unknown parameter{_suggest(key, known)}; "
                                             f"known: {', '.join(sorted(known))}")
-    return build(cls(**params))
+    checked = cls(**params)
+    try:
+        return build(checked)
+    except RoadTooLarge as exc:
+        # Name the size the scenario set (or the first that makes the road large).
+        given = [key for key in cls.EXTENT if key in params] or list(cls.EXTENT)
+        raise ParameterError(name, given[0], str(exc)) from None

@@ -117,6 +117,7 @@ class BlueprintParams(Parameters):
     (its blueprints' step time, its continuous action bounds)."""
 
     name: ClassVar[str] = "blueprint"
+    EXTENT: ClassVar[tuple[str, ...]] = ("lane_width",)
 
     dt: float = positive(0.2, "step time, s (BARK-ML: 0.2)")
     max_steps: int = count(200, "steps before the episode ends unsolved (BARK-ML's GNN configs: MaxSteps 200)")

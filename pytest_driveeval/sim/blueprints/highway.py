@@ -43,6 +43,8 @@ __all__ = ["HighwayParams", "highway"]
 @dataclass(frozen=True)
 class HighwayParams(BlueprintParams):
     name: ClassVar[str] = "highway"
+    #: the parameters that set the road's size, named when it would not fit in memory
+    EXTENT: ClassVar[tuple[str, ...]] = ("length", "lanes", "lane_width")
 
     lanes: int = count(4, "lanes, all in one direction (BARK-ML: 4)", minimum=2)
     length: float = positive(1000.0, "road length, m")

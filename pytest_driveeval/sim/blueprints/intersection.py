@@ -48,6 +48,8 @@ EAST, WEST, NORTH, SOUTH = 0, 1, 2, 3
 @dataclass(frozen=True)
 class IntersectionParams(BlueprintParams):
     name: ClassVar[str] = "intersection"
+    #: the parameters that set the road's size, named when it would not fit in memory
+    EXTENT: ClassVar[tuple[str, ...]] = ("arm_length", "lane_width")
 
     arm_length: float = positive(100.0, "each arm's length from the junction centre, m")
     kerb_radius: float = positive(5.0, "corner rounding, m")

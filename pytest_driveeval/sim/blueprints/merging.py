@@ -45,6 +45,8 @@ MERGE_LANE, MAIN_LANE = 0, 1
 @dataclass(frozen=True)
 class MergingParams(BlueprintParams):
     name: ClassVar[str] = "merging"
+    #: the parameters that set the road's size, named when it would not fit in memory
+    EXTENT: ClassVar[tuple[str, ...]] = ("length", "lane_width")
 
     length: float = positive(300.0, "main lane length, m")
     merge_end: float = positive(100.0, "where the ego's lane ends, m from its start")

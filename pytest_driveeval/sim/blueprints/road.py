@@ -99,10 +99,24 @@ class DrivableGrid:
         return cells_contain(points, self.mask, self.origin, self.resolution)
 
 
+#: cells of the drivable-area raster at most (one byte each): a 1 GiB grid at 0.1 m is a road of
+#: 100 km by 1 km; a larger one is a typing slip, refused before it is allocated
+MAX_GRID_CELLS = 2 ** 30
+
+
+class RoadTooLarge(ValueError):
+    """The drivable area's raster would not fit in memory (more than MAX_GRID_CELLS cells)."""
+
+
 def _rasterise(polygons: Sequence[np.ndarray], resolution: float, pad: float) -> DrivableGrid:
     lo = np.min([p.min(axis=0) for p in polygons], axis=0) - pad
     hi = np.max([p.max(axis=0) for p in polygons], axis=0) + pad
-    shape = np.ceil((hi - lo) / resolution).astype(np.int64)
+    extent = np.ceil((hi - lo) / resolution)
+    if float(np.prod(extent)) > MAX_GRID_CELLS:
+        raise RoadTooLarge(f"the road's drivable area ({hi[0] - lo[0]:.6g} m x {hi[1] - lo[1]:.6g} m) would be "
+                           f"a raster of {np.prod(extent):.3g} cells at {resolution:g} m, above the limit of "
+                           f"{MAX_GRID_CELLS:.3g} cells ({MAX_GRID_CELLS / 2 ** 30:g} GiB)")
+    shape = extent.astype(np.int64)
     mask = np.zeros(tuple(shape), dtype=bool)
     for poly in polygons:
         # Only the cells under the polygon's bounding box need testing.

@@ -45,7 +45,7 @@ from pydantic import (Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, Po
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.sim.agents import TrafficModel
-from pytest_driveeval.usecase import ConditionsModel, Section
+from pytest_driveeval.usecase import ConditionsModel, Section, check_fits
 
 
 _IDM = TrafficModel()
@@ -205,6 +205,17 @@ class UnrollSpec(Section):
     def _one_selection(self):
         if self.Scenes is not None and self.SceneStride is not None:
             raise ValueError("give Scenes or SceneStride, not both")
+        return self
+
+    @model_validator(mode="after")
+    def _raster_fits_in_memory(self):
+        inputs = self.Inputs
+        if inputs.Kind == "raster":
+            height, width = inputs.RasterSize
+            channels = inputs.raster_params(self.HistoryFrames).num_channels
+            # float32, and the canvas it is drawn into besides the image the policy gets
+            check_fits(("Inputs", "RasterSize"), list(inputs.RasterSize), 8.0 * height * width * channels,
+                       f"one scene's {height} x {width} raster of {channels} channels")
         return self
 
 

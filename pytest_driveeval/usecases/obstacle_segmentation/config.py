@@ -54,7 +54,7 @@ from pydantic import (
 
 from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
 from ...search.spec import SearchSpec
-from ...usecase import ConditionsModel, Section
+from ...usecase import ConditionsModel, Section, check_fits
 
 V3 = "0.3.0"
 LEGACY = ("0.1.0", "0.2.0")
@@ -195,6 +195,11 @@ class ArtefactOptions(Section):
     FailingFramePlots: NonNegativeInt = 5
 
 
+#: memory a ghost point takes while a cloud is perturbed: the point (up to 32 bytes with its
+#: fields), the normal and uniform draws that place it (~40 bytes), rounded up
+GHOST_POINT_BYTES = 96.0
+
+
 class ObstaclePerturbation(SearchSpec):
     """What a robustness search may do to each raw cloud (strategies.CloudPerturbation)."""
 
@@ -233,6 +238,10 @@ class ObstacleSegmentationConfig(ConditionsModel):
             # A ghost cluster is placed in the non-detection area: without one it has nowhere to go.
             raise ValueError("Perturbation.GhostPoints needs a NonDetection condition: the ghost cluster is "
                              "placed in its ProposedArea")
+        if p is not None and p.GhostPoints is not None:
+            most = max(p.GhostPoints)
+            check_fits(("Perturbation", "GhostPoints"), list(p.GhostPoints), GHOST_POINT_BYTES * most * p.Batch,
+                       f"{p.Batch} perturbed clouds of up to {most} ghost points each")
         return self
 
     def condition_record(self) -> dict:

@@ -51,11 +51,19 @@ from pydantic import Field, NonNegativeInt, PositiveInt, model_validator
 
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
-from pytest_driveeval.usecase import ConditionsModel, Section, located_error
+from pytest_driveeval.usecase import ConditionsModel, Section, check_fits, located_error
 
 BASELINES = ("random", "constant", "idm_expert")
 # The episodes' seeds are one int64 array (numpy's generators take any seed >= 0, the array does not).
 SEED_LIMIT = 2 ** 63
+
+
+def episode_bytes(agents: int) -> float:
+    """About the memory one episode takes while the policies step it: the graph observation's
+    per-pair edge features and their encoding (~48 bytes a pair of agents), the agents' state
+    (~400 bytes each) and the episode's own (~4 KiB); measured with tracemalloc and torch sizes,
+    rounded up."""
+    return 48.0 * agents * agents + 400.0 * agents + 4096.0
 METRICS = ("goal_rate", "collision_rate", "return")
 
 
@@ -152,6 +160,7 @@ class PolicyBenchmarkConfig(ConditionsModel):
         if self.AgentLimit < 1:
             raise located_error("AgentLimit", self.AgentLimit,
                            "the agent limit counts the ego, so it is at least 1")
+        self._fits_in_memory()
         for index, name in enumerate(self.Judged or ()):
             if name not in self.Policies:
                 raise located_error(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
@@ -169,6 +178,16 @@ class PolicyBenchmarkConfig(ConditionsModel):
                                     f"'{beats.Baseline}' is judged ({why}), and a policy cannot be its own "
                                     "baseline: compare with another policy, or leave it out of Judged")
         return self
+
+    def _fits_in_memory(self) -> None:
+        agents, episodes = self.AgentLimit, self.Episodes
+        one = episode_bytes(agents)
+        if self.Perturbation is not None:  # a search steps one generation's episodes at a time
+            episodes = min(episodes, self.Perturbation.Batch)
+        check_fits("AgentLimit", agents, one, f"one episode of {agents} agents (its graph observation "
+                                               "grows with the agents squared)")
+        check_fits("Episodes", self.Episodes, episodes * one,
+                   f"{episodes} episodes of {agents} agents stepped together")
 
     def blueprint_params(self) -> dict[str, Any]:
         """make_blueprint's keyword arguments: the blueprint's Params and the StepLimit."""

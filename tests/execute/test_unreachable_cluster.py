@@ -1,0 +1,78 @@
+"""A Ray address where no cluster answers fails every item that needs it at once, with one
+located message, and the items beside it run.  Port 1 of 127.0.0.1 refuses connections; Ray
+alone would retry a GCS address there forever and a ``ray://`` one for ~30 s per item."""
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("ray")
+pytest.importorskip("torch")
+
+BENCH = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint: {{Name: merging}}
+  Episodes: 4
+  Policies:
+    mine: constant
+  Judged: [mine]
+{executor}"""
+
+REFUSED = "cannot reach a Ray cluster at {address}: nothing listens on port 1 of 127.0.0.1 (connection refused)"
+
+
+def test_a_dead_address_fails_each_item_that_needs_it_with_its_line_and_the_good_one_passes(pytester):
+    pytester.makefile(".scenario.yaml", good=BENCH.format(name="good", executor=""),
+                      gcs=BENCH.format(name="gcs", executor='  Executor: {Kind: ray, Address: "127.0.0.1:1"}\n'),
+                      client=BENCH.format(name="client", executor="  Executor:\n    Kind: ray\n"
+                                                                   "    ChunkSize: 2\n"
+                                                                   "    Address: ray://127.0.0.1:1\n"))
+    # In a subprocess with a timeout: the guard against the hang this test is about.
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
+    result.assert_outcomes(passed=1, failed=2)
+    result.stdout.fnmatch_lines([
+        "*UnreachableCluster: client.scenario.yaml:14: Evaluation.Executor.Address: "
+        + REFUSED.format(address="ray://127.0.0.1:1") + " (checked once per session*",
+        "*UnreachableCluster: gcs.scenario.yaml:11: Evaluation.Executor.Address: "
+        + REFUSED.format(address="127.0.0.1:1") + "*",
+    ])
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_the_session_option_address_is_probed_once_and_named_for_every_item(pytester):
+    for name in ("a", "b", "c"):
+        pytester.makefile(".scenario.yaml", **{name: BENCH.format(name=name, executor="")})
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", "-n", "2",
+                                           "--driveeval-executor", "{Kind: ray, Address: 127.0.0.1:1}", timeout=240)
+    result.assert_outcomes(failed=3)
+    message = ("UnreachableCluster: --driveeval-executor / driveeval_executor: Address: "
+               + REFUSED.format(address="127.0.0.1:1"))
+    assert result.stdout.str().count(message) == 3
+
+
+def test_an_unreachable_address_is_probed_once_per_process(monkeypatch):
+    from pytest_driveeval.execute import ExecutorSpec, UnreachableCluster, ray_path
+
+    probes = []
+    monkeypatch.setattr(ray_path, "_unreachable", {})
+    monkeypatch.setattr(ray_path, "_probe", lambda address: probes.append(address) or "closed")
+    spec = ExecutorSpec(Kind="ray", Address="ray://127.0.0.1:1")
+    messages = []
+    for _ in range(3):
+        with pytest.raises(UnreachableCluster) as raised:
+            ray_path.connect(spec)
+        messages.append(str(raised.value))
+    assert probes == ["ray://127.0.0.1:1"]
+    assert messages == [messages[0]] * 3 and "closed" in messages[0]
+
+
+@pytest.mark.parametrize("address, host_port", [("127.0.0.1:1", True), ("ray://localhost:1", True),
+                                                ("[::1]:1", True), ("auto", False), ("local", False)])
+def test_only_an_explicit_host_and_port_is_probed(address, host_port):
+    from pytest_driveeval.execute import ray_path
+
+    why = ray_path._probe(address)
+    assert (why is not None) == host_port
