@@ -7,7 +7,6 @@ import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .execute import disconnect
-from .fixtures import session_executor
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 
@@ -24,6 +23,10 @@ def pytest_configure(config: pytest.Config) -> None:
         "driveeval_scenario(path, dataset=None): bind a Python test to a scenario file, "
         "so it gets that scenario's driveeval_* fixtures",
     )
+    # Not imported at the top: pytest imports fixtures.py itself (pytest_plugins above) to rewrite
+    # its asserts, and warns that it cannot when this module has imported it first.
+    from .fixtures import session_executor
+
     settings = get_settings(config)  # fail early on a bad option value
     session_executor(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results

@@ -19,7 +19,7 @@ pytest.importorskip("torch")
 pytest.importorskip("scipy")
 
 REPO = Path(__file__).resolve().parents[3]
-GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
+GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0
