@@ -7,6 +7,7 @@ import pytest
 
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .execute import disconnect
+from .progress import close_terminal, open_terminal, share_with_worker
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 
@@ -29,6 +30,7 @@ def pytest_configure(config: pytest.Config) -> None:
 
     settings = get_settings(config)  # fail early on a bad option value
     session_executor(config)
+    open_terminal(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
@@ -37,6 +39,13 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_unconfigure(config: pytest.Config) -> None:
     # Each process (the controller, every xdist worker) closes the Ray connection it opened, if any.
     disconnect()
+    close_terminal(config)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """(pytest-xdist) whether a worker draws its items' status lines."""
+    share_with_worker(node.config, node.workerinput)
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector):

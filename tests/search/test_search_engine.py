@@ -147,3 +147,14 @@ def test_modules_imported_before_do_not_change_the_search(tmp_path):
         digests.add(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True
                                    ).stdout.strip())
     assert len(digests) == 1
+
+
+def test_progress_counts_the_examples_evaluated_up_to_the_total_asked():
+    never = Edge(left=(9.0, 9.0), right=(-9.0, -9.0))  # nothing fails: the whole budget is searched
+    seen = []
+    result = search(st.integers(0, 1), PERTURBATIONS, never, RANGES,
+                    SearchSettings(examples=64, batch=16, seed=3, tolerance=0.001),
+                    progress=lambda done, total: seen.append((done, total)))
+    assert not result.found and seen
+    assert [done for done, _ in seen] == sorted({done for done, _ in seen})  # one call per batch, growing
+    assert seen[-1][0] == result.examples and all(total == max(64, done) for done, total in seen)

@@ -203,3 +203,11 @@ def test_baselines_torchscript_round_trip(mixed_log):
         for key in ("positions", "yaws"):
             torch.testing.assert_close(eager[key], scripted[key])
         assert eager["positions"].shape == (4, 12, 2) and eager["yaws"].shape == (4, 12, 1)
+
+
+def test_progress_counts_the_steps_all_scenes_take_together(mixed_log):
+    seen = []
+    cfg = UnrollConfig(start_frame=5)
+    unroll(mixed_log, ConstantVelocityPolicy(), cfg, progress=lambda done, total: seen.append((done, total)))
+    steps = int(mixed_log.num_frames.max()) - 5
+    assert seen == [(done, steps) for done in range(steps + 1)]
