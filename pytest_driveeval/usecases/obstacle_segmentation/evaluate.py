@@ -161,7 +161,7 @@ class ObstacleEvaluation:
                 if on_frame is not None:
                     on_frame(frame, points, result)
                 if progress is not None:
-                    progress(len(result.frames), total)
+                    progress(result.frames, total)
         except DriveEvalError as exc:  # bad data, or out of time: the frames judged so far are kept
             exc.partial_result = result
             raise
