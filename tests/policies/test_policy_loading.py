@@ -52,7 +52,8 @@ def test_state_dict_with_factory(tmp_path):
 
 
 def test_factory_only():
-    assert float(load_model("test_policy_loading:make_doubler")(torch.tensor(1.0))) == 2.0
+    with torch.no_grad():
+        assert float(load_model("test_policy_loading:make_doubler")(torch.tensor(1.0))) == 2.0
 
 
 def test_whole_pickled_model_needs_the_pickle_prefix(tmp_path):
@@ -60,7 +61,8 @@ def test_whole_pickled_model_needs_the_pickle_prefix(tmp_path):
     with pytest.raises(ModelError, match=r"not a TorchScript archive.*'pickle:.*whole.pt'"):
         load_model(str(tmp_path / "whole.pt"))
     loaded = load_model(f"pickle:{tmp_path / 'whole.pt'}")
-    assert float(loaded(torch.tensor(1.0))) == 2.0
+    with torch.no_grad():
+        assert float(loaded(torch.tensor(1.0))) == 2.0
 
 
 def test_state_dict_refuses_pickled_code(tmp_path):
