@@ -41,8 +41,8 @@ MODERATE = {"Lateral": [-0.3, 0.3], "Heading": [-0.03, 0.03], "SpeedScale": [0.9
 WIDE = {"Lateral": [-1.0, 1.0], "Heading": [-0.15, 0.15], "SpeedScale": [0.5, 1.5],
         "AgentsSpeedScale": [0.6, 1.4], "GapScale": [0.5, 2.0]}
 # name: (policy spec, ranges); the GNN at the demo's ranges passes, at the wide ones it fails and is shrunk.
-CASES = {"gnn": ("fixtures/models/gnn_actor_merging.pt", MODERATE),
-         "gnn-wide": ("fixtures/models/gnn_actor_merging.pt", WIDE),
+CASES = {"gnn": ("fixtures/models/gnn_actor_merging.pt2", MODERATE),
+         "gnn-wide": ("fixtures/models/gnn_actor_merging.pt2", WIDE),
          "random": ("random", MODERATE),
          "constant": ("constant", MODERATE)}
 

@@ -43,8 +43,8 @@ import torch  # noqa: E402
 from pytest_driveeval.execute import ExecutorSpec, run_chunks  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
-PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt"
+GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
+PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
 SMOKE_HELP = ("every part at tiny sizes in seconds, no cluster (the chunks run here only): checks the script runs, "
               "measures nothing")
 

@@ -28,7 +28,7 @@ of harness time (model time excluded, the per-frame metrics included) for
   once and then come from the store's chunk cache.
 
 Part 2, 64 generated scenes batched: share of harness time in the total with
-a given TorchScript model (``--model``; default: the constant-velocity
+a given model (``--model``, e.g. the shipped .pt2; default: the constant-velocity
 baseline), and the harness rate.  Targets: >= 50x the seed-notebook reference
 (part 1), harness <= 20 % (part 2).  Nothing is asserted: the figures are
 printed.
@@ -70,6 +70,7 @@ except ImportError:  # pip install -e ".[test]" brings it
 from pytest_driveeval.geometry import box_corners
 from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene, write_l5_zarr
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+from pytest_driveeval.policies.loading import load_model
 from pytest_driveeval.sim.logreplay import (EGO_EXTENT, LogArrays, UnrollConfig, jit, scenes_from_arrays,
                                             stack_scenes, unroll)
 from pytest_driveeval.synth.scenegen import generate_scenes
@@ -252,7 +253,8 @@ def _median_run(log: LogArrays, policy, repeats: int) -> tuple[object, list]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--model", help="TorchScript policy for part 2 (default: constant velocity)")
+    parser.add_argument("--model", help="policy for part 2, as load_model reads it: .pt2, TorchScript, ... "
+                        "(default: constant velocity)")
     parser.add_argument("--scenes", type=int, default=64)
     parser.add_argument("--frames", type=int, default=250)
     parser.add_argument("--sample", default=str(SAMPLE))
@@ -306,7 +308,7 @@ def main() -> None:
           f"loading = {loads[1] / unrolled:.2f}x unrolling (target < 1; issue 14: 3.7 s vs 1.0 s)")
 
     print(f"\n== part 2: {args.scenes} generated scenes x {args.frames} frames batched")
-    model = torch.jit.load(args.model) if args.model else cv
+    model = load_model(args.model) if args.model else cv
     log = generated_log(args.scenes, args.frames)
     unroll(log.take(np.arange(min(2, args.scenes))), model, CONFIG)  # warm-up
     runs = sorted((unroll(log, model, CONFIG) for _ in range(3)), key=lambda r: r.harness_time / r.total_time)

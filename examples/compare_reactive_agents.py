@@ -34,7 +34,7 @@ from pytest_driveeval.usecases.closed_loop.evaluate import KIND_CODE, unroll_sce
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIOS = REPO / "scenario_tests" / "closed_loop"
-MODEL = REPO / "fixtures" / "models" / "planning_model.pt"
+MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
 REAL_SCENE = Path("/work/shared/data/l5kit/single_scene.zarr")
 
 

@@ -1,9 +1,9 @@
 """Train the shipped GNN actor (seed 002) with soft actor-critic, warm-started by DAgger from IDMExpert.
 
     python examples/train_gnn_policy.py --blueprint merging --minutes 20 --seed 0 \\
-        --out fixtures/models/gnn_actor_merging.pt
+        --out fixtures/models/gnn_actor_merging.pt2
 
-Writes ``<out>`` (TorchScript: ``torch.jit.script(actor)``; input the flat graph
+Writes ``<out>`` (a torch.export program, ``.pt2``; input the flat graph
 observation (E, 279) float32 of ``evaluate.observe`` with agent_limit 12, output
 the deterministic action (E, 2) = (acceleration m/s^2, steering rad)), and next
 to it ``<stem>_training.csv`` and ``<stem>_training.png``: the learning curve on
@@ -41,7 +41,7 @@ in m.  Reaching the step limit is a truncation (bootstrapped), not a terminal.
 The shipped actor is the one with the best goal rate on a validation range
 (seeds 50000..50063, neither training nor evaluation), ties broken by fewer
 collisions and then by the earlier checkpoint; the curve reports the held-out
-range.  In the run that made fixtures/models/gnn_actor_merging.pt (seed 0,
+range.  In the run that made fixtures/models/gnn_actor_merging.pt2 (seed 0,
 ``--dagger-rounds 8 --bc-epochs 8 --steps 25000 --minutes 22``) DAgger round 5
 already reached 100 % goals, 0 % collisions on both ranges and SAC fine-tuning
 held that for 23,579 updates without beating it, so the shipped weights are
@@ -64,6 +64,7 @@ import torch.nn.functional as F
 
 from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction
 from pytest_driveeval.policies.idm_expert import IDMExpert
+from pytest_driveeval.policies.export import export_program
 from pytest_driveeval.policies.gnn import make_actor, make_critic
 from pytest_driveeval.sim.blueprints import make_blueprint
 from pytest_driveeval.sim.episodes import reset
@@ -80,7 +81,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--steps", type=int, default=20000, help="SAC gradient updates (after the critic warm-up)")
     p.add_argument("--minutes", type=float, default=20.0, help="wall-time budget for the whole run")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=None, help="default fixtures/models/gnn_actor_<blueprint>.pt")
+    p.add_argument("--out", type=Path, default=None, help="default fixtures/models/gnn_actor_<blueprint>.pt2")
     p.add_argument("--envs", type=int, default=32, help="episodes stepped together")
     p.add_argument("--train-seed", type=int, default=100000, help="first training seed (evaluation uses 0..999)")
     p.add_argument("--dagger-rounds", type=int, default=6, help="0: SAC from scratch")
@@ -190,7 +191,7 @@ def evaluate(actor, blueprint, seeds: np.ndarray) -> dict[str, float]:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    out = args.out or Path(__file__).resolve().parents[1] / "fixtures" / "models" / f"gnn_actor_{args.blueprint}.pt"
+    out = args.out or Path(__file__).resolve().parents[1] / "fixtures" / "models" / f"gnn_actor_{args.blueprint}.pt2"
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(2)
     # Saturated sigmoids on states far off the road leave denormal floats that slow every
@@ -335,9 +336,9 @@ def main(argv=None) -> int:
 
     actor.load_state_dict(best["state"])
     actor.eval()
-    scripted = torch.jit.script(actor)
-    torch.jit.save(scripted, str(out))
-    final = run_policy(blueprint, HELD_OUT, torch.jit.load(str(out)), "gnn", agent_limit=AGENT_LIMIT).figures()
+    example = observe(reset(blueprint, np.arange(8), agent_limit=AGENT_LIMIT), AGENT_LIMIT)
+    program = export_program(actor, (example,), out)
+    final = run_policy(blueprint, HELD_OUT, program, "gnn", agent_limit=AGENT_LIMIT).figures()
 
     stem = out.with_suffix("")
     csv_path = stem.parent / f"{stem.name}_training.csv"

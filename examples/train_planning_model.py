@@ -1,6 +1,6 @@
 """Train the shipped planning model by behaviour cloning on L5-format data.
 
-    python examples/train_planning_model.py [--scenes 200] [--epochs 9] [--out fixtures/models/planning_model.pt]
+    python examples/train_planning_model.py [--scenes 200] [--epochs 9] [--out fixtures/models/planning_model.pt2]
 
 Data (fixtures/l5kit/generated.zarr, generated with seed 0, is held out: the
 demo scenarios evaluate on it):
@@ -20,7 +20,7 @@ puts it in and the closed loop wanders off.
 
 Finally a closed-loop check on the validation scenes (``unroll`` with the
 demo's settings: drift reset at 10 m, freeze on collision) against the
-constant-velocity baseline, then ``torch.jit.script`` + ``torch.jit.save`` and
+constant-velocity baseline, then ``torch.export`` (policies.export: a ``.pt2`` program) and
 the figures in a JSON next to the model.  Deterministic: seeded, one fixed
 thread count.
 """
@@ -275,12 +275,16 @@ def closed_loop_check(model: Callable, log: LogArrays, config: UnrollConfig = CL
     return out
 
 
-def export(model: torch.nn.Module, path: Path) -> torch.jit.ScriptModule:
-    model.eval()
-    scripted = torch.jit.script(model)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.jit.save(scripted, str(path))
-    return scripted
+def export(model: torch.nn.Module, path: Path, example: dict | None = None) -> Callable:
+    """Save ``model`` as a torch.export program, traced on ``example`` (default: the real scene's
+    batch of examples/export_models.py); returns the program as ``load_model`` gives it."""
+    from pytest_driveeval.policies.export import export_program
+
+    if example is None:
+        from export_models import planning_inputs
+
+        (example,) = planning_inputs()[0]
+    return export_program(model, (example,), path)
 
 
 def _fmt(figs: dict) -> str:
@@ -304,7 +308,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=ROOT / "fixtures" / "models" / "planning_model.pt")
+    parser.add_argument("--out", type=Path, default=ROOT / "fixtures" / "models" / "planning_model.pt2")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -333,8 +337,7 @@ def main(argv: list[str] | None = None) -> dict:
                     sample_weights=weights)
     train_seconds = time.perf_counter() - t_start
 
-    scripted = export(model, args.out)
-    reloaded = torch.jit.load(str(args.out))
+    reloaded = export(model, args.out)
     closed = closed_loop_check(reloaded, val_log)
     print(f"closed loop on {args.val_scenes} held-out generated scenes (seed {args.val_seed}):")
     for name, figs in closed.items():
@@ -346,7 +349,7 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"closed loop on the real scene {part}:")
         for name, figs in figs_by.items():
             print(f"  {name:18s} {_fmt(figs)}")
-    params = sum(p.numel() for p in scripted.parameters())
+    params = sum(p.numel() for p in model.parameters())
     meta = {
         "model": "pytest_driveeval.policies.planning_model.PlanningModel",
         "config": {"history_frames": HISTORY, "future_frames": FUTURE, "d": 128, "layers": 2, "heads": 4,

@@ -1,6 +1,6 @@
 """Train the shipped raster planning model (a CNN on l5kit's ``py_semantic`` rasters) by behaviour cloning.
 
-    python examples/train_raster_model.py [--scenes 200] [--steps 1500] [--out fixtures/models/raster_model.pt]
+    python examples/train_raster_model.py [--scenes 200] [--steps 1500] [--out fixtures/models/raster_model.pt2]
 
 Data: generated L5 datasets with their semantic maps (``generate_zarr``
 writes ``semantic_map.pb`` and ``meta.json`` beside the zarr), written to a
@@ -19,7 +19,7 @@ drawn on the fly by :class:`pytest_driveeval.raster.Rasterizer`, from the
 perturbed ego history, exactly as the closed loop draws them.
 
 Finally a closed-loop check on the validation scenes against the
-constant-velocity baseline, ``torch.jit.script`` + ``torch.jit.save``, and the
+constant-velocity baseline, ``torch.export`` (a ``.pt2`` program), and the
 figures in a JSON next to the model.  Deterministic: seeded, one fixed thread
 count.
 """
@@ -46,6 +46,9 @@ from pytest_driveeval.synth.scenegen import generate_zarr
 from pytest_driveeval.usecases.closed_loop.raster_inputs import raster_inputs
 # The vector model's loss (smooth L1 on positions + yaw, heavier on the near future): the same targets.
 from train_planning_model import horizon_weights, loss_fn  # noqa: E402  (examples/ is on sys.path when run)
+from export_models import raster_inputs_on_generated  # noqa: E402  (the demo scenes' batch, to trace on)
+
+from pytest_driveeval.policies.export import export_program  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 HISTORY, FUTURE = 10, 12
@@ -182,7 +185,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--eval-every", type=int, default=250)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=ROOT / "fixtures" / "models" / "raster_model.pt")
+    parser.add_argument("--out", type=Path, default=ROOT / "fixtures" / "models" / "raster_model.pt2")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -196,18 +199,15 @@ def main(argv: list[str] | None = None) -> dict:
         model = RasterPlanningModel(PARAMS.num_channels, PARAMS.raster_size[0], FUTURE)
         history = train(model, data, val, steps=args.steps, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                         eval_every=args.eval_every)
-        model.eval()
-        scripted = torch.jit.script(model)
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        torch.jit.save(scripted, str(args.out))
-        closed = closed_loop_check(torch.jit.load(str(args.out)), val)
+        (example,) = raster_inputs_on_generated()[0]
+        closed = closed_loop_check(export_program(model, (example,), args.out), val)
     meta = {
         "model": "pytest_driveeval.policies.raster_model.RasterPlanningModel",
         "raster": {"map_type": PARAMS.map_type, "raster_size": list(PARAMS.raster_size),
                    "pixel_size": list(PARAMS.pixel_size), "ego_center": list(PARAMS.ego_center),
                    "history_num_frames": HISTORY, "filter_agents_threshold": PARAMS.filter_agents_threshold},
         "future_frames": FUTURE,
-        "parameters": sum(p.numel() for p in scripted.parameters()),
+        "parameters": sum(p.numel() for p in model.parameters()),
         "file_bytes": args.out.stat().st_size,
         "command": "python examples/train_raster_model.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},

@@ -60,11 +60,27 @@ def _scenario_function(scenario: Scenario) -> object:
     return scenario_test
 
 
+def _match_the_cache(item: pytest.Item) -> None:
+    """Give ``item`` the structured id pytest derives from its string id.
+
+    pytest 9.2 keeps node ids structured and reads the ids it cached (--lf, --ff, --sw) back by
+    parsing their strings, where ``speed_limit[fast.csv]`` is the name ``speed_limit`` with the
+    parameters ``fast.csv``; a Function made without parametrize keeps the bracket in its name,
+    so no cached id ever equalled a scenario item and --lf silently reran everything
+    (pytest-dev/pytest#15045).  The string id does not change; older pytest has no structured id.
+    """
+    structured = getattr(item, "_id", None)
+    parse = getattr(type(structured), "parse", None)
+    if parse is not None:
+        item._id = parse(item.nodeid)
+
+
 class ScenarioItem(pytest.Function):
     def __init__(self, *, scenario: Scenario, case: Case, **kwargs):
         self.driveeval_scenario = scenario
         self.driveeval_case = case
         super().__init__(**kwargs)
+        _match_the_cache(self)
         # -k matches the scenario's name and use case too, not only the id.
         self.extra_keyword_matches.update({scenario.name, scenario.use_case})
 

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import inspect
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import pytest
 
 from .deadline import time_limit
 from .errors import DriveEvalError, display_path
-from .execute import ExecutorSpec, Progress, executor_from_option, terminal_progress
+from .execute import ExecutorSpec, executor_from_option
 from .outcome import OUTCOME_ATTR, Outcome
+from .progress import item_progress
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions, parse_replay
@@ -53,36 +54,6 @@ def session_search_options(config: pytest.Config) -> SearchOptions:
             raise pytest.UsageError(f"--driveeval-replay: {exc}") from None
     return SearchOptions(examples=settings.search_examples, replay=settings.replay, profile=settings.search_profile,
                          database=settings.search_database, seed=settings.seed)
-
-
-class _LiveTerminal:
-    """pytest's terminal while an item runs: output capture is off for each write, and the bar
-    starts on a line of its own so that the item's name pytest printed stays readable."""
-
-    def __init__(self, config: pytest.Config) -> None:
-        self.reporter = config.pluginmanager.getplugin("terminalreporter")
-        self.capture = config.pluginmanager.getplugin("capturemanager")
-        self.started = False
-
-    def isatty(self) -> bool:
-        return bool(self.reporter is not None and self.reporter.isatty)
-
-    def write(self, text: str) -> None:
-        if not self.started:
-            text, self.started = "\n" + text, True
-        if self.capture is None:
-            self.reporter.write(text, flush=True)
-            return
-        with self.capture.global_and_fixture_disabled():
-            self.reporter.write(text, flush=True)
-
-    def flush(self) -> None:
-        pass
-
-
-def _progress(config: pytest.Config) -> Callable[[str], Progress | None]:
-    """A new bar per call (each run of chunks starts its own line), None when no one watches a terminal."""
-    return lambda label: terminal_progress(_LiveTerminal(config), label)
 
 
 def _binding(request: pytest.FixtureRequest) -> tuple[Scenario, Case]:
@@ -132,14 +103,17 @@ def driveeval_seed(request: pytest.FixtureRequest) -> int:
 
 @pytest.fixture
 def driveeval_context(request: pytest.FixtureRequest, driveeval_scenario: Scenario,
-                      driveeval_output_dir: Path, driveeval_seed: int) -> RunContext:
+                      driveeval_output_dir: Path, driveeval_seed: int) -> Iterator[RunContext]:
     _, case = _binding(request)
+    line = item_progress(request.node)
     settings = get_settings(request.config)
     search = session_search_options(request.config)
-    return RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
-                      output_dir=driveeval_output_dir, seed=driveeval_seed,
-                      allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search,
-                      executor=session_executor(request.config), progress=_progress(request.config))
+    yield RunContext(scenario=driveeval_scenario, dataset=case.dataset, case=case,
+                     output_dir=driveeval_output_dir, seed=driveeval_seed,
+                     allow_code=settings.allow_scenario_code, nodeid=request.node.nodeid, search=search,
+                     executor=session_executor(request.config), progress=line.progress if line else None)
+    if line is not None:
+        line.clear()
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ import pytest
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .deadline import session, session_ended, session_finishing
 from .execute import disconnect
-from .fixtures import session_executor, session_search_options
+from .progress import close_terminal, open_terminal, share_with_worker
 from .results import ResultsReporter, annotate_report
 from .settings import add_options, check_output_dir, get_settings
 from .usecase import set_memory_budget
@@ -39,10 +39,15 @@ def pytest_configure(config: pytest.Config) -> None:
         "driveeval_scenario(path, dataset=None): bind a Python test to a scenario file, "
         "so it gets that scenario's driveeval_* fixtures",
     )
+    # Not imported at the top: pytest imports fixtures.py itself (pytest_plugins above) to rewrite
+    # its asserts, and warns that it cannot when this module has imported it first.
+    from .fixtures import session_executor, session_search_options
+
     settings = get_settings(config)  # fail early on a bad option value
     set_memory_budget(settings.memory_limit)
     session_executor(config)
     session_search_options(config)
+    open_terminal(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
@@ -51,6 +56,13 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_unconfigure(config: pytest.Config) -> None:
     # Each process (the controller, every xdist worker) closes the Ray connection it opened, if any.
     disconnect()
+    close_terminal(config)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """(pytest-xdist) whether a worker draws its items' status lines."""
+    share_with_worker(node.config, node.workerinput)
 
 
 def pytest_collect_file(file_path: Path, parent: pytest.Collector):

@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, Callable, ClassVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import InitErrorDetails, PydanticCustomError
@@ -178,8 +178,13 @@ class RunContext:
     #: the session's executor (execute.ExecutorSpec from --driveeval-executor / ini), or None: each key it
     #: sets replaces the scenario's own
     executor: Any = None
-    #: ``progress(label)`` -> a callback drawing chunks done / total where a person watches, or None
+    #: ``progress(what)`` -> a ``(done, total)`` callback drawing how far the item is in ``what``
+    #: (steps, episodes, examples, frames, chunks) where a person watches a terminal; None where no one does
     progress: Any = None
+
+    def progress_of(self, what: str) -> Callable[[int, int], None] | None:
+        """The callback for a loop over ``what``, or None (nothing to draw: skip the calls)."""
+        return self.progress(what) if self.progress is not None else None
 
     def artefact(self, filename: str) -> Path:
         self.output_dir.mkdir(parents=True, exist_ok=True)

@@ -39,13 +39,23 @@ except ImportError:
     pass
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+try:
+    import torch
+except ImportError:
+    torch = None
+if torch is not None:
+    # Likewise torch.export.load: its first call imports modules that register operator
+    # libraries once per process ("Only a single TORCH_LIBRARY ..." when a second pytester run
+    # imports them again). Loading the smallest shipped program here makes them permanent.
+    torch.export.load(str(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2"))
 SHARED_DATA = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"real sample data not found at {SHARED_DATA}")
+        pytest.skip(f"real sample data absent: {SHARED_DATA} is not a folder (put the shared data there, ../shared/data beside the clone, or set DRIVEEVAL_SHARED_DATA)")
     return SHARED_DATA
 
 
@@ -141,3 +151,27 @@ def gain(pytester):
     pytester.makepyfile(gain_usecase=GAIN_USECASE, mymodels="def triple(x):\n    return 3 * x\n")
     pytester.makeconftest("import gain_usecase\n")
     return pytester
+
+
+def torchscript(module):
+    """``torch.jit.script(module)`` without torch's deprecation warning: the tests make TorchScript
+    on purpose, as the file a user already has (the loader reads it) or to check a model compiles."""
+    import warnings
+
+    import torch
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r".*torch\.jit\.(script|save)` is deprecated", DeprecationWarning)
+        return torch.jit.script(module)
+
+
+def save_torchscript(module, path) -> None:
+    """``torch.jit.save(torch.jit.script(module), path)``: a TorchScript file as a user has one."""
+    import warnings
+
+    import torch
+
+    scripted = torchscript(module)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r".*torch\.jit\.(script|save)` is deprecated", DeprecationWarning)
+        torch.jit.save(scripted, str(path))

@@ -36,9 +36,8 @@ For whoever wires a use case to it
 """
 from pytest_driveeval.execute.chunks import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, UnreachableCluster,
                                              run_chunks, split)
-from pytest_driveeval.execute.progress import terminal_progress
 from pytest_driveeval.execute.ray_path import disconnect
 from pytest_driveeval.execute.spec import ExecutorSpec, executor_from_option
 
 __all__ = ["ChunkError", "ChunkRun", "ExecutorError", "ExecutorSpec", "Placement", "Progress", "UnreachableCluster",
-           "disconnect", "executor_from_option", "run_chunks", "split", "terminal_progress"]
+           "disconnect", "executor_from_option", "run_chunks", "split"]

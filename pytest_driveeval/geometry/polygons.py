@@ -69,6 +69,13 @@ def polygon_edges(*polygons: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def points_in_polygon(x: np.ndarray, y: np.ndarray, vertices: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
     """Crossing-number test (perception_eval's rule: half-open in y), points x edges at once."""
+    # A nearly horizontal edge has a huge slope: x + dy * slope overflows to +-inf, which compares
+    # as the crossing it is the limit of, so the overflow is no error to warn about.
+    with np.errstate(over="ignore"):
+        return _crossings(x, y, vertices, chunk)
+
+
+def _crossings(x: np.ndarray, y: np.ndarray, vertices: np.ndarray, chunk: int) -> np.ndarray:
     xi, yi, yj, slope = polygon_edges(vertices)[0].T
     flat = yi == yj
     if np.count_nonzero(~flat) <= 8:

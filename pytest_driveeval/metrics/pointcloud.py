@@ -65,11 +65,13 @@ def crop_reference(points: np.ndarray, area: Sequence[Sequence[float]], inside: 
     poly = list(area[:n]) + [area[0]]
     count = np.zeros(points.shape[0], dtype=np.uint8)
     px, py = points[:, 0], points[:, 1]
-    for i in range(n):
-        p, q = poly[i], poly[i + 1]
-        flags = ((p[1] <= py) & (q[1] > py)) | ((p[1] > py) & (q[1] <= py))
-        vt = (py - p[1]) / (q[1] - p[1]) if q[1] != p[1] else px
-        flags &= px < p[0] + vt * (q[0] - p[0])
-        count[flags] += 1
+    # As in points_in_polygon: an edge's overflow to +-inf is the limit of its crossing, not an error.
+    with np.errstate(over="ignore"):
+        for i in range(n):
+            p, q = poly[i], poly[i + 1]
+            flags = ((p[1] <= py) & (q[1] > py)) | ((p[1] > py) & (q[1] <= py))
+            vt = (py - p[1]) / (q[1] - p[1]) if q[1] != p[1] else px
+            flags &= px < p[0] + vt * (q[0] - p[0])
+            count[flags] += 1
     mask = (count % 2 != 0) & (points[:, 2] >= min(zs)) & (points[:, 2] <= max(zs))
     return points[mask] if inside else points[~mask]

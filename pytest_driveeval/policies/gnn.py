@@ -116,9 +116,16 @@ class GraphEncoder(nn.Module):
         if flat.dim() != 2 or flat.shape[1] != self.observation_size:
             raise ValueError(f"flat observations: expected shape (B, {self.observation_size}) for K="
                              f"{self.agent_limit}, F={self.num_features}, found {list(flat.shape)}")
-        if bool((flat[:, 0] != self.agent_limit).any()) or bool((flat[:, 2] != self.num_features).any()):
-            raise ValueError(f"flat observations: header [K, n, F] does not say K={self.agent_limit}, "
-                             f"F={self.num_features}")
+        header_ok = (flat[:, 0] == self.agent_limit).all() & (flat[:, 2] == self.num_features).all()
+        header_error = f"flat observations: header [K, n, F] does not say K={self.agent_limit}, F={self.num_features}"
+        if torch.jit.is_scripting():
+            if not bool(header_ok):
+                raise ValueError(header_error)
+        elif torch.compiler.is_exporting():
+            # An exported program cannot branch on values: the check becomes an op that fails the call.
+            torch._assert_async(header_ok, header_error)
+        elif not bool(header_ok):
+            raise ValueError(header_error)
         nodes, adjacency, mask = split_flat(flat, self.agent_limit, self.num_features)
         return self.ego_embedding(nodes, adjacency, mask)
 

@@ -1,8 +1,8 @@
 """Loading a model (policy) from a spec string, safely by default.
 
 Spec forms:
-  ``model.pt``                   TorchScript archive (``torch.jit.save``)
-  ``model.pt2``                  exported program (``torch.export.save``), TorchScript's successor
+  ``model.pt2``                  exported program (``torch.export.save``; policies.export), as shipped
+  ``model.pt``                   TorchScript archive (``torch.jit.save``), deprecated by torch but loaded
   ``weights.pt=pkg.mod:factory`` state_dict loaded with ``weights_only=True`` into ``factory()``
   ``pkg.mod:factory``            whatever ``factory()`` returns (a module or any callable)
   ``pickle:model.pt``            a whole pickled model: runs code from the file, so only
@@ -11,6 +11,7 @@ Spec forms:
 from __future__ import annotations
 
 import importlib
+import warnings
 import zipfile
 from pathlib import Path
 from typing import Any, Callable
@@ -40,7 +41,7 @@ def refuse_code_from_data(spec: str, where: str) -> None:
         f"({'unpickling' if spec.strip().startswith(PICKLE_PREFIX) else 'importing and calling a factory'}). "
         f"If you trust this file, run with {ALLOW_CODE_OPTION} (ini: {ALLOW_CODE_INI} = true); "
         "or give the model with --driveeval-model or a driveeval_model fixture in conftest.py, "
-        "or save it as TorchScript (torch.jit.save), which loads without running Python")
+        "or save it as an exported program (torch.export.save, .pt2), which loads without running Python")
 
 
 def import_object(target: str) -> Any:
@@ -135,7 +136,10 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
             f"{path} is not a TorchScript archive. For a state_dict give 'weights.pt=package.module:factory'; "
             f"a whole pickled model loads only as '{PICKLE_PREFIX}{path}' (it runs code from the file)")
     try:
-        return _eval(torch.jit.load(str(path), map_location="cpu"))
+        with warnings.catch_warnings():
+            # torch deprecates TorchScript; the file is the user's choice, and it loads as it did.
+            warnings.filterwarnings("ignore", r".*torch\.jit\.load.* is deprecated", DeprecationWarning)
+            return _eval(torch.jit.load(str(path), map_location="cpu"))
     except Exception as exc:  # noqa: BLE001
         raise ModelError(f"cannot load TorchScript model {path}: {exc}") from None
 

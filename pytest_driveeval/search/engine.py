@@ -113,11 +113,13 @@ def size_of(perturbation: Any, widths: dict[str, float]) -> float:
 
 
 def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any], evaluate_many: EvaluateMany,
-           ranges: dict[str, tuple[float, float]], config: SearchSettings) -> SearchResult:
+           ranges: dict[str, tuple[float, float]], config: SearchSettings,
+           progress: Callable[[int, int], None] | None = None) -> SearchResult:
     """Search for a failing example; see the module's docstring.
 
     ``ranges``: each perturbation field's (low, high), what ``tolerance`` and
-    :func:`size_of` are relative to.
+    :func:`size_of` are relative to.  ``progress(done, total)``: examples evaluated of
+    ``config.examples`` (shrinking a failure may evaluate more: the total grows with them).
     """
     widths = {name: high - low for name, (low, high) in ranges.items()}
     started = time.perf_counter()
@@ -138,6 +140,8 @@ def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any],
             except Exception as exc:
                 raise _Aborted(exc) from exc
             memo.update(zip(new, verdicts))
+            if progress is not None:
+                progress(len(memo), max(config.examples, len(memo)))
             result.evaluations[phase[0]] = result.evaluations.get(phase[0], 0) + len(new)
             for e, v in zip(new, verdicts):
                 if v.failed and (not smallest or _rank(e, widths) < _rank(smallest[0], widths)):

@@ -66,7 +66,9 @@ def run_item(use_case: str, searchable: Searchable, spec: SearchSpec, ctx: Any) 
                             tolerance=spec.Tolerance, derandomize=derandomize, seed=ctx.seed, database=database,
                             key=database_key(use_case, scenario.path, scenario.name, ctx.case.name, dataset))
     cases = st.integers(0, len(searchable.case_labels) - 1)
-    result = search(cases, searchable.perturbations, searchable.evaluate_many, spec.ranges(), config)
+    progress_of = getattr(ctx, "progress_of", None)
+    result = search(cases, searchable.perturbations, searchable.evaluate_many, spec.ranges(), config,
+                    progress=progress_of("examples") if progress_of is not None else None)
     stats = _statistics(result, config, options.profile)
     if not result.found:
         summary = (f"no perturbation within the ranges broke it: {result.examples} examples over "

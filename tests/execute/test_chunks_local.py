@@ -1,7 +1,6 @@
 """The executor without Ray: the spec, the option, splitting, the local path, errors, progress."""
 from __future__ import annotations
 
-import io
 import sys
 
 import numpy as np
@@ -9,8 +8,7 @@ import pytest
 from pydantic import ValidationError
 
 from pytest_driveeval.errors import DataError, DriveEvalError
-from pytest_driveeval.execute import (ChunkError, ExecutorError, ExecutorSpec, executor_from_option, run_chunks, split,
-                                      terminal_progress)
+from pytest_driveeval.execute import (ChunkError, ExecutorError, ExecutorSpec, executor_from_option, run_chunks, split)
 
 LOCAL = ExecutorSpec()
 
@@ -121,21 +119,6 @@ def test_task_fn_must_be_sendable_by_name():
         run_chunks(LOCAL, [1], inner)
 
 
-class _Tty(io.StringIO):
-    def isatty(self):
-        return True
-
-
-def test_the_progress_bar_draws_only_on_a_terminal():
-    assert terminal_progress(io.StringIO()) is None
-    stream = _Tty()
-    draw = terminal_progress(stream, label="scenes")
-    for done in range(0, 5):
-        draw(done, 4)
-    text = stream.getvalue()
-    assert text.count("\r") == 5 and text.endswith("\n")
-    assert "scenes 2/4 [" + "#" * 15 + "." * 15 + "]" in text
-    assert "scenes 4/4 [" + "#" * 30 + "]" in text
 
 
 def test_kind_ray_without_ray_says_how_to_install_it(monkeypatch):

@@ -27,7 +27,7 @@ ROOT = REPO_ROOT / PACKAGE
 
 # What each part of the package may import (besides itself).  A part is a
 # subpackage (its top level) or a root module; the pytest side (plugin,
-# collect, fixtures, results, failure, assertions, __init__) may import anything.
+# collect, fixtures, results, failure, assertions, progress, __init__) may import anything.
 FOUNDATION = {"errors", "outcome", "geometry", "atomic", "deadline"}
 ALLOWED = {
     "errors": set(),
@@ -59,7 +59,7 @@ ALLOWED = {
     "closed_loop": {"usecases"},
     "obstacle": {"usecases"},
 }
-PYTEST_SIDE = {"plugin", "collect", "fixtures", "results", "failure", "assertions", "__init__"}
+PYTEST_SIDE = {"plugin", "collect", "fixtures", "results", "failure", "assertions", "progress", "__init__"}
 
 
 def module_name(path: Path) -> str:

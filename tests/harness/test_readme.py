@@ -75,7 +75,7 @@ def test_the_readme_names_paths_this_test_reads():
     # A regex that stopped matching would pass every check below vacuously.
     paths = _repo_paths()
     assert {"scenario_tests/speed/urban.scenario.yaml", "docs/report.png",
-            "../../fixtures/models/planning_model.pt"} <= paths
+            "../../fixtures/models/planning_model.pt2"} <= paths
     assert len(paths) > 40
 
 

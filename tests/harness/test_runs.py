@@ -138,9 +138,10 @@ def test_concurrent_sessions_each_keep_their_records_and_items(gain):
     first = _session(gain, 0.0, gate=gate)
     _wait_for_items(gain, 1)
     second = _session(gain, 0.0)  # starts later, finishes first
-    assert second.wait(120) == 0, second.stdout.read().decode()
-    gate.touch()
-    assert first.wait(120) == 0, first.stdout.read().decode()
+    with first, second:  # their output pipes are closed on the way out
+        assert second.wait(120) == 0, second.stdout.read().decode()
+        gate.touch()
+        assert first.wait(120) == 0, first.stdout.read().decode()
     lines = history(gain)
     assert len(lines) == 2
     for line in lines:
@@ -157,12 +158,14 @@ def test_concurrent_sessions_each_keep_their_records_and_items(gain):
 def test_a_killed_session_leaves_the_last_results_whole_and_says_it_never_finished(gain):
     gain.makefile(".scenario.yaml", a=GAIN_SCENARIO.format(name="a"), b=GAIN_SCENARIO.format(name="b"))
     gain.path.joinpath("slowmod.py").write_text(SLOW_MODEL)
-    assert _session(gain, 0.0).wait(60) == 0
+    with _session(gain, 0.0) as done:
+        assert done.wait(60) == 0
     before = summary(gain)
     killed = _session(gain, 30.0)
     _wait_for_items(gain, 3)
     killed.kill()
     killed.wait()
+    killed.stdout.close()
     assert summary(gain) == before
     (newer,) = set(run_ids(gain)) - {before["run"]["id"]}
     marker = json.loads((gain.path / "driveeval-results" / "runs" / newer / "run.json").read_text())

@@ -12,7 +12,7 @@ from pytest_driveeval.metrics.pointcloud import Area, BoxSet, box_corners_3d, bo
 from pytest_driveeval.usecases.obstacle_segmentation.config import polygon_problem
 
 DLR_AREA = np.array([[10.0, 1.5], [10.0, -1.5], [0.0, -1.5], [0.0, 1.5]])
-KERNELS = ["numpy", pytest.param("numba", marks=pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba absent"))]
+KERNELS = ["numpy", pytest.param("numba", marks=pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba is not installed: only the numpy path runs"))]
 
 
 def scene(seed: int, n: int = 20000, boxes: int = 12):
@@ -75,7 +75,7 @@ def adversarial_cloud(rng, boxes: BoxSet, n: int, dtype) -> np.ndarray:
     return np.concatenate([faces, near, far, nan]).astype(dtype)
 
 
-@pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba absent")
+@pytest.mark.skipif(not cloud_jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 10_000), st.integers(0, 9), st.sampled_from([np.float32, np.float64]),
        st.sampled_from(["none", "polygon", "clipped"]))

@@ -6,6 +6,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+from conftest import torchscript
 
 
 def _batch(has_past: bool) -> dict:
@@ -21,7 +22,7 @@ def _batch(has_past: bool) -> dict:
 @pytest.mark.parametrize("first_step, step", [("heading", [0.5, 0.0]), ("logged_next", [0.3, 0.4])])
 def test_first_step_without_a_past(first_step, step):
     for policy in (ConstantVelocityPolicy(first_step=first_step),
-                   torch.jit.script(ConstantVelocityPolicy(first_step=first_step))):
+                   torchscript(ConstantVelocityPolicy(first_step=first_step))):
         out = policy(_batch(has_past=False))["positions"][0]
         torch.testing.assert_close(out[:2], torch.tensor([step, [2 * step[0], 2 * step[1]]]))
         # With a past, the last step repeats whatever the option.

@@ -8,13 +8,14 @@ import pytest
 import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
+from pytest_driveeval.policies.loading import load_model
 from pytest_driveeval.policies.planning_model import PlanningModel
 from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
 
 from conftest import REPO_ROOT
 
-MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt"
+MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"
 TRAIN_SCRIPT = REPO_ROOT / "examples" / "train_planning_model.py"
 # A validation scene of the training run (seed 2, never trained on) where
 # constant velocity drives into a queue at the red light.
@@ -24,9 +25,7 @@ CLOSED_LOOP = UnrollConfig(drift_threshold=10.0, freeze_on_collision=True)
 
 @pytest.fixture(scope="module")
 def shipped():
-    model = torch.jit.load(str(MODEL))
-    model.eval()
-    return model
+    return load_model(str(MODEL))
 
 
 @pytest.fixture(scope="module")
@@ -48,9 +47,9 @@ def _batch(log, frames=(0, 40, 90)):
     return build_batch(log, rows, np.tile(frames, log.shape[0]), log.ego_xy, log.ego_yaw)
 
 
-def test_shipped_model_is_small_torchscript(shipped):
+def test_shipped_model_is_a_small_exported_program(shipped):
     assert MODEL.stat().st_size < 2_000_000
-    assert isinstance(shipped, torch.jit.ScriptModule)
+    assert isinstance(shipped, torch.fx.GraphModule)
 
 
 def test_output_shapes_finite_and_deterministic(shipped, held_out_log):
@@ -96,9 +95,11 @@ def test_training_code_smoke(trainer, tmp_path):
     history = trainer.train(model, data, {"val": data}, epochs=1, batch_size=16, max_steps=2, log=lambda s: None)
     assert history[0]["steps"] == 2 and np.isfinite(history[0]["loss"]) and np.isfinite(history[0]["val_ade"])
     assert any(not torch.equal(a, b) for a, b in zip(before, model.parameters()))
-    scripted = trainer.export(model, tmp_path / "m.pt")
-    reloaded = torch.jit.load(str(tmp_path / "m.pt"))
+    # Traced on the batch the closed loop gives: an exported program takes the keys it was traced with.
+    batch = _batch(log, frames=(5, 20))
+    reloaded = trainer.export(model, tmp_path / "m.pt2", example=batch)
+    model.eval()
     with torch.no_grad():
-        torch.testing.assert_close(reloaded(data)["positions"], scripted(data)["positions"])
+        torch.testing.assert_close(load_model(str(tmp_path / "m.pt2"))(batch)["positions"], model(batch)["positions"])
     figures = trainer.closed_loop_figures(unroll(log, reloaded, UnrollConfig(num_steps=5)))
     assert figures["scenes"] == 2 and figures["errors"] == 0

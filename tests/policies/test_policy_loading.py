@@ -7,6 +7,7 @@ torch = pytest.importorskip("torch")
 
 from pytest_driveeval.errors import ModelError  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
+from conftest import save_torchscript
 
 
 class Doubler(torch.nn.Module):
@@ -26,9 +27,10 @@ def test_torchscript_archive(tmp_path):
     model = Doubler()
     with torch.no_grad():
         model.scale.fill_(5.0)
-    torch.jit.save(torch.jit.script(model), tmp_path / "m.pt")
+    save_torchscript(model, tmp_path / "m.pt")
     loaded = load_model("m.pt", base=tmp_path)
-    assert float(loaded(torch.tensor(1.0))) == 5.0
+    with torch.no_grad():
+        assert float(loaded(torch.tensor(1.0))) == 5.0
     assert not loaded.training
 
 
@@ -45,11 +47,13 @@ def test_state_dict_with_factory(tmp_path):
         model.scale.fill_(3.0)
     torch.save(model.state_dict(), tmp_path / "w.pt")
     loaded = load_model(f"{tmp_path / 'w.pt'}=test_policy_loading:make_doubler")
-    assert float(loaded(torch.tensor(2.0))) == 6.0
+    with torch.no_grad():
+        assert float(loaded(torch.tensor(2.0))) == 6.0
 
 
 def test_factory_only():
-    assert float(load_model("test_policy_loading:make_doubler")(torch.tensor(1.0))) == 2.0
+    with torch.no_grad():
+        assert float(load_model("test_policy_loading:make_doubler")(torch.tensor(1.0))) == 2.0
 
 
 def test_whole_pickled_model_needs_the_pickle_prefix(tmp_path):
@@ -57,7 +61,8 @@ def test_whole_pickled_model_needs_the_pickle_prefix(tmp_path):
     with pytest.raises(ModelError, match=r"not a TorchScript archive.*'pickle:.*whole.pt'"):
         load_model(str(tmp_path / "whole.pt"))
     loaded = load_model(f"pickle:{tmp_path / 'whole.pt'}")
-    assert float(loaded(torch.tensor(1.0))) == 2.0
+    with torch.no_grad():
+        assert float(loaded(torch.tensor(1.0))) == 2.0
 
 
 def test_state_dict_refuses_pickled_code(tmp_path):

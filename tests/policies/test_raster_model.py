@@ -6,6 +6,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from pytest_driveeval.policies.raster_model import RasterPlanningModel  # noqa: E402
+from conftest import torchscript
 
 
 def test_output_shapes_and_scripted_model_agree():
@@ -16,7 +17,7 @@ def test_output_shapes_and_scripted_model_agree():
     data = {"image": torch.rand(3, 5, 32, 32)}
     with torch.no_grad():
         out = model(data)
-        scripted = torch.jit.script(model)(data)
+        scripted = torchscript(model)(data)
     assert out["positions"].shape == (3, 4, 2) and out["yaws"].shape == (3, 4, 1)
     torch.testing.assert_close(out["positions"], scripted["positions"])
     # Different images, different plans: the output is a function of the image.

@@ -69,7 +69,7 @@ OPENCV = textwrap.dedent("""
 
 def test_pixels_equal_opencvs(tmp_path):
     if not ORACLE_PYTHON.is_file():
-        pytest.skip(f"no l5kit oracle venv at {ORACLE_PYTHON} (benchmarks/l5kit_oracle/oracle_venv.py builds it)")
+        pytest.skip(f"l5kit oracle venv absent: no {ORACLE_PYTHON} (python benchmarks/l5kit_oracle/oracle_venv.py builds it)")
     verts, starts, bounds = random_polygons(3, 300)
     np.savez(tmp_path / "cases.npz", verts=verts, starts=starts, bounds=bounds)
     subprocess.run([str(ORACLE_PYTHON), "-c", OPENCV, str(tmp_path / "cases.npz"), str(tmp_path / "cv.npz")],

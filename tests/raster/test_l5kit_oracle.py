@@ -23,7 +23,7 @@ def _load(name):
 def oracle_python():
     python = _load("oracle_venv").existing_python()
     if python is None:
-        pytest.skip("l5kit's oracle venv is absent (python benchmarks/l5kit_oracle/oracle_venv.py makes it)")
+        pytest.skip("l5kit oracle venv absent (python benchmarks/l5kit_oracle/oracle_venv.py builds it)")
     return python
 
 

@@ -193,7 +193,7 @@ def real(shared_data):
     from pytest_driveeval.sim.logreplay.logarrays import stack_scenes
     path = shared_data / "l5kit" / "single_scene.zarr"
     if not path.is_dir():
-        pytest.skip(f"{path} is absent")
+        pytest.skip(f"real sample data absent: {path} is not there")
     scene = L5Dataset.open(path).scene(0)
     return scene, stack_scenes([scene])
 

@@ -23,7 +23,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-
 def _need(what: str) -> None:
     if os.environ.get("CI"):
         pytest.fail(f"{what} is missing in CI (.ci/run installs it)")
-    pytest.skip(f"{what} not installed")
+    pytest.skip(f"{what} not installed: the HTML report check needs the system's Chromium (apt install chromium) and playwright (pip install -e '.[test]')")
 
 
 @pytest.fixture(scope="module")

@@ -24,20 +24,20 @@ def test_gif_is_subsampled_small_and_marks_collisions(tmp_path):
     path = render_unroll_gif(tmp_path / "u.gif", ego, np.zeros(len(ego)), np.array([4.9, 1.9]), ego,
                              agents, np.zeros(agents.shape[:2]), np.array([4.5, 1.9]),
                              np.ones(agents.shape[:2], bool), collision, title="scene 0", max_frames=40)
-    image = PIL.open(path)
-    assert image.format == "GIF"
-    assert 40 <= image.n_frames <= 41
-    assert path.stat().st_size < 300_000
-    red_frames = 0
-    for index in range(image.n_frames):
-        image.seek(index)
-        rgb = np.asarray(image.convert("RGB"))
-        red_frames += bool((rgb == COLLISION).all(-1).sum() > 50)
+    with PIL.open(path) as image:
+        assert image.format == "GIF"
+        assert 40 <= image.n_frames <= 41
+        assert path.stat().st_size < 300_000
+        red_frames = 0
+        for index in range(image.n_frames):
+            image.seek(index)
+            rgb = np.asarray(image.convert("RGB"))
+            red_frames += bool((rgb == COLLISION).all(-1).sum() > 50)
     assert red_frames == 1
 
 
 def test_bar_chart_is_a_png(tmp_path):
     path = bar_chart(tmp_path / "c.png", {"front": 2, "side": 0, "rear": 1, "drift resets": 4}, "scene 0")
-    image = PIL.open(path)
-    assert image.format == "PNG" and image.size == (480, 320)
-    assert len(np.unique(np.asarray(image.convert("RGB")).reshape(-1, 3), axis=0)) > 10
+    with PIL.open(path) as image:
+        assert image.format == "PNG" and image.size == (480, 320)
+        assert len(np.unique(np.asarray(image.convert("RGB")).reshape(-1, 3), axis=0)) > 10

@@ -160,3 +160,14 @@ def test_a_slow_machine_searches_the_same_examples(monkeypatch):
     monkeypatch.setattr(conjecture_engine.time, "monotonic", lambda: float(next(clock)))
     slow = run(Edge(), derandomize=True)
     assert (slow.examples, slow.failures, slow.minimal) == (quiet.examples, quiet.failures, quiet.minimal)
+
+
+def test_progress_counts_the_examples_evaluated_up_to_the_total_asked():
+    never = Edge(left=(9.0, 9.0), right=(-9.0, -9.0))  # nothing fails: the whole budget is searched
+    seen = []
+    result = search(st.integers(0, 1), PERTURBATIONS, never, RANGES,
+                    SearchSettings(examples=64, batch=16, seed=3, tolerance=0.001),
+                    progress=lambda done, total: seen.append((done, total)))
+    assert not result.found and seen
+    assert [done for done, _ in seen] == sorted({done for done, _ in seen})  # one call per batch, growing
+    assert seen[-1][0] == result.examples and all(total == max(64, done) for done, total in seen)

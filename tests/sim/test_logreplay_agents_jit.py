@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +64,9 @@ def _batches(log) -> dict[str, np.ndarray]:
 
 
 def _unrolled(log) -> dict[str, np.ndarray]:
-    policy = torch.jit.script(ConstantVelocityPolicy().eval())
+    with warnings.catch_warnings():  # TorchScript on purpose: the engine runs it as any policy
+        warnings.filterwarnings("ignore", r".*torch\.jit\.script` is deprecated", DeprecationWarning)
+        policy = torch.jit.script(ConstantVelocityPolicy().eval())
     result = unroll(log, policy, UnrollConfig(drift_threshold=3.0, freeze_on_collision=True, start_frame=2),
                     start_perturbation=np.tile([0.6, -0.4, 0.35, 1.3], (log.shape[0], 1)))
     return {f"unroll.{f}": getattr(result, f) for f in RESULT_FIELDS}

@@ -75,6 +75,7 @@ def _corners(xy, c, s, ext):
     return [(xy[0] + c * dx - s * dy, xy[1] + s * dx + c * dy) for dx, dy in ((hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw))]
 
 
+@pytest.mark.filterwarnings("ignore:`torch.jit.*` is deprecated:DeprecationWarning")  # TorchScript on purpose
 def test_constant_velocity_runs_into_stopped_car(red_light_log):
     cfg = UnrollConfig(start_frame=5)
     result = unroll(red_light_log, torch.jit.script(ConstantVelocityPolicy()), cfg)
@@ -190,6 +191,7 @@ def test_num_steps_and_timing(mixed_log):
     assert 0 < result.model_time < result.total_time
 
 
+@pytest.mark.filterwarnings("ignore:`torch.jit.*` is deprecated:DeprecationWarning")  # TorchScript on purpose
 def test_baselines_torchscript_round_trip(mixed_log):
     batch = build_batch(mixed_log, np.arange(4), np.full(4, 10), mixed_log.ego_xy, mixed_log.ego_yaw)
     for module in (ConstantVelocityPolicy(), ReplayLogPolicy()):
@@ -201,3 +203,11 @@ def test_baselines_torchscript_round_trip(mixed_log):
         for key in ("positions", "yaws"):
             torch.testing.assert_close(eager[key], scripted[key])
         assert eager["positions"].shape == (4, 12, 2) and eager["yaws"].shape == (4, 12, 1)
+
+
+def test_progress_counts_the_steps_all_scenes_take_together(mixed_log):
+    seen = []
+    cfg = UnrollConfig(start_frame=5)
+    unroll(mixed_log, ConstantVelocityPolicy(), cfg, progress=lambda done, total: seen.append((done, total)))
+    steps = int(mixed_log.num_frames.max()) - 5
+    assert seen == [(done, steps) for done in range(steps + 1)]

@@ -173,7 +173,7 @@ def test_bad_defect(tmp_path):
 def test_demo_fixture_is_current(tmp_path):
     demo = REPO / "fixtures" / "t4" / "clean"
     if not demo.is_dir():
-        pytest.skip("run examples/make_obstacle_demo_data.py")
+        pytest.skip(f"{demo} is absent: python examples/make_obstacle_demo_data.py makes it")
     m = generate_t4_dataset(tmp_path / "clean", points_per_frame=12000)
     for p in sorted((demo / "annotation").glob("*.json")):
         assert p.read_bytes() == (m.root / "annotation" / p.name).read_bytes(), p.name

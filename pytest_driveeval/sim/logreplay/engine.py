@@ -207,8 +207,8 @@ def _backward_speed(xy: np.ndarray, start: int, logged: np.ndarray, dt: float) -
 def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], object],
            config: UnrollConfig = UnrollConfig(), *, start_perturbation: np.ndarray | None = None,
            cells: LogCells | None = None, candidates: tuple[np.ndarray, np.ndarray] | None = None,
-           extra_inputs: Callable[[np.ndarray, int, np.ndarray, np.ndarray, LogArrays], dict] | None = None
-           ) -> UnrollResult:
+           extra_inputs: Callable[[np.ndarray, int, np.ndarray, np.ndarray, LogArrays], dict] | None = None,
+           progress: Callable[[int, int], None] | None = None) -> UnrollResult:
     """Drive ``policy`` through all ``scenes`` together; see the module doc.
 
     ``start_perturbation`` (S, 4): each scene's start moved off the log, its
@@ -221,6 +221,7 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     ``extra_inputs(rows, t, driven_xy, driven_yaw, agents)``: more tensors for the
     policy's batch at frame t (e.g. the bird's-eye rasters of
     :mod:`pytest_driveeval.raster`), drawn from the ego's driven history.
+    ``progress(done, total)``: called with the steps done, all scenes stepping together.
     """
     t_begin = time.perf_counter()
     log = scenes if isinstance(scenes, LogArrays) else stack_scenes(scenes)
@@ -264,8 +265,13 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
     near: list[tuple[np.ndarray, int, np.ndarray]] = []  # (rows, frame, columns) that may collide, per frame
     dynamics = Unicycle(cfg.limits) if cfg.kinematic else PoseTarget(cfg.step_time)
 
+    last = int(end.max(initial=start))
+    if progress is not None:
+        progress(0, last - start)
     with torch.no_grad():
-        for t in range(start, int(end.max(initial=start))):
+        for t in range(start, last):
+            if progress is not None and t > start:
+                progress(t - start, last - start)
             active = alive & (t < end)
             valid[active, t] = True
             # Which agents are near enough to touch the ego in this frame: collisions are judged on those
@@ -331,6 +337,8 @@ def unroll(scenes: Sequence[L5Scene] | LogArrays, policy: Callable[[dict], objec
             if reactive is not None:
                 reactive.step(rows, t, driven_xy, driven_yaw, ext, options["cells"])
 
+    if progress is not None and last > start:
+        progress(last - start, last - start)
     result = _finish(log, cfg, driven_xy, driven_yaw, proposed, valid, reset, frozen, errors,
                      timing=(time.perf_counter() - t_begin, model_time, forwards, scene_steps), ext=ext,
                      past_xy=past_xy, near=near)

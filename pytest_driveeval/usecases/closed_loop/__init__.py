@@ -127,7 +127,9 @@ class ClosedLoop(UseCase):
         semantic_map = semantic_map_for(spec.Inputs, dataset.path, ctx.scenario.folder) if ids else None
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, **spec.unroll_options(),
                                agents=replayed_agents(spec.Agents), perturbation=perturbation,
-                               semantic_map=semantic_map) if ids else None
+                               semantic_map=semantic_map,
+                               # a search's examples show their own count (search.item), not each unroll's steps
+                               progress=ctx.progress_of("steps") if perturbation is None else None) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         outcome = self._outcome(config, ctx, verdicts, problems, dataset,
                                 lambda figures: write_artefacts(ctx, config, unroll, verdicts, figures)
@@ -208,7 +210,7 @@ class ClosedLoop(UseCase):
         model, base, _ = ctx.notes["model_source"]
         work = scene_chunks(str(Path(dataset.path).resolve()), ids, config, model, base, str(ctx.scenario.folder),
                             executor)
-        run = run_item_chunks(ctx, executor, work, run_scene_chunk, f"{ctx.case.name}: chunks")
+        run = run_item_chunks(ctx, executor, work, run_scene_chunk, "chunks")
         done = merged(run.results)
         events = {v.scene: e for v, e in zip(done.verdicts, done.events)}
 

@@ -64,7 +64,8 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                   freeze_on_collision: bool = True, kinematic: bool = False, history_frames: int = 10,
                   future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None,
                   perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None,
-                  reactive: ReactiveAgents | None = None, raster: Any = None, semantic_map: Any = None) -> Unroll:
+                  reactive: ReactiveAgents | None = None, raster: Any = None, semantic_map: Any = None,
+                  progress: Callable[[int, int], None] | None = None) -> Unroll:
     """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
 
     ``agents`` says which logged agents replay (default: all of them);
@@ -75,6 +76,7 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     (raster.RasterParams): the policy also gets ``image``, l5kit's raster of
     its driven history; ``py_semantic`` needs ``semantic_map``
     (io.l5_semantic_map.SemanticMap, e.g. from raster_inputs.load_semantic_map).
+    ``progress(done, total)``: the steps unrolled, as they go.
     """
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
@@ -98,7 +100,7 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    return unroll_log(log, model, config, perturbation, extra_inputs=extra)
+    return unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
 
 
 def kept_scenes(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None
@@ -133,7 +135,7 @@ def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float
 
 def unroll_log(log: Any, model: Callable, config: Any,
                perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None,
-               candidates: Any = None, extra_inputs: Any = None) -> Unroll:
+               candidates: Any = None, extra_inputs: Any = None, progress: Any = None) -> Unroll:
     """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given.
 
     ``cells``, ``candidates``: the log's packed cells and window columns
@@ -152,7 +154,7 @@ def unroll_log(log: Any, model: Callable, config: Any,
             cells = candidates = None
         log = scaled
     result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates,
-                    extra_inputs=extra_inputs)
+                    extra_inputs=extra_inputs, progress=progress)
     # Drawn and judged where the agents were: the log, or where reactive agents went.
     return Unroll(result, result.agents, config.drift_threshold, config.step_time)
 

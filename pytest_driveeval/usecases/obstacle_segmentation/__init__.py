@@ -121,7 +121,7 @@ class ObstacleSegmentation(UseCase):
                                       config.Artefacts.FailingFramePlots)
         try:
             with artefacts:
-                result = evaluation.run(clouds, on_frame=artefacts)
+                result = evaluation.run(clouds, on_frame=artefacts, progress=ctx.progress_of("frames"))
         except DriveEvalError as exc:
             partial = getattr(exc, "partial_result", None)
             if partial is not None and partial.frames:

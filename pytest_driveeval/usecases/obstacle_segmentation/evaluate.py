@@ -150,9 +150,14 @@ class ObstacleEvaluation:
             raise DataError(_no_tf_for_the_map(ds))
         return cls(ds, cfg, tf, lanelets, _diagnostic_lookup(diagnostics, cfg.PointCloud.TopicRateDiagnostic))
 
-    def run(self, pointclouds: Iterable[tuple], on_frame: FrameSink | None = None) -> ObstacleResult:
-        """Judge every cloud.  On a DataError the frames judged so far stay on it as ``partial_result``."""
+    def run(self, pointclouds: Iterable[tuple], on_frame: FrameSink | None = None,
+            progress: Callable[[int, int], None] | None = None) -> ObstacleResult:
+        """Judge every cloud.  On a DataError the frames judged so far stay on it as ``partial_result``.
+        ``progress(done, total)``: frames judged of the dataset's annotated frames."""
         result = self.new_result()
+        total = len(self.dataset.sample_tokens)
+        if progress is not None:
+            progress(0, total)
         try:
             for stamp_ns, frame_id, points in pointclouds:
                 stamp_ns = int(stamp_ns)
@@ -167,6 +172,8 @@ class ObstacleEvaluation:
                 result.add(frame)
                 if on_frame is not None:
                     on_frame(frame, points, result)
+                if progress is not None:
+                    progress(result.frames, total)
         except DriveEvalError as exc:  # bad data, or out of time: the frames judged so far are kept
             exc.partial_result = result
             raise

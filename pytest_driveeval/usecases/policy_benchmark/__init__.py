@@ -108,7 +108,7 @@ class PolicyBenchmark(UseCase):
 
         def run(name: str, model: Any, on_step=None):
             return run_policy(blueprint, seeds, model, name, strata=strata, agent_limit=config.AgentLimit,
-                              on_step=on_step)
+                              on_step=on_step, progress=ctx.progress_of(f"{name}: episodes"))
 
         judged = policy in config.judged()
         # Only a judged policy's item decides the conditions; the others report their intervals.

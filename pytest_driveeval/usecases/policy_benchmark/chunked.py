@@ -107,7 +107,7 @@ def run_policies_chunked(ctx: Any, executor: ExecutorSpec, blueprint: Any, param
         chunks = episode_chunks(name, source, blueprint.name, params, seeds, agent_limit, size)
         spans[name] = slice(len(work), len(work) + len(chunks))
         work += chunks
-    run = run_item_chunks(ctx, executor, work, run_episode_chunk, f"{ctx.case.name}: chunks")
+    run = run_item_chunks(ctx, executor, work, run_episode_chunk, "chunks")
     runs = {}
     for name, span in spans.items():
         done = merged(run.results[span])

@@ -11,7 +11,7 @@
       Strata: 8                       # seed groups the bootstrap resamples within
       AgentLimit: 12
       Policies:                       # name: model spec (TorchScript, weights.pt=module:factory) or a baseline
-        gnn: ../../fixtures/models/gnn_actor_merging.pt
+        gnn: ../../fixtures/models/gnn_actor_merging.pt2
         idm: idm_expert               # random | constant | idm_expert
         random: random
       Judged: [gnn]                   # whose items the Conditions decide; default: every non-baseline policy

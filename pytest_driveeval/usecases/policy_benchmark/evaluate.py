@@ -117,11 +117,14 @@ def _actions(out: Any, episodes: Any, policy: str, step: int) -> np.ndarray:
 
 def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str, *, strata: Sequence[int] | None = None,
                agent_limit: int = 12, on_step: StepSink | None = None,
-               perturbation: np.ndarray | None = None) -> PolicyRun:
+               perturbation: np.ndarray | None = None,
+               progress: Callable[[int, int], None] | None = None) -> PolicyRun:
     """Run ``policy`` on one episode per seed until every episode has ended.
 
     ``perturbation``: one row per seed moving that episode's start
     (:data:`pytest_driveeval.sim.episodes.PERTURBATION_COLUMNS`), or None.
+
+    ``progress(done, total)``: episodes ended of all, after each step.
 
     ``policy`` is a callable from the flat graph observation (E, D) tensor to
     actions (E, 2) (a torch module or any function), or an object with
@@ -148,6 +151,8 @@ def run_policy(blueprint: Any, seeds: Sequence[int], policy: Callable, name: str
                 raise ModelError(f"policy '{name}' raised {type(exc).__name__} at step {step}: {exc}") from None
             episodes.step(_actions(out, episodes, name, step))
             step += 1
+            if progress is not None:
+                progress(int(episodes.done.sum()), len(episodes.done))
             if on_step is not None:
                 on_step(episodes)
     seeds = np.asarray(seeds, dtype=np.int64)

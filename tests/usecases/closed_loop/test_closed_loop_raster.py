@@ -61,7 +61,7 @@ class StandStill(torch.nn.Module):
         return {"positions": torch.zeros(b, 12, 2), "yaws": torch.zeros(b, 12, 1)}
 
 
-@pytest.mark.skipif(not GENERATED.exists(), reason="demo data not generated")
+@pytest.mark.skipif(not GENERATED.exists(), reason="fixtures/l5kit/generated.zarr is absent: python examples/make_demo_data.py makes it")
 def test_the_raster_shows_the_driven_history():
     """An ego that stands still from frame 20 on: eleven frames later its ten history channels all show
     the same box, where the log (which drives on) has them apart; the agents' channels stay the log's."""
@@ -103,7 +103,7 @@ class RecordingConstantVelocity(torch.nn.Module):
         return self.policy(data)
 
 
-@pytest.mark.skipif(not GENERATED.exists(), reason="demo data not generated")
+@pytest.mark.skipif(not GENERATED.exists(), reason="fixtures/l5kit/generated.zarr is absent: python examples/make_demo_data.py makes it")
 def test_with_reactive_agents_the_raster_shows_them_where_they_braked():
     """Generated scene 1: constant velocity stops short and the car behind brakes (reactive); every
     step's raster is the one drawn afresh from where the engine had the agents, not the log's."""
@@ -156,16 +156,16 @@ Evaluation:
 """
 
 
-@pytest.mark.skipif(not GENERATED.exists(), reason="demo data not generated")
+@pytest.mark.skipif(not GENERATED.exists(), reason="fixtures/l5kit/generated.zarr is absent: python examples/make_demo_data.py makes it")
 def test_a_raster_scenario_runs_with_the_map_beside_the_dataset_and_an_empty_or_missing_map_is_named(pytester):
     shutil.copytree(GENERATED, pytester.path / "gen.zarr")
     for name in ("semantic_map.pb", "meta.json"):
         shutil.copy(GENERATED.parent / name, pytester.path / name)
     # A 0-byte semantic_map.pb decodes as a map without a road: the rasters would lack it silently.
     (pytester.path / "empty.pb").write_bytes(b"")
-    model = REPO_ROOT / "fixtures" / "models" / "raster_model.pt"
+    model = REPO_ROOT / "fixtures" / "models" / "raster_model.pt2"
     if not model.exists():
-        pytest.skip("raster model not trained")
+        pytest.skip(f"{model} is absent: python examples/train_raster_model.py trains it")
     scene = SCENE.format(model=model)
     pytester.makefile(".scenario.yaml", raster=scene,
                       empty=scene.replace("RasterSize: [112, 112]", "RasterSize: [112, 112], SemanticMap: empty.pb"))

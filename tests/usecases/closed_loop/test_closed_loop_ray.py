@@ -19,7 +19,7 @@ pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
 GENERATED = REPO / "fixtures" / "l5kit" / "generated.zarr"
-PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt"
+PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0

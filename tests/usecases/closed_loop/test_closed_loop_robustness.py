@@ -11,14 +11,14 @@ from conftest import REPO_ROOT  # noqa: E402
 
 DEMO = REPO_ROOT / "scenario_tests" / "robustness" / "real_scene_lateral.scenario.yaml"
 REAL = REPO_ROOT / "fixtures" / "l5kit" / "single_scene.zarr"
-MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt"
+MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"
 
 
 @pytest.fixture
 def demo(pytester):
     """The demo scenario in a project of its own, naming the repository's data and model."""
     text = DEMO.read_text().replace("../../fixtures/l5kit/single_scene.zarr", str(REAL)).replace(
-        "../../fixtures/models/planning_model.pt", str(MODEL))
+        "../../fixtures/models/planning_model.pt2", str(MODEL))
     assert str(REAL) in text and str(MODEL) in text
     (pytester.path / "scenarios").mkdir()
     (pytester.path / "scenarios" / DEMO.name).write_text(text)

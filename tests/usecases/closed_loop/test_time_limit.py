@@ -4,7 +4,7 @@ from __future__ import annotations
 import shutil
 
 import pytest
-from conftest import GAIN_SCENARIO, REPO_ROOT
+from conftest import GAIN_SCENARIO, REPO_ROOT, save_torchscript
 
 torch = pytest.importorskip("torch")
 
@@ -70,7 +70,7 @@ def test_a_python_policy_that_never_returns_fails_its_item_naming_scene_and_step
 
 @pytest.mark.parametrize("xdist", [[], ["-n", "2"]], ids=["plain", "xdist"])
 def test_a_torchscript_loop_is_left_behind_and_the_session_goes_on(cl, xdist):
-    torch.jit.save(torch.jit.script(Spin()), cl.path / "spin.pt")
+    save_torchscript(Spin(), cl.path / "spin.pt")
     cl.makefile(".scenario.yaml", good=scenario(name="good", unroll="    StartFrame: 10\n    Steps: 5"),
                 spins=with_limit(scenario(name="spins", model="spin.pt"), 2))
     # In its own process: the abandoned loop keeps a core busy until that process ends.

@@ -88,3 +88,10 @@ def test_bad_inputs_fail_before_a_sink_would_open(evaluation):
         "PassRate": 99.0, "BoundingBoxConfig": [{"00000000000000000000000000000bad": None}]}}}
     with pytest.raises(DataError, match="00000000000000000000000000000bad"):
         ObstacleEvaluation.load(DATASET, bad)
+
+
+def test_progress_counts_the_frames_judged_of_the_annotated_ones(evaluation):
+    seen = []
+    result = ObstacleEvaluation.load(DATASET, evaluation).run(
+        clouds(), progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(done, 10) for done in range(11)] and result.frames == 10

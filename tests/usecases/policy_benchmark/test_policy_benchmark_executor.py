@@ -19,7 +19,7 @@ pytest.importorskip("torch")
 pytest.importorskip("scipy")
 
 REPO = Path(__file__).resolve().parents[3]
-GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
+GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0
@@ -82,7 +82,7 @@ def test_chunks_of_seeds_merge_into_the_arrays_of_one_batch():
     assert described == ["gnn seeds 3..7", "gnn seeds 8..12", "gnn seeds 13..15",
                          "random seeds 3..7", "random seeds 8..12", "random seeds 13..15"]
     assert len(chunk_run.placements) == 6
-    assert drawn == [("bench[gnn]: chunks", done, 6) for done in range(7)]
+    assert drawn == [("chunks", done, 6) for done in range(7)]
 
 
 def test_the_report_says_where_each_chunk_ran():

@@ -22,7 +22,7 @@ cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
 pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
-GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt"
+GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
 
 BENCHMARK = """\
 ScenarioFormatVersion: 3.0.0

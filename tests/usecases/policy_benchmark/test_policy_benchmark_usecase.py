@@ -162,13 +162,14 @@ def test_artefacts_gif_of_a_failing_episode_with_its_graph_and_the_comparison_pl
     out = pytester.path / "driveeval-results"
     assert set(record["artefacts"]) >= {"episodes", "comparison"}
     (gif,) = [out / p for name, p in record["artefacts"].items() if name.endswith("_gif")]
-    frames = Image.open(gif)
-    assert frames.n_frames > 2
-    # The ego is drawn red in the middle of every frame.
-    assert frames.convert("RGB").getpixel((180, 180)) == (211, 47, 47)
+    with Image.open(gif) as frames:
+        assert frames.n_frames > 2
+        # The ego is drawn red in the middle of every frame.
+        assert frames.convert("RGB").getpixel((180, 180)) == (211, 47, 47)
     episodes = json.loads((out / record["artefacts"]["episodes"]).read_text())["episodes"]
     assert [e["seed"] for e in episodes] == list(range(8))
-    assert Image.open(out / record["artefacts"]["comparison"]).size[0] > 300
+    with Image.open(out / record["artefacts"]["comparison"]) as comparison:
+        assert comparison.size[0] > 300
 
 
 def test_no_animation_when_the_scenario_asks_for_none(pytester):
@@ -190,3 +191,16 @@ def test_policies_side_by_side_with_intervals_in_the_summary_and_the_html_report
     assert all("goal 0 % [0, " in cell and "collision " in cell for cell in row[2:])
     html = (pytester.path / "report.html").read_text()
     assert "Policies by scenario" in html and "merging (b)" in html
+
+
+def test_progress_counts_the_episodes_ended_after_each_step():
+    from pytest_driveeval.policies.control_baselines import ConstantAction
+    from pytest_driveeval.sim.blueprints import make_blueprint
+    from pytest_driveeval.usecases.policy_benchmark.evaluate import run_policy
+
+    seen = []
+    run = run_policy(make_blueprint("merging"), list(range(6)), ConstantAction(), "constant",
+                     progress=lambda done, total: seen.append((done, total)))
+    assert seen and all(total == 6 for _, total in seen)
+    assert [done for done, _ in seen] == sorted(done for done, _ in seen) and seen[-1][0] == 6
+    assert len(seen) == int(run.steps.max())  # one call per step of the longest episode

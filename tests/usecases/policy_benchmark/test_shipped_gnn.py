@@ -1,8 +1,7 @@
-"""The shipped GNN actor (fixtures/models/gnn_actor_merging.pt) is what
+"""The shipped GNN actor (fixtures/models/gnn_actor_merging.pt2) is what
 examples/train_gnn_policy.py says it is, and still drives better than chance."""
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -17,17 +16,15 @@ from pytest_driveeval.policies.loading import load_model  # noqa: E402
 from pytest_driveeval.sim.episodes import reset  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark.evaluate import observe, run_policy, seeds_for  # noqa: E402
 
-MODEL = Path(__file__).resolve().parents[3] / "fixtures" / "models" / "gnn_actor_merging.pt"
+MODEL = Path(__file__).resolve().parents[3] / "fixtures" / "models" / "gnn_actor_merging.pt2"
 OBSERVATION_SIZE = 279  # 3 + 12 agents * 11 features + 12 * 12 adjacency
 
 
 @pytest.fixture(scope="module")
 def actor():
-    # A TorchScript archive carries its code, so load_model takes it without unpickling anything.
-    with zipfile.ZipFile(MODEL) as archive:
-        assert any("/code/" in name for name in archive.namelist()), "not a TorchScript archive"
+    # An exported program carries its graph, so load_model takes it without unpickling anything.
     model = load_model(str(MODEL))
-    assert isinstance(model, torch.jit.ScriptModule)
+    assert isinstance(model, torch.fx.GraphModule)
     return model
 
 
