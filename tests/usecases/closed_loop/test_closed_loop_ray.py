@@ -93,7 +93,7 @@ Evaluation:
   Unroll: {{Scenes: [0, 2], StartFrame: 10, Steps: 30}}
   Conditions:
     Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
-    Displacement: {{Max: 2.0}}
+    Displacement: {{Max: 4.0}}   # unperturbed it drifts 3.03 m: a failure needs a perturbation
   Perturbation: {{Lateral: [-3.0, 3.0], Heading: [-0.1, 0.1], Examples: 24, Batch: 8, Tolerance: 0.05}}
 {executor}"""
 
