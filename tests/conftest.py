@@ -59,6 +59,15 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+# The envelope of a policy_benchmark scenario ({name} to format); a test adds its Evaluation keys.
+POLICY_BENCHMARK_HEAD = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+"""
+
 EXAMPLE_USECASE = REPO_ROOT / "examples" / "custom_usecase" / "speed_limit.py"
 
 SPEED_SCENARIO = """\

@@ -7,15 +7,12 @@ import json
 
 import pytest
 
+from conftest import POLICY_BENCHMARK_HEAD
+
 pytest.importorskip("ray")
 pytest.importorskip("torch")
 
-BENCH = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: policy_benchmark
-  UseCaseFormatVersion: 0.1.0
+BENCH = POLICY_BENCHMARK_HEAD + """\
   Blueprint: {{Name: merging}}
   Episodes: 4
   Policies:

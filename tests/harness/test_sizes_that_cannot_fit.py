@@ -4,17 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import POLICY_BENCHMARK_HEAD, REPO_ROOT
 from pytest_driveeval.usecase import memory_budget, set_memory_budget
 
 pytest.importorskip("torch")
 
-BENCH = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: policy_benchmark
-  UseCaseFormatVersion: 0.1.0
+BENCH = POLICY_BENCHMARK_HEAD + """\
   Blueprint:
     Name: merging
     Params: {{length: {length}}}

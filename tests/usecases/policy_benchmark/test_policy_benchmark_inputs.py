@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import POLICY_BENCHMARK_HEAD
+
 pytest.importorskip("torch")
 
-SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: policy_benchmark
-  UseCaseFormatVersion: 0.1.0
+SCENARIO = POLICY_BENCHMARK_HEAD + """\
   Blueprint: {{Name: merging}}
   Episodes: 4
   Policies:
