@@ -113,13 +113,11 @@ class ScenarioFile(pytest.File):
             cases = usecase_of(scenario).cases(scenario)
         except NotAScenario:
             return
-        except ScenarioError as error:
-            yield InvalidScenarioItem.from_parent(self, name="scenario", error=error)
-            return
-        except MemoryError:
-            # A size the checks at load time did not foresee: this file fails, the others still collect.
-            error = ScenarioError(self.path, [Problem("loading it ran out of memory (MemoryError): a size in it "
-                                                      "is too large for this machine")])
+        except (ScenarioError, MemoryError) as caught:
+            # MemoryError: a size the checks at load time did not foresee; this file fails, the others
+            # still collect.
+            error = caught if isinstance(caught, ScenarioError) else ScenarioError(self.path, [Problem(
+                "loading it ran out of memory (MemoryError): a size in it is too large for this machine")])
             yield InvalidScenarioItem.from_parent(self, name="scenario", error=error)
             return
         seen: set[str] = set()

@@ -30,6 +30,7 @@ from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
+_SEARCH_KEY = pytest.StashKey[SearchOptions]()
 
 
 def session_executor(config: pytest.Config) -> ExecutorSpec | None:
@@ -46,14 +47,17 @@ def session_executor(config: pytest.Config) -> ExecutorSpec | None:
 def session_search_options(config: pytest.Config) -> SearchOptions:
     """What the session's options set for every robustness search; a malformed --driveeval-replay is a
     usage error here, before collection, rather than one failure per item."""
-    settings = get_settings(config)
-    if settings.replay:
-        try:
-            parse_replay(settings.replay)
-        except ValueError as exc:
-            raise pytest.UsageError(f"--driveeval-replay: {exc}") from None
-    return SearchOptions(examples=settings.search_examples, replay=settings.replay, profile=settings.search_profile,
-                         database=settings.search_database, seed=settings.seed)
+    if _SEARCH_KEY not in config.stash:
+        settings = get_settings(config)
+        if settings.replay:
+            try:
+                parse_replay(settings.replay)
+            except ValueError as exc:
+                raise pytest.UsageError(f"--driveeval-replay: {exc}") from None
+        config.stash[_SEARCH_KEY] = SearchOptions(
+            examples=settings.search_examples, replay=settings.replay, profile=settings.search_profile,
+            database=settings.search_database, seed=settings.seed)
+    return config.stash[_SEARCH_KEY]
 
 
 def _binding(request: pytest.FixtureRequest) -> tuple[Scenario, Case]:

@@ -223,28 +223,27 @@ def _data_root(config: pytest.Config, invocation: Path, ini_base: Path) -> Path 
     return path
 
 
+def _non_negative(text: str, below: float, what: str) -> float:
+    """``text`` as a finite number in [0, below), else a usage error saying ``what`` it must be."""
+    try:
+        number = float(text)
+    except ValueError:
+        number = math.nan
+    if not (math.isfinite(number) and 0 <= number < below):
+        raise pytest.UsageError(f"driveeval {what}, got {text!r}")
+    return number
+
+
 def _time_limit(text: str | None) -> float | None:
     if not text:
         return DEFAULT_TIME_LIMIT
-    try:
-        seconds = float(text)
-    except ValueError:
-        seconds = math.nan
-    if not (math.isfinite(seconds) and seconds >= 0):
-        raise pytest.UsageError(f"driveeval time limit must be a number of seconds >= 0 (0: none), got {text!r}")
-    return seconds or None
+    return _non_negative(text, math.inf, "time limit must be a number of seconds >= 0 (0: none)") or None
 
 
 def _memory_limit(text: str | None) -> int | None:
     if not text:
         return None
-    try:
-        size = float(text)
-    except ValueError:
-        size = math.nan
-    if not (math.isfinite(size) and 0 <= size < 2 ** 33):
-        raise pytest.UsageError(f"driveeval memory limit must be a number of GiB >= 0 (0: no check), got {text!r}")
-    return int(size * 2 ** 30)
+    return int(_non_negative(text, 2 ** 33, "memory limit must be a number of GiB >= 0 (0: no check)") * 2 ** 30)
 
 
 RUN_KEY = "driveeval_run"

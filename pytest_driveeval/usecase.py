@@ -48,7 +48,7 @@ class Section(BaseModel):
 class ConditionsModel(Section):
     """Base for use-case models (a :class:`Section`)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, arbitrary_types_allowed=True)
+    model_config = ConfigDict(arbitrary_types_allowed=True)
 
 
 def located_error(loc: str | tuple, value: Any, message: str) -> ValidationError:
@@ -122,6 +122,16 @@ class UseCase:
     #: model names the use case builds itself (no file), and what it calls a model
     baselines: ClassVar[tuple[str, ...]] = ()
     model_noun: ClassVar[str] = "model"
+
+    def vet_model_option(self, ctx: "RunContext", spec: str, own: str | None) -> None:
+        """Before loading --driveeval-model ``spec`` for an item whose own model is ``own``: another
+        use case's baseline is refused as that, and the item's own model named again replaces
+        nothing, so the reports do not say it was replaced."""
+        mistaken = foreign_baseline(spec, self)
+        if mistaken is not None:
+            raise mistaken
+        if spec == own:
+            ctx.notes.pop(MODEL_OPTION_NOTE, None)
 
     def cases(self, scenario: "Scenario") -> list[Case]:
         if not scenario.datasets:

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 from pytest_driveeval.execute.chunk_results import (ChunkError, ChunkRun, ExecutorError, Placement, Progress, Tally,
                                                     UnreachableCluster, describe_chunk, failure_message)
-from pytest_driveeval.execute.spec import ExecutorSpec
+from pytest_driveeval.execute.spec import ExecutorSpec, host_port
 
 __all__ = ["default_in_flight", "disconnect", "run_on_ray", "run_one"]
 
@@ -39,16 +39,15 @@ PROBE_SECONDS = 3.0
 # Per process and address, the message of a cluster that could not be reached: every item that
 # asks for it again fails at once with the same words instead of waiting for Ray once more.
 _unreachable: dict[str | None, str] = {}
-_HOST_PORT = re.compile(r"(?:ray://)?\[?([^\[\]]+?)\]?:(\d+)")
 
 
 def _probe(address: str) -> str | None:
     """Why nothing answers at ``host:port`` / ``ray://host:port`` (None: something listens).  Ray
     itself retries a GCS address forever and a Ray Client address for ~30 s, deaf to SIGTERM."""
-    found = _HOST_PORT.fullmatch(address)
-    if found is None:  # auto, local: Ray finds the cluster itself
+    endpoint = host_port(address)
+    if endpoint is None:  # auto, local: Ray finds the cluster itself
         return None
-    host, port = found.group(1), int(found.group(2))
+    host, port = endpoint
     try:
         with socket.create_connection((host, port), timeout=PROBE_SECONDS):
             return None

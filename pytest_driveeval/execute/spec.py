@@ -26,6 +26,17 @@ __all__ = ["ExecutorSpec", "executor_from_option"]
 # host:port, with a host name, an IPv4 address or a bracketed IPv6 one.
 _HOST_PORT = r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):\d{1,5}"
 _ADDRESS = re.compile(rf"auto|local|ray://{_HOST_PORT}|{_HOST_PORT}")
+_ENDPOINT = re.compile(rf"(?:ray://)?{_HOST_PORT}")
+
+
+def host_port(address: str) -> tuple[str, int] | None:
+    """The host (brackets of an IPv6 one removed) and port of ``host:port`` or
+    ``ray://host:port``; None for ``auto``, ``local`` or anything else."""
+    found = _ENDPOINT.fullmatch(address)
+    if found is None:
+        return None
+    host = found.group(1)
+    return host.strip("[]"), int(address.rsplit(":", 1)[1])
 
 
 class ExecutorSpec(BaseModel):

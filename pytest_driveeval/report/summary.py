@@ -159,9 +159,10 @@ def write_summary(output_dir: Path, summary: dict[str, Any], step_summary: bool 
     does not keep the others from being written; its error is raised last."""
     markdown = markdown_summary(summary)
     failed: OSError | None = None
-    for name, write in ((SUMMARY_NAME, write_json_atomic), (MARKDOWN_NAME, write_text_atomic)):
+    for name, write, content in ((SUMMARY_NAME, write_json_atomic, summary),
+                                 (MARKDOWN_NAME, write_text_atomic, markdown)):
         try:
-            write(output_dir / name, summary if name == SUMMARY_NAME else markdown)
+            write(output_dir / name, content)
         except OSError as exc:
             failed = failed or exc
     step_file = os.environ.get(STEP_SUMMARY_ENV)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from pytest_driveeval.errors import ModelError, display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
-from pytest_driveeval.usecase import MODEL_OPTION_NOTE, RunContext, UseCase, foreign_baseline, register_usecase
+from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig, replayed_agents
@@ -57,11 +57,7 @@ class ClosedLoop(UseCase):
             raise ModelError(f"{ctx.scenario.path}: no Model given (Evaluation.Model, --driveeval-model, "
                              "or a driveeval_model fixture)")
         if from_option:
-            mistaken = foreign_baseline(spec, self)
-            if mistaken is not None:
-                raise mistaken
-            if spec == ctx.scenario.config.Model:
-                ctx.notes.pop(MODEL_OPTION_NOTE, None)
+            self.vet_model_option(ctx, spec, ctx.scenario.config.Model)
         ctx.notes["policy"] = Path(spec).name if spec not in BASELINES and ":" not in spec else spec
         if spec in BASELINES:
             model = baseline(spec, ctx.scenario.config)

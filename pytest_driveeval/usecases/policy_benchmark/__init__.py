@@ -15,7 +15,7 @@ from typing import Any
 
 from pytest_driveeval.errors import display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Outcome
-from pytest_driveeval.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, foreign_baseline, register_usecase
+from pytest_driveeval.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig
 
@@ -62,11 +62,7 @@ class PolicyBenchmark(UseCase):
         own = ctx.scenario.config.Policies[policy]
         # --driveeval-model replaces the policy under test, never a baseline.
         if spec is not None and own not in BASELINES:
-            mistaken = foreign_baseline(spec, self)
-            if mistaken is not None:
-                raise mistaken
-            if spec == own:
-                ctx.notes.pop(MODEL_OPTION_NOTE, None)
+            self.vet_model_option(ctx, spec, own)
             model = load_policy(ctx, policy, spec, from_option=True)
             source = PolicySource(spec, str(Path.cwd()))
         else:

@@ -54,6 +54,7 @@ from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.usecase import ConditionsModel, Section, check_fits, located_error
 
 BASELINES = ("random", "constant", "idm_expert")
+METRICS = ("goal_rate", "collision_rate", "return")
 # The episodes' seeds are one int64 array (numpy's generators take any seed >= 0, the array does not).
 SEED_LIMIT = 2 ** 63
 
@@ -64,7 +65,6 @@ def episode_bytes(agents: int) -> float:
     (~400 bytes each) and the episode's own (~4 KiB); measured with tracemalloc and torch sizes,
     rounded up."""
     return 48.0 * agents * agents + 400.0 * agents + 4096.0
-METRICS = ("goal_rate", "collision_rate", "return")
 
 
 class BlueprintSpec(Section):
