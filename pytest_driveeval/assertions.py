@@ -10,6 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .baseline.gate import assert_no_regression
 from .outcome import Outcome, format_figure
 from .verdict import within
 
@@ -21,7 +22,7 @@ from .usecases.obstacle_segmentation.assertions import assert_pass_rate
 from .usecases.policy_benchmark.assertions import assert_beats, assert_collision_rate, assert_goal_rate
 
 __all__ = [
-    "assert_figure_within", "assert_passed", "assert_values_within",
+    "assert_figure_within", "assert_no_regression", "assert_passed", "assert_values_within",
     "assert_collision_free", "assert_drift_within",  # closed_loop
     "assert_pass_rate",  # obstacle_segmentation
     "assert_beats", "assert_collision_rate", "assert_goal_rate",  # policy_benchmark

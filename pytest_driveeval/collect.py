@@ -47,9 +47,12 @@ def _marks(scenario: Scenario) -> list[pytest.MarkDecorator]:
 def _scenario_function(scenario: Scenario) -> object:
     # A fresh function per item: pytest reads its marks from ``pytestmark`` and
     # its fixtures from the signature plus ``usefixtures``.
-    def scenario_test(driveeval_run):
+    def scenario_test(driveeval_run, driveeval_baseline):
         __tracebackhide__ = True
         outcome = driveeval_run()
+        # A regression fails the item even where its own verdict was expected to fail (an XFail's
+        # raises= names ScenarioFailed only); its verdict stays in the message beside it.
+        driveeval_baseline.gate(outcome)
         if not outcome.passed:
             raise ScenarioFailed(outcome)
 
@@ -128,3 +131,17 @@ class ScenarioFile(pytest.File):
             yield ScenarioItem.from_parent(
                 self, name=case.name, callobj=_scenario_function(scenario), scenario=scenario, case=case,
             )
+
+
+def scenario_item_names(path: Path, config: pytest.Config) -> set[str] | None:
+    """The names of the items ``path`` collects as now, or None when it is not a scenario file that
+    loads (a baseline of such a file is kept: it may load again)."""
+    settings = get_settings(config)
+    if not is_scenario_file(path, settings.patterns):
+        return None
+    try:
+        scenario = load_scenario(path, data_root=settings.data_root,
+                                 envelope_optional=not path.name.endswith(DECLARED_SUFFIXES))
+        return {case.name for case in usecase_of(scenario).cases(scenario)}
+    except (NotAScenario, ScenarioError, MemoryError, LookupError):
+        return None

@@ -16,6 +16,10 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
+from .baseline.compare import Comparison
+from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, Gate, check_item, payload_of
+from .baseline.payload import make_payload
+from .baseline.session import session_gate
 from .deadline import time_limit
 from .errors import DriveEvalError, display_path
 from .execute import ExecutorSpec, executor_from_option
@@ -31,8 +35,6 @@ from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
 _SEARCH_KEY = pytest.StashKey[SearchOptions]()
-
-
 def session_executor(config: pytest.Config) -> ExecutorSpec | None:
     """The executor --driveeval-executor (or ini driveeval_executor) sets for the session, or None."""
     if _EXECUTOR_KEY not in config.stash:
@@ -173,6 +175,12 @@ def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome, ori
     if origin:
         outcome.details["model"] = origin
     setattr(request.node, OUTCOME_ATTR, outcome)
+    root = request.config.rootpath
+    file = ctx.scenario.path.relative_to(root).as_posix() if ctx.scenario.path.is_relative_to(root) \
+        else str(ctx.scenario.path)
+    setattr(request.node, PAYLOAD_ATTR, make_payload(
+        outcome, request.node.nodeid, use_case=usecase_of(ctx.scenario), scenario=ctx.scenario, dataset=ctx.dataset,
+        seed=ctx.seed, search=ctx.search, item=ctx.case.name, file=file))
     request.node.user_properties.extend(junit_properties(outcome))
     if allure_wanted(request.config):
         attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None)
@@ -187,6 +195,44 @@ def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | No
         return settings.time_limit, (f"the default of {settings.time_limit:g} s; set TimeLimit in the scenario "
                                      f"or {TIME_LIMIT_KEYS}, 0 for none")
     return settings.time_limit, TIME_LIMIT_KEYS
+
+
+class ItemBaseline:
+    """What the ``driveeval_baseline`` fixture gives a test: its item's reference and the gate.
+
+    ``check(outcome)`` compares and returns the comparison; ``gate(outcome)`` also fails the test
+    when the session's rules say so (a regression; a missing or stale baseline under strict).
+    """
+
+    def __init__(self, gate: Gate | None, item: pytest.Item):
+        self._gate = gate
+        self._item = item
+
+    @property
+    def active(self) -> bool:
+        return self._gate is not None
+
+    @property
+    def reference(self) -> dict | None:
+        return self._gate.reference(self._item.nodeid)[0] if self._gate is not None else None
+
+    def check(self, outcome: Outcome) -> Comparison | None:
+        """The comparison of ``outcome`` with the reference (kept for the reports); never raises."""
+        if self._gate is None:
+            return None
+        comparison = self._gate.compare(self._item.nodeid, payload_of(self._item, outcome))
+        setattr(self._item, COMPARISON_ATTR, comparison)
+        return comparison
+
+    def gate(self, outcome: Outcome) -> Comparison | None:
+        __tracebackhide__ = True
+        return check_item(self._gate, self._item, outcome)
+
+
+@pytest.fixture
+def driveeval_baseline(request: pytest.FixtureRequest) -> ItemBaseline:
+    """This item's baseline (or earlier run) under the session's --driveeval-baseline / --driveeval-compare."""
+    return ItemBaseline(session_gate(request.config), request.node)
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ class Finding:
         for key in ("figure", "value", "limit", "frame", "scene"):
             value = getattr(self, key)
             if value is not None:
-                out[key] = _jsonable(value)
+                out[key] = jsonable(value)
         if self.keypath:
             out["keypath"] = list(self.keypath)
         return out
@@ -64,10 +64,10 @@ class Outcome:
             "use_case": self.use_case,
             "verdict": self.verdict,
             "summary": self.summary,
-            "figures": {k: _jsonable(v) for k, v in self.figures.items()},
+            "figures": {k: jsonable(v) for k, v in self.figures.items()},
             "findings": [f.to_json() for f in self.findings],
             "artefacts": {k: rel(v) for k, v in self.artefacts.items()},
-            "details": _jsonable(self.details),
+            "details": jsonable(self.details),
         }
 
 
@@ -78,14 +78,14 @@ def replaced_model(details: dict[str, Any]) -> str | None:
     return f"model: {origin}, not the scenario's own" if origin else None
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
     """Plain JSON values; numpy scalars and arrays included, NaN as null."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if hasattr(value, "tolist"):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, Path):

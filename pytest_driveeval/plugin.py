@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 
+from .baseline.session import session_gate
 from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
 from .deadline import session, session_ended, session_finishing
 from .execute import disconnect
@@ -47,6 +48,7 @@ def pytest_configure(config: pytest.Config) -> None:
     set_memory_budget(settings.memory_limit)
     session_executor(config)
     session_search_options(config)
+    session_gate(config)  # --driveeval-compare names a run that exists, before collection
     open_terminal(config)
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)

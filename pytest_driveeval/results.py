@@ -14,9 +14,11 @@ from typing import Any
 
 import pytest
 
-from .collect import InvalidScenarioItem
-from .errors import DriveEvalError
+from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, prune, unused_baselines, update_baselines
+from .collect import InvalidScenarioItem, scenario_item_names
+from .errors import DriveEvalError, display_path
 from .failure import Failure
+from .baseline.session import COMPARE_KEY, session_gate
 from .outcome import OUTCOME_ATTR, Outcome, replaced_model
 from .report.attachments import html_extras, html_wanted
 from .report.summary import SUMMARY_NAME, policy_table_html, terminal_table, verdict_reason
@@ -47,6 +49,12 @@ def item_record(item: pytest.Item, failure: Failure | None, with_outcome: bool) 
         record.update(scenario=None, use_case=None, message=str(item.error))
     if outcome is not None and with_outcome:
         record.update(outcome.to_json(relative_to=get_settings(item.config).output_dir))
+        payload = getattr(item, PAYLOAD_ATTR, None)
+        if payload is not None:
+            record["baseline"] = payload
+    comparison = getattr(item, COMPARISON_ATTR, None)
+    if comparison is not None:
+        record["comparison"] = comparison.to_json()
     if failure is not None:
         record.update(failure.to_json())
     return record
@@ -76,6 +84,22 @@ def annotate_report(item: pytest.Item, call: pytest.CallInfo, report: pytest.Tes
     record = item_record(item, failure, with_outcome=fresh)
     if record is not None:
         setattr(report, REPORT_ATTR, record)
+
+
+def comparison_counts(records: list[dict[str, Any]], gate: Any) -> str:
+    """One line: how the items compared with their references."""
+    counts: dict[str, int] = {}
+    for record in records:
+        status = (record.get("comparison") or {}).get("status")
+        if status:
+            counts[status] = counts.get(status, 0) + 1
+    against = (f"run {display_path(gate.options.compare_with)}" if gate.options.compare_with is not None
+               else display_path(gate.options.folder))
+    parts = [f"{n} {status}" for status, n in sorted(counts.items())] or ["no item compared"]
+    line = f"driveeval baselines ({against}): " + ", ".join(parts)
+    if counts.get("missing") and gate.options.compare_with is None and not gate.options.update:
+        line += "; missing ones: run with --driveeval-baseline-update"
+    return line
 
 
 def pytest_status(report: pytest.TestReport) -> str | None:
@@ -143,6 +167,8 @@ class ResultsReporter:
         self.settings = get_settings(config)
         self.collector = ResultCollector()
         self.warnings: list[str] = []
+        self.config = config
+        self.baseline_lines: list[str] = []
 
     def pytest_runtest_logreport(self, report: pytest.TestReport) -> None:
         self.collector.add(report)
@@ -151,6 +177,9 @@ class ResultsReporter:
     def pytest_configure_node(self, node) -> None:
         """xdist: every worker writes into this session's run folder."""
         node.workerinput[RUN_KEY] = self.settings.run.to_json()
+        gate = session_gate(self.config)
+        if gate is not None and gate.options.compare_with is not None:
+            node.workerinput[COMPARE_KEY] = str(gate.options.compare_with)
 
     @pytest.hookimpl(optionalhook=True)
     def pytest_html_results_summary(self, prefix: list, summary: list, postfix: list, session) -> None:
@@ -167,6 +196,31 @@ class ResultsReporter:
         self.warnings = finish_run(self.settings.output_dir, run,
                                    self.collector.summary(exitstatus, self.settings.seed, run.to_json()),
                                    self.settings.keep_runs)
+        self.baseline_lines = self._baselines(run.to_json())
+
+    def _baselines(self, run: dict[str, Any]) -> list[str]:
+        """Update and prune the baseline folder as asked; lines for the terminal."""
+        gate = session_gate(self.config)
+        if gate is None:
+            return []
+        records = self.collector.sorted_records()
+        lines = [comparison_counts(records, gate)]
+        folder = gate.options.folder
+        if folder is None:
+            return lines
+        if gate.options.update:
+            written, problems = update_baselines(folder, records, run)
+            lines.append(f"driveeval baselines: wrote {written} in {display_path(folder)}")
+            self.warnings += problems
+        unused = unused_baselines(folder, self.config.rootpath, lambda path: scenario_item_names(path, self.config))
+        if unused and gate.options.prune:
+            self.warnings += prune(unused, folder)
+            lines.append(f"driveeval baselines: removed {len(unused)} of items that no longer exist")
+        elif unused:
+            shown = ", ".join(display_path(p) for p in unused[:3]) + (" ..." if len(unused) > 3 else "")
+            lines.append(f"driveeval baselines: {len(unused)} of items that no longer exist ({shown}); "
+                         "--driveeval-baseline-update --driveeval-baseline-prune removes them")
+        return lines
 
     def pytest_terminal_summary(self, terminalreporter, exitstatus: int, config: pytest.Config) -> None:
         records = self.collector.sorted_records()
@@ -177,6 +231,8 @@ class ResultsReporter:
         for line in terminal_table(records, tr._tw.fullwidth):
             tr.write_line(line)
         tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME} (run {self.settings.run.id})")
+        for line in self.baseline_lines:
+            tr.write_line(line)
         for warning in self.warnings:
             tr.write_line(f"driveeval warning: {warning}", yellow=True)
         for record in records:

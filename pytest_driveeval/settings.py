@@ -51,6 +51,13 @@ class Settings:
     search_profile: str = "default"
     #: where items run their chunks, as --driveeval-executor gives it (checked by the plugin)
     executor: str | None = None
+    #: the folder of baseline files (--driveeval-baseline / driveeval_baseline), or None
+    baseline_dir: Path | None = None
+    baseline_update: bool = False
+    baseline_prune: bool = False
+    baseline_strict: bool = False
+    #: --driveeval-compare as given: last, a run id, a summary.json (resolved by the plugin)
+    compare: str | None = None
 
     @property
     def search_database(self) -> Path:
@@ -122,6 +129,21 @@ def add_options(parser: pytest.Parser) -> None:
                     help="run the chunks of every item that has them here, replacing each key a scenario's "
                          "Executor section sets: local, ray, or a mapping such as "
                          "'{Kind: ray, Address: ray://head:10001, ChunkSize: 64}' (ini: driveeval_executor)")
+    group.addoption("--driveeval-baseline", metavar="DIR", default=None,
+                    help="compare each scenario item with its baseline file in DIR and fail it when it got worse "
+                         "(ini: driveeval_baseline)")
+    group.addoption("--driveeval-baseline-update", action="store_true", default=False,
+                    help="write the baselines of the items that ran (the others keep theirs)")
+    group.addoption("--driveeval-baseline-prune", action="store_true", default=False,
+                    help="with --driveeval-baseline-update: remove the baselines of items that no longer exist")
+    group.addoption("--driveeval-baseline-strict", action="store_true", default=None,
+                    help="fail an item without a baseline, or whose baseline is stale "
+                         "(ini: driveeval_baseline_strict)")
+    group.addoption("--driveeval-compare", metavar="RUN", default=None,
+                    help="compare with an earlier run instead of baselines: 'last', a run id from the output "
+                         "folder's runs/, or the path of a summary.json")
+    parser.addini("driveeval_baseline", "folder of baseline files every item is compared with", default="")
+    parser.addini("driveeval_baseline_strict", "fail items without a current baseline", type="bool", default=False)
     parser.addini("driveeval_executor", "local | ray | {Kind: ray, Address: ..., ChunkSize: ...} for every item",
                   default="")
     parser.addini("driveeval_search_examples", "examples a robustness search tries", default="")
@@ -177,6 +199,14 @@ def settings_from_config(config: pytest.Config) -> Settings:
     if profile not in ("default", "ci"):
         raise pytest.UsageError(f"driveeval search profile must be 'default' or 'ci', got {profile!r}")
     executor, _ = pick("driveeval_executor", "driveeval_executor")
+    baseline, baseline_base = pick("driveeval_baseline", "driveeval_baseline")
+    update, prune = bool(config.getoption("driveeval_baseline_update")), bool(config.getoption("driveeval_baseline_prune"))
+    if (update or prune) and not baseline:
+        raise pytest.UsageError("--driveeval-baseline-update / -prune need the baseline folder: "
+                                "--driveeval-baseline DIR or ini driveeval_baseline")
+    if prune and not update:
+        raise pytest.UsageError("--driveeval-baseline-prune removes baselines while updating them: "
+                                "add --driveeval-baseline-update")
     # Workers take the controller's run, so one session writes one run folder.
     shared = getattr(config, "workerinput", {}).get(RUN_KEY)
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
@@ -197,6 +227,11 @@ def settings_from_config(config: pytest.Config) -> Settings:
         replay=config.getoption("driveeval_replay") or None,
         search_profile=profile,
         executor=executor,
+        baseline_dir=(baseline_base / baseline).resolve() if baseline else None,
+        baseline_update=update,
+        baseline_prune=prune,
+        baseline_strict=bool(config.getoption("driveeval_baseline_strict") or config.getini("driveeval_baseline_strict")),
+        compare=config.getoption("driveeval_compare") or None,
     )
 
 

@@ -122,6 +122,13 @@ class UseCase:
     #: model names the use case builds itself (no file), and what it calls a model
     baselines: ClassVar[tuple[str, ...]] = ()
     model_noun: ClassVar[str] = "model"
+    #: key figures compared with a baseline: name -> pytest_driveeval.baseline.rules.FigureRule
+    regression_figures: ClassVar[dict[str, Any]] = {}
+
+    def regression_units(self, outcome: "Outcome") -> Any:
+        """How each unit (scene, frame, episode) of ``outcome`` ended, as
+        ``pytest_driveeval.baseline.units.Units``, for a comparison to name the ones that changed; None."""
+        return None
 
     def vet_model_option(self, ctx: "RunContext", spec: str, own: str | None) -> None:
         """Before loading --driveeval-model ``spec`` for an item whose own model is ``own``: another

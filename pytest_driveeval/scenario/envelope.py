@@ -12,6 +12,8 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints
 
+from ..baseline.rules import RegressionSpec
+
 MarkName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
 
 
@@ -53,4 +55,6 @@ class Envelope(_Forbid):
     XFail: str | XFailSpec | None = None
     # seconds for the whole item, 0: none; --driveeval-time-limit (or its default) otherwise
     TimeLimit: float | None = Field(None, ge=0.0, allow_inf_nan=False)
+    # what counts as worse than the item's baseline (pytest_driveeval.baseline.rules)
+    Regression: RegressionSpec | None = None
     Evaluation: EvaluationHead

@@ -80,6 +80,17 @@ def _version_problems(data: dict, usecase: UseCase | None, source: SourceMap) ->
     return problems
 
 
+def _regression_problems(figures: dict, usecase: UseCase, source: SourceMap) -> list[Problem]:
+    known = sorted(getattr(usecase, "regression_figures", {}))
+    problems = []
+    for name in figures:
+        if name not in known:
+            hint = did_you_mean(name, known) if known else f"{usecase.name} compares no figure with a baseline"
+            problems.append(Problem(f"'{name}' is not a figure {usecase.name} compares with a baseline; {hint}",
+                                    source.line_of(("Regression", "Figures", name)), ("Regression", "Figures", name)))
+    return problems
+
+
 class NotAScenario(Exception):
     """A YAML file without the scenario envelope, where one was optional."""
 
@@ -124,6 +135,8 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
                 own_part, context={"version": evaluation.get("UseCaseFormatVersion"), "scenario_dir": path.parent})
         except ValidationError as exc:
             problems += problems_from_validation(exc, usecase.config_model, own_part, source, prefix=("Evaluation",))
+    if env is not None and env.Regression is not None and usecase is not None:
+        problems += _regression_problems(env.Regression.Figures, usecase, source)
     if problems:
         raise ScenarioError(path, sorted(problems, key=lambda p: p.line or 0))
     assert env is not None and usecase is not None
@@ -146,4 +159,5 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
         skip=env.Skip,
         xfail=xfail,
         time_limit=env.TimeLimit,
+        regression=env.Regression,
     )

@@ -39,6 +39,7 @@ class Scenario:
     skip: str | None = None
     xfail: XFailSpec | None = None
     time_limit: float | None = None
+    regression: Any = None  # baseline.rules.RegressionSpec
 
     @property
     def folder(self) -> Path:

@@ -52,8 +52,10 @@ ALLOWED = {
     "raster": {"errors", "geometry", "io"},
     "report": FOUNDATION,
     "usecase": {"errors", "outcome"},
-    "scenario": {"errors", "usecase"},
-    "usecases": FOUNDATION | {"verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario",
+    "scenario": {"errors", "usecase", "baseline"},
+    # Reads and compares the records runs keep; the use cases declare their rules with its types.
+    "baseline": {"errors", "outcome", "atomic", "runs", "usecase", "settings"},
+    "usecases": FOUNDATION | {"baseline", "verdict", "io", "metrics", "sim", "policies", "report", "usecase", "scenario",
                              "search", "strategies", "execute", "raster"},
     # Stable import paths of the Python API, onto their use case's package.
     "closed_loop": {"usecases"},

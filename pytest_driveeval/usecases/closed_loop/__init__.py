@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from pytest_driveeval.errors import ModelError, display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
+from pytest_driveeval.usecases.closed_loop import regression
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig, replayed_agents
@@ -38,6 +39,10 @@ class ClosedLoop(UseCase):
     config_model = ClosedLoopConfig
     fixtures = ("driveeval_dataset", "driveeval_model")
     baselines = BASELINES
+    regression_figures = regression.FIGURES
+
+    def regression_units(self, outcome: Outcome):
+        return regression.scene_units(outcome)
 
     def load_dataset(self, ctx: RunContext) -> L5Dataset:
         from pytest_driveeval.io.l5kit_zarr import L5Dataset

@@ -77,6 +77,7 @@ from typing import TYPE_CHECKING, Any
 from ...errors import DriveEvalError, Problem, ScenarioError
 from ...outcome import FAILED, PASSED, Finding, Outcome
 from ...usecase import RunContext, UseCase, register_usecase
+from . import regression
 from .config import LEGACY, V3, ObstacleSegmentationConfig
 
 if TYPE_CHECKING:
@@ -91,6 +92,10 @@ class ObstacleSegmentation(UseCase):
     format_versions = (*LEGACY, V3)
     config_model = ObstacleSegmentationConfig
     fixtures = ("driveeval_dataset", "driveeval_pointclouds")
+    regression_figures = regression.FIGURES
+
+    def regression_units(self, outcome: Outcome):
+        return regression.frame_units(outcome)
 
     # The evaluation (numpy kernels, bag reader, plots) is imported when a scenario
     # runs, so that registering the use case stays cheap.

@@ -17,6 +17,7 @@ from pytest_driveeval.errors import display_path
 from pytest_driveeval.outcome import FAILED, PASSED, Outcome
 from pytest_driveeval.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
+from pytest_driveeval.usecases.policy_benchmark import regression
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig
 
 __all__ = ["PolicyBenchmark", "baseline", "load_policy"]
@@ -50,6 +51,10 @@ class PolicyBenchmark(UseCase):
     fixtures = ("driveeval_model",)
     baselines = BASELINES
     model_noun = "policy"
+    regression_figures = regression.FIGURES
+
+    def regression_units(self, outcome: Outcome):
+        return regression.episode_units(outcome)
 
     def cases(self, scenario) -> list[Case]:
         return [Case(f"{self.name}[{policy}]", params={"policy": policy}) for policy in scenario.config.Policies]
@@ -145,7 +150,8 @@ class PolicyBenchmark(UseCase):
                    f"{figures['episodes']} episodes")
         details = {"policy": policy, "judged": judged, "blueprint": config.Blueprint.Name,
                    "intervals": judgement.intervals,
-                   "compared": {name: r.figures() for name, r in runs.items() if name != policy}}
+                   "compared": {name: r.figures() for name, r in runs.items() if name != policy},
+                   "episode_outcomes": regression.episode_outcomes(mine.seeds, mine.outcome_names())}
         if where:
             details["executor"] = where
         return Outcome(self.name, PASSED if judgement.passed else FAILED, summary, figures=figures,

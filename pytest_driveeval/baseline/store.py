@@ -1,0 +1,195 @@
+"""Where references live: a folder of baseline files committed with the scenarios, or the summary
+of an earlier run in the output folder.
+
+A baseline file is JSON, indented, keys sorted, one per item at ``<DIR>/<scenario file>/<item>.json``
+(the scenario file's path from the rootdir), so that a changed figure is a changed line in a diff.
+Reading one parses JSON and checks its shape; it never runs anything in it.  Writing replaces the
+file atomically (two sessions updating at once leave one whole file), never through a symbolic link.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from ..atomic import write_text_atomic
+from ..errors import DriveEvalError, display_path
+from ..runs import HISTORY_NAME, RUNS_FOLDER
+
+BASELINE_FORMAT = 1
+SUFFIX = ".json"
+_UNSAFE = re.compile(r"[^A-Za-z0-9._=,+@\[\]-]+")
+MAX_NAME = 150
+
+
+class BaselineError(DriveEvalError):
+    """A baseline or reference that cannot be read: corrupt, truncated, hand-edited, or not ours."""
+
+
+def _safe(part: str) -> str:
+    name = _UNSAFE.sub("_", part).strip("_") or "_"
+    if name in (".", ".."):
+        name = name.replace(".", "_")
+    if len(name) > MAX_NAME:
+        name = f"{name[:MAX_NAME - 13]}-{hashlib.sha256(part.encode()).hexdigest()[:12]}"
+    return name
+
+
+def relative_path(nodeid: str) -> PurePosixPath:
+    """``a/b.scenario.yaml::closed_loop[x]`` -> ``a/b.scenario.yaml/closed_loop[x].json``."""
+    file, _, item = nodeid.partition("::")
+    parts = [_safe(p) for p in PurePosixPath(file).parts if p not in ("", ".", "/")]
+    return PurePosixPath(*parts, _safe(item.replace("::", "__") or "item") + SUFFIX)
+
+
+def _no_link_on_the_way(root: Path, path: Path) -> None:
+    current = root
+    for part in path.relative_to(root).parts:
+        current = current / part
+        if current.is_symlink():
+            raise BaselineError(f"{display_path(current)} is a symbolic link; baselines are written and read "
+                                "only through real folders: remove it")
+
+
+class BaselineStore:
+    def __init__(self, root: Path):
+        self.root = root
+
+    def path_for(self, nodeid: str) -> Path:
+        return self.root / relative_path(nodeid)
+
+    def read(self, nodeid: str) -> dict[str, Any] | None:
+        """The item's baseline, or None when there is none; a BaselineError names the file and key."""
+        path = self.path_for(nodeid)
+        if not path.exists() and not path.is_symlink():
+            return None
+        _no_link_on_the_way(self.root, path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise BaselineError(f"baseline {display_path(path)} cannot be read: {exc}") from None
+        return check_baseline(text, path, nodeid)
+
+    def write(self, nodeid: str, payload: dict[str, Any], run: dict[str, Any]) -> Path:
+        path = self.path_for(nodeid)
+        self.root.mkdir(parents=True, exist_ok=True)
+        _no_link_on_the_way(self.root, path.parent if path.parent != self.root else self.root)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _no_link_on_the_way(self.root, path)
+        record = {"driveeval_baseline": BASELINE_FORMAT,
+                  "run": {k: run.get(k) for k in ("id", "started", "commit", "dirty")},
+                  **{k: v for k, v in payload.items() if k not in ("version", "rules")}}
+        write_text_atomic(path, json.dumps(record, indent=1, sort_keys=True, ensure_ascii=False) + "\n")
+        return path
+
+    def files(self) -> dict[Path, str | None]:
+        """Every baseline file under the root and the node id it says it is for (None: unreadable)."""
+        out: dict[Path, str | None] = {}
+        if not self.root.is_dir():
+            return out
+        for path in sorted(self.root.rglob(f"*{SUFFIX}")):
+            if path.is_symlink() or not path.is_file():
+                continue
+            try:
+                data = json.loads(path.read_text(encoding="utf-8"))
+                key = data["key"]["nodeid"] if isinstance(data, dict) and isinstance(data.get("key"), dict) else None
+            except (OSError, ValueError, KeyError, TypeError):
+                key = None
+            out[path] = key if isinstance(key, str) else None
+        return out
+
+
+# key -> the type it must have; every other key is free (the file may gain keys)
+_SHAPE = {"driveeval_baseline": int, "key": dict, "run": dict, "verdict": str, "figures": dict}
+
+
+def check_baseline(text: str, path: Path, nodeid: str) -> dict[str, Any]:
+    where = display_path(path)
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        truncated = " (truncated?)" if "Expecting" in str(exc) and exc.pos >= len(text.rstrip()) else ""  # type: ignore[attr-defined]
+        raise BaselineError(f"baseline {where} of {nodeid} is not valid JSON{truncated}: {exc}; "
+                            "fix it or rewrite it with --driveeval-baseline-update") from None
+    if not isinstance(data, dict):
+        raise BaselineError(f"baseline {where} of {nodeid}: not a mapping at the top level")
+    for key, kind in _SHAPE.items():
+        if not isinstance(data.get(key), kind) or isinstance(data.get(key), bool):
+            found = "missing" if key not in data else f"a {type(data[key]).__name__}"
+            raise BaselineError(f"baseline {where} of {nodeid}: key '{key}' is {found}, not a {kind.__name__}; "
+                                "rewrite it with --driveeval-baseline-update")
+    if data["driveeval_baseline"] > BASELINE_FORMAT:
+        raise BaselineError(f"baseline {where}: format {data['driveeval_baseline']} is newer than this "
+                            f"pytest-driveeval reads ({BASELINE_FORMAT}); upgrade it")
+    if data["key"].get("nodeid") != nodeid:
+        raise BaselineError(f"baseline {where}: key 'key.nodeid' says {data['key'].get('nodeid')!r}, "
+                            f"the file's place is {nodeid!r}'s; move or rewrite it")
+    for key in ("units", "search", "fingerprint"):
+        if data.get(key) is not None and not isinstance(data[key], dict):
+            raise BaselineError(f"baseline {where} of {nodeid}: key '{key}' is not a mapping")
+    if data.get("units"):
+        from .units import Units
+
+        try:
+            Units.from_json(data["units"])
+        except ValueError as exc:
+            raise BaselineError(f"baseline {where} of {nodeid}: key '{exc}'") from None
+    bad = [k for k, v in data["figures"].items() if not isinstance(v, (int, float, type(None))) or isinstance(v, bool)]
+    if bad:
+        raise BaselineError(f"baseline {where} of {nodeid}: key 'figures.{bad[0]}' is not a number")
+    return data
+
+
+class RunReference:
+    """The records of an earlier run's summary.json, by node id."""
+
+    def __init__(self, summary: Path):
+        self.path = summary
+        try:
+            data = json.loads(summary.read_text(encoding="utf-8"))
+            records = data["results"]
+            self.run = data.get("run") or {}
+            assert isinstance(records, list) and isinstance(self.run, dict)
+        except (OSError, ValueError, KeyError, TypeError, AssertionError) as exc:
+            raise BaselineError(f"{display_path(summary)} is not a readable driveeval summary: {exc}") from None
+        self.records = {r.get("nodeid"): r for r in records if isinstance(r, dict)}
+
+    def read(self, nodeid: str) -> dict[str, Any] | None:
+        record = self.records.get(nodeid)
+        if record is None:
+            return None
+        payload = record.get("baseline")
+        if not isinstance(payload, dict):
+            raise BaselineError(f"run {self.run.get('id')} ({display_path(self.path)}) kept no comparable record "
+                                f"of {nodeid} (made before pytest-driveeval kept one, or it did not run)")
+        return {**payload, "run": self.run}
+
+
+def resolve_compare(spec: str, output_dir: Path, current_run: str | None = None) -> Path:
+    """``last``, a run id, a summary.json or a run folder -> the summary.json to compare with."""
+    if spec == "last":
+        history = output_dir / HISTORY_NAME
+        lines = history.read_text(encoding="utf-8").splitlines() if history.is_file() else []
+        for line in reversed(lines):
+            try:
+                entry = json.loads(line)
+                summary = output_dir / entry["summary"]
+                run_id = entry["run"]["id"]
+            except (ValueError, KeyError, TypeError):
+                continue
+            if run_id != current_run and summary.is_file():
+                return summary
+        raise ValueError(f"no finished run in {display_path(history)} to compare with; run once without "
+                         "--driveeval-compare first")
+    runs = output_dir / RUNS_FOLDER / spec / "summary.json"
+    if "/" not in spec and runs.is_file():
+        return runs
+    path = Path(spec)
+    if path.is_dir() and (path / "summary.json").is_file():
+        return path / "summary.json"
+    if path.is_file():
+        return path
+    raise ValueError(f"{spec!r} is neither 'last', a run id under {display_path(output_dir / RUNS_FOLDER)}, "
+                     "nor a summary.json")
