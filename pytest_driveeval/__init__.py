@@ -16,6 +16,7 @@ from .assertions import (  # noqa: E402
     assert_drift_within,
     assert_figure_within,
     assert_goal_rate,
+    assert_no_regression,
     assert_pass_rate,
     assert_passed,
     assert_values_within,
@@ -30,6 +31,6 @@ __all__ = [
     "Case", "ConditionsModel", "DataError", "DriveEvalError", "FAILED", "Finding", "ModelError", "Outcome",
     "PASSED", "RunContext", "Scenario", "ScenarioError", "UseCase", "assert_beats", "assert_collision_free",
     "assert_collision_rate", "assert_drift_within", "assert_figure_within", "assert_goal_rate", "assert_pass_rate",
-    "assert_passed",
+    "assert_no_regression", "assert_passed",
     "assert_values_within", "load_scenario", "register_usecase",
 ]
