@@ -149,6 +149,11 @@ def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str,
         payload = record.get("baseline")
         if not isinstance(payload, dict) or record.get("status") in ("error", "skipped", None):
             continue
+        settings = (payload.get("fingerprint") or {}).get("settings") or {}
+        if (settings.get("session search") or {}).get("replay"):
+            problems.append(f"{record['nodeid']} replayed one case (--driveeval-replay): its baseline, a "
+                            "search's result, is kept as it was")
+            continue
         try:
             store.write(record["nodeid"], payload, run)
             written += 1
