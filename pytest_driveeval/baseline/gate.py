@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import DriveEvalError, display_path
-from ..outcome import Outcome
+from ..outcome import OUTCOME_ATTR, Outcome
 from .compare import ERROR, MISSING, STALE, Comparison, against_text, compare
 from .payload import make_payload
 from .store import BaselineError, BaselineStore, RunReference, relative_path
@@ -90,7 +90,7 @@ def payload_of(item: Any, outcome: Outcome) -> dict[str, Any]:
     """The item's comparable record: the one the harness made with its scenario, else one from
     the outcome alone (an outcome a Python test made itself: no fingerprint)."""
     made = getattr(item, PAYLOAD_ATTR, None)
-    if made is not None and made.get("summary") == outcome.summary:
+    if made is not None and getattr(item, OUTCOME_ATTR, None) is outcome:
         return made
     from ..usecase import get_usecase
 
