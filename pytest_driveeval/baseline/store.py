@@ -120,14 +120,17 @@ def check_baseline(text: str, path: Path, nodeid: str) -> dict[str, Any]:
                             "fix it or rewrite it with --driveeval-baseline-update") from None
     if not isinstance(data, dict):
         raise BaselineError(f"baseline {where} of {nodeid}: not a mapping at the top level")
+    # A newer format may have reshaped any other key: say so before judging them (rewriting the
+    # file with this version would lose what the newer one wrote).
+    version = data.get("driveeval_baseline")
+    if isinstance(version, int) and not isinstance(version, bool) and version > BASELINE_FORMAT:
+        raise BaselineError(f"baseline {where}: format {version} (key 'driveeval_baseline') is newer than this "
+                            f"pytest-driveeval reads ({BASELINE_FORMAT}); upgrade it")
     for key, kind in _SHAPE.items():
         if not isinstance(data.get(key), kind) or isinstance(data.get(key), bool):
             found = "missing" if key not in data else f"a {type(data[key]).__name__}"
             raise BaselineError(f"baseline {where} of {nodeid}: key '{key}' is {found}, not a {kind.__name__}; "
                                 "rewrite it with --driveeval-baseline-update")
-    if data["driveeval_baseline"] > BASELINE_FORMAT:
-        raise BaselineError(f"baseline {where}: format {data['driveeval_baseline']} is newer than this "
-                            f"pytest-driveeval reads ({BASELINE_FORMAT}); upgrade it")
     if data["key"].get("nodeid") != nodeid:
         raise BaselineError(f"baseline {where}: key 'key.nodeid' says {data['key'].get('nodeid')!r}, "
                             f"the file's place is {nodeid!r}'s; move or rewrite it")

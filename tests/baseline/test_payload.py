@@ -63,6 +63,15 @@ def test_a_renamed_file_changes_the_identity(tmp_path):
     assert dataset_identity(ref(one))["sha256"] != before["sha256"]
 
 
+def test_a_single_file_dataset_copied_under_another_name_keeps_its_identity(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "log.bag").write_bytes(b"rosbag" * 50)
+    shutil.copy(tmp_path / "a" / "log.bag", tmp_path / "log_copy.bag")
+    assert dataset_identity(ref(tmp_path / "a" / "log.bag")) == dataset_identity(ref(tmp_path / "log_copy.bag"))
+    (tmp_path / "other.bag").write_bytes(b"rosbaG" * 50)
+    assert dataset_identity(ref(tmp_path / "other.bag")) != dataset_identity(ref(tmp_path / "log_copy.bag"))
+
+
 def test_a_single_file_dataset_and_a_missing_one(tmp_path):
     file = tmp_path / "log.bin"
     file.write_bytes(b"x" * 10)

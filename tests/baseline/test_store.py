@@ -3,7 +3,6 @@ summary --driveeval-compare names; no session."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path, PurePosixPath
 
 import pytest
@@ -168,9 +167,16 @@ def test_a_missing_key_is_said_missing(tmp_path):
 
 
 def test_a_newer_format_asks_for_an_upgrade(tmp_path):
-    with pytest.raises(BaselineError, match=f"format {BASELINE_FORMAT + 1} is newer .* upgrade"):
+    with pytest.raises(BaselineError, match=rf"t\.json: format {BASELINE_FORMAT + 1} \(key 'driveeval_baseline'\) "
+                                            "is newer .* upgrade"):
         check_baseline(json.dumps(valid() | {"driveeval_baseline": BASELINE_FORMAT + 1}), tmp_path / "t.json",
                        "s.yaml::t")
+
+
+def test_a_newer_format_is_said_before_its_reshaped_keys(tmp_path):
+    data = {"driveeval_baseline": BASELINE_FORMAT + 1, "figures": [["a", 1]], "identity": {"nodeid": "s.yaml::t"}}
+    with pytest.raises(BaselineError, match="is newer than this pytest-driveeval reads"):
+        check_baseline(json.dumps(data), tmp_path / "t.json", "s.yaml::t")
 
 
 def test_a_valid_baseline_with_extra_keys_and_null_figures_reads(tmp_path):
@@ -263,8 +269,8 @@ def test_a_run_id_a_summary_path_and_a_run_folder(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("spec", ["r2", "nowhere/summary.json", "saved"])
-def test_anything_else_is_an_error_naming_the_choices(tmp_path, spec):
+def test_anything_else_is_an_error_naming_the_choices(tmp_path, monkeypatch, spec):
     (tmp_path / "saved").mkdir()  # a folder without a summary
-    os.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=rf"'{spec}' is neither 'last', a run id under .*runs, nor a summary.json"):
         resolve_compare(spec, tmp_path / "out")
