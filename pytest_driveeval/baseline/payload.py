@@ -46,7 +46,9 @@ def dataset_identity(ref: "DatasetRef | None") -> dict[str, Any] | None:
         total = sum(s.st_size for _, s in stats)
         digest = hashlib.sha256()
         for p, s in stats:
-            name = p.name if p == path else p.relative_to(path).as_posix()
+            # Names inside the dataset are its content; its own name is where it lies (a copy
+            # renamed is the same dataset, as a folder renamed is).
+            name = "" if p == path else p.relative_to(path).as_posix()
             digest.update(f"{name}\0{s.st_size}\0".encode())
             with open(p, "rb") as handle:
                 if total <= WHOLE_HASH_LIMIT or s.st_size <= 2 * _EDGE:

@@ -16,7 +16,7 @@ search's smallest breaking perturbation when it moved towards zero by more than 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
@@ -24,6 +24,7 @@ from ..usecase import Section
 
 DEFAULT_CONFIDENCE = 95.0
 DEFAULT_SEARCH_RELATIVE = 0.1
+NonNegative = Annotated[float, Field(ge=0)]
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ class FigureOverride(Section):
 class SearchTolerance(Section):
     #: how far (in the perturbation's own unit) the smallest breaking value may move towards zero;
     #: one number for every parameter, or one per parameter
-    Tolerance: float | dict[str, float] = 0.0
+    Tolerance: NonNegative | dict[str, NonNegative] = 0.0
     RelativeTolerance: float = Field(DEFAULT_SEARCH_RELATIVE, ge=0)
 
     def allowed(self, parameter: str, before: float) -> float:
@@ -76,13 +77,14 @@ class Rules:
 
     def to_json(self) -> dict:
         return {"figures": {k: {"better": r.better, "atol": r.atol, "rtol": r.rtol,
-                                **({"paired": list(r.paired)} if r.paired else {})} for k, r in self.figures.items()},
+                                **({"paired": list(r.paired)} if r.paired else {}),
+                                **({"unit": r.unit} if r.unit else {})} for k, r in self.figures.items()},
                 "confidence": self.confidence, "search": self.search.model_dump(), "units": self.units}
 
     @classmethod
     def from_json(cls, data: dict) -> "Rules":
         figures = {k: FigureRule(v["better"], float(v.get("atol", 0)), float(v.get("rtol", 0)),
-                                 tuple(v["paired"]) if v.get("paired") else None)
+                                 tuple(v["paired"]) if v.get("paired") else None, str(v.get("unit", "")))
                    for k, v in (data.get("figures") or {}).items()}
         return cls(figures, float(data.get("confidence", DEFAULT_CONFIDENCE)),
                    SearchTolerance.model_validate(data.get("search") or {}), bool(data.get("units", True)))

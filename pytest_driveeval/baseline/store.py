@@ -32,7 +32,9 @@ def _safe(part: str) -> str:
     name = _UNSAFE.sub("_", part).strip("_") or "_"
     if name in (".", ".."):
         name = name.replace(".", "_")
-    if len(name) > MAX_NAME:
+    # A replaced character or a cut tail would let two items ("a b", "a/b", "a_b") share one file:
+    # the digest of the whole original keeps them apart.
+    if name != part or len(name) > MAX_NAME:
         name = f"{name[:MAX_NAME - 13]}-{hashlib.sha256(part.encode()).hexdigest()[:12]}"
     return name
 
@@ -110,36 +112,48 @@ def check_baseline(text: str, path: Path, nodeid: str) -> dict[str, Any]:
     try:
         data = json.loads(text)
     except ValueError as exc:
-        truncated = " (truncated?)" if "Expecting" in str(exc) and exc.pos >= len(text.rstrip()) else ""  # type: ignore[attr-defined]
+        # A string without its closing quote runs to the end of the text: cut there too.
+        cut = exc.msg.startswith("Unterminated string") or ("Expecting" in exc.msg  # type: ignore[attr-defined]
+                                                            and exc.pos >= len(text.rstrip()))  # type: ignore[attr-defined]
+        truncated = " (truncated?)" if cut else ""
         raise BaselineError(f"baseline {where} of {nodeid} is not valid JSON{truncated}: {exc}; "
                             "fix it or rewrite it with --driveeval-baseline-update") from None
     if not isinstance(data, dict):
         raise BaselineError(f"baseline {where} of {nodeid}: not a mapping at the top level")
+    # A newer format may have reshaped any other key: say so before judging them (rewriting the
+    # file with this version would lose what the newer one wrote).
+    version = data.get("driveeval_baseline")
+    if isinstance(version, int) and not isinstance(version, bool) and version > BASELINE_FORMAT:
+        raise BaselineError(f"baseline {where}: format {version} (key 'driveeval_baseline') is newer than this "
+                            f"pytest-driveeval reads ({BASELINE_FORMAT}); upgrade it")
     for key, kind in _SHAPE.items():
         if not isinstance(data.get(key), kind) or isinstance(data.get(key), bool):
             found = "missing" if key not in data else f"a {type(data[key]).__name__}"
             raise BaselineError(f"baseline {where} of {nodeid}: key '{key}' is {found}, not a {kind.__name__}; "
                                 "rewrite it with --driveeval-baseline-update")
-    if data["driveeval_baseline"] > BASELINE_FORMAT:
-        raise BaselineError(f"baseline {where}: format {data['driveeval_baseline']} is newer than this "
-                            f"pytest-driveeval reads ({BASELINE_FORMAT}); upgrade it")
     if data["key"].get("nodeid") != nodeid:
         raise BaselineError(f"baseline {where}: key 'key.nodeid' says {data['key'].get('nodeid')!r}, "
                             f"the file's place is {nodeid!r}'s; move or rewrite it")
+    _check_parts(data, f"baseline {where} of {nodeid}")
+    bad = [k for k, v in data["figures"].items() if not isinstance(v, (int, float, type(None))) or isinstance(v, bool)]
+    if bad:
+        raise BaselineError(f"baseline {where} of {nodeid}: key 'figures.{bad[0]}' is not a number")
+    return data
+
+
+def _check_parts(data: dict[str, Any], what: str) -> None:
+    """The parts a comparison reads as mappings are mappings, and the units parse (a record of an
+    earlier run is checked too: a hand-edited summary.json must not crash the comparison)."""
     for key in ("units", "search", "fingerprint"):
         if data.get(key) is not None and not isinstance(data[key], dict):
-            raise BaselineError(f"baseline {where} of {nodeid}: key '{key}' is not a mapping")
+            raise BaselineError(f"{what}: key '{key}' is not a mapping")
     if data.get("units"):
         from .units import Units
 
         try:
             Units.from_json(data["units"])
         except ValueError as exc:
-            raise BaselineError(f"baseline {where} of {nodeid}: key '{exc}'") from None
-    bad = [k for k, v in data["figures"].items() if not isinstance(v, (int, float, type(None))) or isinstance(v, bool)]
-    if bad:
-        raise BaselineError(f"baseline {where} of {nodeid}: key 'figures.{bad[0]}' is not a number")
-    return data
+            raise BaselineError(f"{what}: key '{exc}'") from None
 
 
 class RunReference:
@@ -164,6 +178,7 @@ class RunReference:
         if not isinstance(payload, dict):
             raise BaselineError(f"run {self.run.get('id')} ({display_path(self.path)}) kept no comparable record "
                                 f"of {nodeid} (made before pytest-driveeval kept one, or it did not run)")
+        _check_parts(payload, f"run {self.run.get('id')} ({display_path(self.path)}), record of {nodeid}")
         return {**payload, "run": self.run}
 
 

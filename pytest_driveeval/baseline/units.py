@@ -58,9 +58,10 @@ class Units:
         columns = _of(data, "columns", dict)
         if not all(isinstance(v, str) and len(k) == 1 for k, v in legend.items()):
             raise ValueError("units.legend: not a mapping of one-character codes to words")
-        if not all(isinstance(v, str) for v in good.values()) or not isinstance(reasons, dict) \
-                or not all(isinstance(v, str) for v in reasons.values()):
-            raise ValueError("units.good / units.reasons: not mappings to text")
+        if not all(isinstance(v, str) for v in good.values()):
+            raise ValueError("units.good: not a mapping of columns to codes")
+        if not isinstance(reasons, dict) or not all(isinstance(v, str) for v in reasons.values()):
+            raise ValueError("units.reasons: not a mapping of units to text")
         cols = {}
         for name, lines in columns.items():
             if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
@@ -82,7 +83,8 @@ def _lines(codes: str) -> list[str]:
 
 def compact_ids(ids: list[str]) -> Any:
     """Consecutive whole numbers as ``{"from": a, "count": n}``; anything else as the list."""
-    if ids and all(i.isdigit() and (i == "0" or not i.startswith("0")) for i in ids):
+    # isascii: "²" and "١" are digits to isdigit(), and int() would not give them back
+    if ids and all(i.isascii() and i.isdigit() and (i == "0" or not i.startswith("0")) for i in ids):
         first = int(ids[0])
         if [int(i) for i in ids] == list(range(first, first + len(ids))):
             return {"from": first, "count": len(ids)}
