@@ -96,6 +96,12 @@ def compare(reference: dict[str, Any], current: dict[str, Any], against: str = "
             if rule.paired and before_units is not None and after_units is not None \
                     and rule.paired[0] in before_units.columns and rule.paired[0] in after_units.columns:
                 changes += _paired_change(name, rule, before, after, before_units, after_units, rules.confidence)
+            elif rule.paired:
+                # A rate over episodes without them on both sides cannot be tested paired, and
+                # compared as a bare figure any noise would be a regression: shown, not judged.
+                if before != after:
+                    changes.append(Change(name, before, after, None, f"{name} {format_figure(before)} -> "
+                                          f"{format_figure(after)} (not judged: no per-episode outcomes on both sides)"))
             else:
                 changes += _figure_change(name, rule, before, after)
         stochastic = any(rule.paired for rule in rules.figures.values())

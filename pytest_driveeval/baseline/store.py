@@ -199,7 +199,7 @@ def resolve_compare(spec: str, output_dir: Path, current_run: str | None = None)
         raise ValueError(f"no finished run in {display_path(history)} to compare with; run once without "
                          "--driveeval-compare first")
     runs = output_dir / RUNS_FOLDER / spec / "summary.json"
-    if "/" not in spec and runs.is_file():
+    if "/" not in spec and spec not in (".", "..") and runs.is_file():
         return runs
     path = Path(spec)
     if path.is_dir() and (path / "summary.json").is_file():

@@ -67,7 +67,13 @@ class Units:
             if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
                 raise ValueError(f"units.columns.{name}: not a list of lines of codes")
             cols[name] = "".join(lines)
-        return cls(kind, expand_ids(data.get("ids")), cols, legend, good, {str(k): v for k, v in reasons.items()})
+        ids = data.get("ids")
+        count = ids.get("count") if isinstance(ids, dict) else None
+        if isinstance(count, int) and any(len(codes) != count for codes in cols.values()):
+            # Said before the ids are made: a hand-edited count must not allocate millions of them.
+            raise ValueError(f"units.ids: count {count} differs from the columns' lengths "
+                             f"{sorted({len(codes) for codes in cols.values()})}")
+        return cls(kind, expand_ids(ids), cols, legend, good, {str(k): v for k, v in reasons.items()})
 
 
 def _of(data: dict, key: str, kind: type) -> Any:
