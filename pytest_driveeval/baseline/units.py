@@ -69,10 +69,10 @@ class Units:
             cols[name] = "".join(lines)
         ids = data.get("ids")
         count = ids.get("count") if isinstance(ids, dict) else None
-        if isinstance(count, int) and any(len(codes) != count for codes in cols.values()):
+        for name, codes in cols.items():
             # Said before the ids are made: a hand-edited count must not allocate millions of them.
-            raise ValueError(f"units.ids: count {count} differs from the columns' lengths "
-                             f"{sorted({len(codes) for codes in cols.values()})}")
+            if isinstance(count, int) and len(codes) != count:
+                raise ValueError(f"units.columns.{name}: {len(codes)} code(s) for {count} {kind}(s)")
         return cls(kind, expand_ids(ids), cols, legend, good, {str(k): v for k, v in reasons.items()})
 
 
