@@ -18,6 +18,8 @@ from .runs import DEFAULT_KEEP_RUNS, RunIdentity, damaged_entry, new_identity, r
 # driving_log_replayer's names (scenario.yaml, scenario.ja.yaml,
 # scenario_detection_only.yaml, ...), collected only when the file has the
 # scenario envelope.
+#: the output folder when neither --driveeval-output nor ini driveeval_output names one
+DEFAULT_OUTPUT = "driveeval-results"
 DEFAULT_PATTERNS = ["*.scenario.yaml", "*.scenario.yml", "scenario*.yaml", "scenario*.yml"]
 DECLARED_SUFFIXES = (".scenario.yaml", ".scenario.yml")
 DATA_ROOT_ENV = "DRIVEEVAL_DATA_ROOT"
@@ -140,15 +142,15 @@ def add_options(parser: pytest.Parser) -> None:
                     help="fail an item without a baseline, or whose baseline is stale "
                          "(ini: driveeval_baseline_strict)")
     group.addoption("--driveeval-compare", metavar="RUN", default=None,
-                    help="compare with an earlier run instead of baselines: 'last', a run id from the output "
-                         "folder's runs/, or the path of a summary.json")
+                    help="compare with an earlier run instead of baselines: 'last' (or 'last~N', N runs before it), "
+                         "a run id from the output folder's runs/, or the path of a summary.json")
     parser.addini("driveeval_baseline", "folder of baseline files every item is compared with", default="")
     parser.addini("driveeval_baseline_strict", "fail items without a current baseline", type="bool", default=False)
     parser.addini("driveeval_executor", "local | ray | {Kind: ray, Address: ..., ChunkSize: ...} for every item",
                   default="")
     parser.addini("driveeval_search_examples", "examples a robustness search tries", default="")
     parser.addini("driveeval_search_profile", "default | ci", default="")
-    parser.addini("driveeval_output", "where results and artefacts go", default="driveeval-results")
+    parser.addini("driveeval_output", "where results and artefacts go", default=DEFAULT_OUTPUT)
     parser.addini("driveeval_data_root", "folder holding the datasets scenarios name", default="")
     parser.addini("driveeval_model", "model evaluated instead of each scenario's own", default="")
     parser.addini("driveeval_seed", "base seed", default="0")
@@ -211,7 +213,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
     shared = getattr(config, "workerinput", {}).get(RUN_KEY)
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
     return Settings(
-        output_dir=(base / (output or "driveeval-results")).resolve(),
+        output_dir=(base / (output or DEFAULT_OUTPUT)).resolve(),
         data_root=_data_root(config, invocation, ini_base),
         model=model,
         seed=seed_value,

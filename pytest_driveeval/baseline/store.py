@@ -182,22 +182,42 @@ class RunReference:
         return {**payload, "run": self.run}
 
 
+#: ``last`` (the newest finished run) or ``last~N`` (N runs before it)
+LAST = re.compile(r"last(?:~(\d+))?")
+
+
+def finished_runs(output_dir: Path, skip: str | None = None) -> list[tuple[str, Path]]:
+    """(run id, summary.json) of the history's finished runs whose summary is still there, newest
+    first; ``skip`` leaves out one run (the session asking)."""
+    history = output_dir / HISTORY_NAME
+    lines = history.read_text(encoding="utf-8").splitlines() if history.is_file() else []
+    out = []
+    for line in reversed(lines):
+        try:
+            entry = json.loads(line)
+            summary = output_dir / entry["summary"]
+            run_id = entry["run"]["id"]
+        except (ValueError, KeyError, TypeError):
+            continue  # a torn or hand-edited line names no run
+        if run_id != skip and summary.is_file():
+            out.append((run_id, summary))
+    return out
+
+
 def resolve_compare(spec: str, output_dir: Path, current_run: str | None = None) -> Path:
-    """``last``, a run id, a summary.json or a run folder -> the summary.json to compare with."""
-    if spec == "last":
-        history = output_dir / HISTORY_NAME
-        lines = history.read_text(encoding="utf-8").splitlines() if history.is_file() else []
-        for line in reversed(lines):
-            try:
-                entry = json.loads(line)
-                summary = output_dir / entry["summary"]
-                run_id = entry["run"]["id"]
-            except (ValueError, KeyError, TypeError):
-                continue
-            if run_id != current_run and summary.is_file():
-                return summary
-        raise ValueError(f"no finished run in {display_path(history)} to compare with; run once without "
-                         "--driveeval-compare first")
+    """``last``, ``last~N``, a run id, a summary.json or a run folder -> the summary.json to compare with."""
+    last = LAST.fullmatch(spec)
+    if last:
+        back = int(last.group(1) or 0)
+        runs = finished_runs(output_dir, skip=current_run)
+        if back < len(runs):
+            return runs[back][1]
+        history = display_path(output_dir / HISTORY_NAME)
+        if not runs:
+            raise ValueError(f"no finished run in {history} to compare with; run once without "
+                             "--driveeval-compare first")
+        raise ValueError(f"{spec!r} is the run {back} before the last, and {history} has {len(runs)} finished "
+                         f"run(s) with their summary (last~{len(runs) - 1} is the oldest)")
     runs = output_dir / RUNS_FOLDER / spec / "summary.json"
     if "/" not in spec and spec not in (".", "..") and runs.is_file():
         return runs
@@ -206,5 +226,5 @@ def resolve_compare(spec: str, output_dir: Path, current_run: str | None = None)
         return path / "summary.json"
     if path.is_file():
         return path
-    raise ValueError(f"{spec!r} is neither 'last', a run id under {display_path(output_dir / RUNS_FOLDER)}, "
+    raise ValueError(f"{spec!r} is neither 'last', 'last~N', a run id under {display_path(output_dir / RUNS_FOLDER)}, "
                      "nor a summary.json")
