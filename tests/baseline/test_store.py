@@ -272,5 +272,5 @@ def test_a_run_id_a_summary_path_and_a_run_folder(tmp_path, monkeypatch):
 def test_anything_else_is_an_error_naming_the_choices(tmp_path, monkeypatch, spec):
     (tmp_path / "saved").mkdir()  # a folder without a summary
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(ValueError, match=rf"'{spec}' is neither 'last', a run id under .*runs, nor a summary.json"):
+    with pytest.raises(ValueError, match=rf"'{spec}' is neither 'last', 'last~N', a run id under .*runs, nor a summary.json"):
         resolve_compare(spec, tmp_path / "out")
