@@ -21,7 +21,7 @@ from .failure import Failure
 from .fixtures import item_trend
 from .baseline.session import COMPARE_KEY, session_gate
 from .outcome import OUTCOME_ATTR, Outcome, replaced_model
-from .report.attachments import html_extras, html_wanted
+from .report.attachments import comparison_cell, html_extras, html_wanted
 from .report.summary import SUMMARY_NAME, TERMINAL_MARKUP, policy_table_html, terminal_rows, verdict_reason
 from .runs import finish_run
 from .settings import RUN_KEY, get_settings
@@ -188,6 +188,17 @@ class ResultsReporter:
         table = policy_table_html(self.collector.sorted_records())
         if table:
             postfix.append(table)
+
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_html_results_table_header(self, cells: list) -> None:
+        """pytest-html: a column with each item's comparison, when the session compares."""
+        if session_gate(self.config) is not None:
+            cells.append('<th class="col-driveeval-baseline">baseline</th>')
+
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_html_results_table_row(self, report: pytest.TestReport, cells: list) -> None:
+        if session_gate(self.config) is not None:
+            cells.append(comparison_cell(getattr(report, REPORT_ATTR, None)))
 
     def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
         # A run without scenario items leaves the results alone: no run folder.

@@ -59,6 +59,8 @@ def _figures_table(outcome: Outcome, record: dict[str, Any] | None = None) -> st
             cells += (f"<td class='driveeval-baseline-value'>{escape(before)}</td>"
                       f"<td class='driveeval-change driveeval-{delta.tone or 'same'}' style='{style}'>"
                       f"{escape(delta.change)}</td>")
+        elif deltas:
+            cells += "<td></td><td></td>"
         rows.append(f"<tr>{cells}</tr>")
     head = "<tr><th>figure</th><th>now</th><th>baseline</th><th>change</th></tr>" if deltas else ""
     model = replaced_model(outcome.details)
@@ -66,6 +68,21 @@ def _figures_table(outcome: Outcome, record: dict[str, Any] | None = None) -> st
     return (f"<div class='driveeval'><p><b>{escape(outcome.use_case)}: {escape(outcome.verdict)}</b> "
             f"{escape(outcome.summary)}</p>{model}{_comparison_html(record or {})}<table>{head}{''.join(rows)}"
             f"</table></div>")
+
+
+def comparison_cell(record: dict[str, Any] | None) -> str:
+    """pytest-html's results table: the item's comparison in a cell (its status and the figures
+    that moved beyond their tolerance), empty for an item not compared."""
+    from html import escape
+
+    comparison = comparison_of(record or {})
+    if comparison is None:
+        return '<td class="col-driveeval-baseline"></td>'
+    moved = ", ".join(f"<span style='{TONE_STYLE[d.tone]}'>{escape(d.name)} {escape(d.change)}</span>"
+                      for d in figure_deltas(record or {}) if d.tone)
+    style = TONE_STYLE.get(status_tone(record or {}) or "", "")
+    return (f'<td class="col-driveeval-baseline"><span style="{style}">{escape(comparison["status"])}</span>'
+            f'{": " + moved if moved else ""}</td>')
 
 
 def _comparison_html(record: dict[str, Any]) -> str:

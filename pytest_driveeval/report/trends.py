@@ -27,16 +27,23 @@ class RunFigures:
     figures: dict[str, dict[str, float]]
 
 
-_histories: dict[tuple[str, int], list[RunFigures]] = {}
+#: per history file: (what it was when read, its runs); a session reads it once, a second session
+#: in the same process (pytest.main, pytester) once more if a session finished in between
+_histories: dict[str, tuple[tuple, list[RunFigures]]] = {}
 _plots: dict[tuple, bytes | None] = {}
 
 
 def read_history(history: Path, limit: int = DEFAULT_RUNS) -> list[RunFigures]:
     """The last ``limit`` readable runs of ``history`` (a history.jsonl), oldest first."""
-    key = (str(history), limit)
-    if key not in _histories:
-        _histories[key] = _read(history, limit)
-    return _histories[key]
+    try:
+        stat = history.stat()
+        state: tuple = (limit, stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        state = (limit, None)
+    known = _histories.get(str(history))
+    if known is None or known[0] != state:
+        _histories[str(history)] = known = (state, _read(history, limit))
+    return known[1]
 
 
 def _read(history: Path, limit: int) -> list[RunFigures]:
