@@ -18,10 +18,11 @@ from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, prune, unused_baseline
 from .collect import InvalidScenarioItem, scenario_item_names
 from .errors import DriveEvalError, display_path
 from .failure import Failure
+from .fixtures import item_trend
 from .baseline.session import COMPARE_KEY, session_gate
 from .outcome import OUTCOME_ATTR, Outcome, replaced_model
-from .report.attachments import html_extras, html_wanted
-from .report.summary import SUMMARY_NAME, policy_table_html, terminal_table, verdict_reason
+from .report.attachments import comparison_cell, html_extras, html_wanted
+from .report.summary import SUMMARY_NAME, TERMINAL_MARKUP, policy_table_html, terminal_rows, verdict_reason
 from .runs import finish_run
 from .settings import RUN_KEY, get_settings
 
@@ -77,11 +78,11 @@ def annotate_report(item: pytest.Item, call: pytest.CallInfo, report: pytest.Tes
         # The expected failure was the scenario's own model's; say why it passed.
         report.longrepr = f"{report.longrepr}\n  {model}"
     fresh = outcome is not None and not getattr(item, SENT_ATTR, False)
+    record = item_record(item, failure, with_outcome=fresh)
     if fresh:
         setattr(item, SENT_ATTR, True)
         if html_wanted(item.config):
-            report.extras = list(getattr(report, "extras", [])) + html_extras(outcome)
-    record = item_record(item, failure, with_outcome=fresh)
+            report.extras = list(getattr(report, "extras", [])) + html_extras(outcome, record, item_trend(item))
     if record is not None:
         setattr(report, REPORT_ATTR, record)
 
@@ -188,6 +189,17 @@ class ResultsReporter:
         if table:
             postfix.append(table)
 
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_html_results_table_header(self, cells: list) -> None:
+        """pytest-html: a column with each item's comparison, when the session compares."""
+        if session_gate(self.config) is not None:
+            cells.append('<th class="col-driveeval-baseline">baseline</th>')
+
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_html_results_table_row(self, report: pytest.TestReport, cells: list) -> None:
+        if session_gate(self.config) is not None:
+            cells.append(comparison_cell(getattr(report, REPORT_ATTR, None)))
+
     def pytest_sessionfinish(self, session: pytest.Session, exitstatus: int) -> None:
         # A run without scenario items leaves the results alone: no run folder.
         if not self.collector.records:
@@ -228,8 +240,11 @@ class ResultsReporter:
             return
         tr = terminalreporter
         tr.write_sep("-", f"driveeval: {len(records)} scenario item(s)")
-        for line in terminal_table(records, tr._tw.fullwidth):
-            tr.write_line(line)
+        for line in terminal_rows(records, tr._tw.fullwidth):
+            tr.ensure_newline()
+            for text, tone in line:
+                tr.write(text, **TERMINAL_MARKUP.get(tone or "", {}))
+            tr.line("")
         tr.write_line(f"results: {self.settings.output_dir / SUMMARY_NAME} (run {self.settings.run.id})")
         for line in self.baseline_lines:
             tr.write_line(line)

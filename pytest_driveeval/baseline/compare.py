@@ -42,6 +42,8 @@ class Comparison:
     source: str = ""     # the file it came from
     changes: list[Change] = field(default_factory=list)
     note: str = ""       # why it was not compared (missing, stale, error)
+    #: the reference's key figures, for the reports' "now (before, change)" (only when compared)
+    reference_figures: dict[str, Any] = field(default_factory=dict)
 
     @property
     def regressed(self) -> bool:
@@ -67,7 +69,7 @@ class Comparison:
 
     def to_json(self) -> dict[str, Any]:
         return {"status": self.status, "against": self.against, "source": self.source, "message": self.message(),
-                "changes": [c.to_json() for c in self.changes]}
+                "changes": [c.to_json() for c in self.changes], "reference_figures": self.reference_figures}
 
 
 def against_text(reference: dict[str, Any], kind: str = "baseline") -> str:
@@ -113,7 +115,7 @@ def compare(reference: dict[str, Any], current: dict[str, Any], against: str = "
                                   f"verdict passed -> {current.get('verdict')}: {current.get('summary')}"))
     status = REGRESSED if any(c.worse for c in changes) else IMPROVED if any(c.worse is False for c in changes) \
         else UNCHANGED
-    return Comparison(status, against, source, changes)
+    return Comparison(status, against, source, changes, reference_figures=dict(reference.get("figures") or {}))
 
 
 def _number(value: Any) -> bool:

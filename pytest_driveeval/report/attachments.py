@@ -14,8 +14,10 @@ from typing import Any
 import pytest
 
 from ..outcome import Outcome, format_figure, replaced_model
+from .deltas import comparison_of, figure_deltas, status_text, status_tone
 
 IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
+TREND_NAME = "trend"
 TEXT_TYPES = {".json": "json", ".jsonl": "text", ".txt": "text", ".csv": "text", ".md": "text"}
 
 
@@ -37,15 +39,63 @@ def junit_properties(outcome: Outcome) -> list[tuple[str, str]]:
     return props + [(f"driveeval.{k}", format_figure(v)) for k, v in scalar_figures(outcome).items()]
 
 
-def _figures_table(outcome: Outcome) -> str:
+#: inline, so a self-contained report and any reader of the extras see them (pytest-html has no such class)
+TONE_STYLE = {"worse": "color:#c62828;font-weight:bold", "better": "color:#2e7d32;font-weight:bold",
+              "note": "color:#ef6c00"}
+
+
+def _figures_table(outcome: Outcome, record: dict[str, Any] | None = None) -> str:
+    """The figures; with a comparison, each key figure also with its reference's value and the change."""
     from html import escape
 
-    rows = "".join(f"<tr><td>{escape(k)}</td><td>{escape(format_figure(v))}</td></tr>"
-                   for k, v in scalar_figures(outcome).items())
+    deltas = {d.name: d for d in figure_deltas(record or {})}
+    rows = []
+    for k, v in scalar_figures(outcome).items():
+        cells = f"<td>{escape(k)}</td><td>{escape(format_figure(v))}</td>"
+        delta = deltas.get(k)
+        if delta is not None:
+            before = "" if delta.before is None else format_figure(delta.before)
+            style = TONE_STYLE.get(delta.tone or "", "")
+            cells += (f"<td class='driveeval-baseline-value'>{escape(before)}</td>"
+                      f"<td class='driveeval-change driveeval-{delta.tone or 'same'}' style='{style}'>"
+                      f"{escape(delta.change)}</td>")
+        elif deltas:
+            cells += "<td></td><td></td>"
+        rows.append(f"<tr>{cells}</tr>")
+    head = "<tr><th>figure</th><th>now</th><th>baseline</th><th>change</th></tr>" if deltas else ""
     model = replaced_model(outcome.details)
     model = f"<p class='driveeval-model'>{escape(model)}</p>" if model else ""
     return (f"<div class='driveeval'><p><b>{escape(outcome.use_case)}: {escape(outcome.verdict)}</b> "
-            f"{escape(outcome.summary)}</p>{model}<table>{rows}</table></div>")
+            f"{escape(outcome.summary)}</p>{model}{_comparison_html(record or {})}<table>{head}{''.join(rows)}"
+            f"</table></div>")
+
+
+def comparison_cell(record: dict[str, Any] | None) -> str:
+    """pytest-html's results table: the item's comparison in a cell (its status and the figures
+    that moved beyond their tolerance), empty for an item not compared."""
+    from html import escape
+
+    comparison = comparison_of(record or {})
+    if comparison is None:
+        return '<td class="col-driveeval-baseline"></td>'
+    moved = ", ".join(f"<span style='{TONE_STYLE[d.tone]}'>{escape(d.name)} {escape(d.change)}</span>"
+                      for d in figure_deltas(record or {}) if d.tone)
+    style = TONE_STYLE.get(status_tone(record or {}) or "", "")
+    return (f'<td class="col-driveeval-baseline"><span style="{style}">{escape(comparison["status"])}</span>'
+            f'{": " + moved if moved else ""}</td>')
+
+
+def _comparison_html(record: dict[str, Any]) -> str:
+    from html import escape
+
+    comparison = comparison_of(record)
+    if comparison is None:
+        return ""
+    lines = (comparison.get("message") or "").splitlines()
+    style = TONE_STYLE.get(status_tone(record) or "", "")
+    rest = "".join(f"<br>{escape(line.strip())}" for line in lines[1:])
+    return (f"<p class='driveeval-comparison driveeval-{escape(comparison['status'])}'><span style='{style}'>"
+            f"{escape(status_text(record))}</span>: {escape(lines[0] if lines else '')}{rest}</p>")
 
 
 def search_lines(outcome: Outcome) -> list[str]:
@@ -82,14 +132,15 @@ def executor_lines(outcome: Outcome) -> list[str]:
     return lines
 
 
-def html_extras(outcome: Outcome) -> list[dict]:
-    """pytest-html extras: a figures table, images inline (base64, so a
+def html_extras(outcome: Outcome, record: dict[str, Any] | None = None, trend: bytes | None = None) -> list[dict]:
+    """pytest-html extras: a figures table (with the item's baseline when ``record`` has a
+    comparison), the key figures' trend over the last runs, images inline (base64, so a
     self-contained report carries them), result files as JSON / text."""
     from html import escape
 
     from pytest_html import extras
 
-    out = [extras.html(_figures_table(outcome))]
+    out = [extras.html(_figures_table(outcome, record))]
     lines = search_lines(outcome)
     if lines:
         out.append(extras.html("<div class='driveeval-search'>" + "".join(f"<p>{escape(line)}</p>" for line in lines)
@@ -111,13 +162,19 @@ def html_extras(outcome: Outcome) -> list[dict]:
         elif suffix in TEXT_TYPES:
             text = path.read_text(encoding="utf-8")
             out.append(extras.json(text, name=name) if TEXT_TYPES[suffix] == "json" else extras.text(text, name=name))
+    if trend:
+        out.append(extras.image(base64.b64encode(trend).decode("ascii"), name=TREND_NAME, mime_type="image/png",
+                                extension="png"))
     return out
 
 
-def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None = None) -> None:
+def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None = None,
+                     trend: bytes | None = None) -> None:
     """Allure: scenario and use case as labels, figures as parameters, artefacts
-    as typed attachments.  Called while the test runs, so allure files them
-    under it."""
+    as typed attachments, the key figures' trend over the last runs.  Called while
+    the test runs, so allure files them under it.  (Allure's own trend widgets count
+    statuses and durations per report, from a history/ folder its report generator
+    makes: no figure of ours can go there, so the figures' trend is a plot.)"""
     import allure
     from allure_commons.types import AttachmentType
 
@@ -145,6 +202,8 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
     lines = executor_lines(outcome)
     if lines:
         allure.attach("\n".join(lines), name="where the chunks ran", attachment_type=AttachmentType.TEXT)
+    if trend:
+        allure.attach(trend, name=TREND_NAME, attachment_type=AttachmentType.PNG)
     for name, path in outcome.artefacts.items():
         path = Path(path)
         if path.is_file():

@@ -8,12 +8,13 @@ new one, never half of one.
 from __future__ import annotations
 
 import os
-import textwrap
+import re
 from pathlib import Path
 from typing import Any
 
 from ..atomic import write_json_atomic, write_text_atomic
 from ..outcome import format_figure, replaced_model
+from .deltas import COMPARED, MARKDOWN_MARK, comparison_of, figure_deltas, status_text, status_tone
 
 SUMMARY_NAME = "summary.json"
 MARKDOWN_NAME = "summary.md"
@@ -39,28 +40,101 @@ def verdict_reason(record: dict[str, Any]) -> str:
     return lines[0] if lines else ""
 
 
-def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
-    """A row per item: verdict, node id, then what decided the verdict, the model when it was not
-    the scenario's own, and key figures.  Nothing is cut: a row that does not fit the terminal's
-    ``width`` puts the node id on its own line and wraps the rest below it."""
+#: a terminal segment: its text and its tone (deltas.Delta.tone, deltas.STATUS_TONE), None: plain
+Segment = tuple[str, "str | None"]
+#: pytest TerminalWriter markup per tone
+TERMINAL_MARKUP = {"worse": {"red": True, "bold": True}, "better": {"green": True, "bold": True},
+                   "note": {"yellow": True}}
+
+
+def _figure_segments(record: dict[str, Any], limit: int = 4) -> list[Segment]:
+    """Key figures; with a comparison, each beside its reference's value and the change."""
+    deltas = figure_deltas(record)
+    if not deltas:
+        text = _key_figures(record, limit)
+        return [(text, None)] if text else []
+    out: list[Segment] = []
+    for i, delta in enumerate(deltas):
+        out += [(", ", None)] if i else []
+        out.append((delta.text(), delta.tone))
+    return out
+
+
+def terminal_rows(records: list[dict[str, Any]], width: int) -> list[list[Segment]]:
+    """A row per item: verdict, node id, then what decided the verdict, the comparison with its
+    baseline, the model when it was not the scenario's own, and key figures (with their baseline's).
+    Nothing is cut: a row that does not fit the terminal's ``width`` puts the node id on its own
+    line and wraps the rest below it.  Each line is segments, so the deltas can be coloured."""
     rows = []
     for r in records:
-        parts = [verdict_reason(r), replaced_model(r.get("details") or {}), _key_figures(r)]
-        rows.append((r.get("status", "?"), r["nodeid"], [p for p in parts if p]))
+        parts = [[(verdict_reason(r), None)], [(status_text(r), status_tone(r))],
+                 [(replaced_model(r.get("details") or {}) or "", None)], _figure_segments(r)]
+        rows.append((r.get("status", "?"), r["nodeid"], [p for p in parts if "".join(t for t, _ in p)]))
     id_width = max(len("scenario"), *(len(r[1]) for r in rows))
     header = f"{'verdict':<8}  {'scenario':<{id_width}}  what decided it; key figures"
-    lines = [header if len(header) <= width else f"{'verdict':<8}  scenario / what decided it; key figures"]
+    lines: list[list[Segment]] = [[(header if len(header) <= width else
+                                    f"{'verdict':<8}  scenario / what decided it; key figures", None)]]
     indent = " " * 10
     for status, nodeid, parts in rows:
-        line = f"{status:<8}  {nodeid:<{id_width}}  {'; '.join(parts)}".rstrip()
-        if len(line) <= width:
-            lines.append(line)
+        line: list[Segment] = [(f"{status:<8}  {nodeid:<{id_width}}  ", None)]
+        for i, part in enumerate(parts):
+            line += ([("; ", None)] if i else []) + part
+        if len("".join(t for t, _ in line).rstrip()) <= width:
+            lines.append(_rstrip(line))
             continue
-        lines.append(f"{status:<8}  {nodeid}")
+        lines.append([(f"{status:<8}  {nodeid}", None)])
         for part in parts:
-            lines += textwrap.wrap(part, width=max(width, 40), initial_indent=indent, subsequent_indent=indent + "  ",
-                                   break_on_hyphens=False, break_long_words=False)
+            lines += _wrap(part, max(width, 40), indent, indent + "  ")
     return lines
+
+
+def terminal_table(records: list[dict[str, Any]], width: int) -> list[str]:
+    """:func:`terminal_rows` as plain lines."""
+    return ["".join(text for text, _ in line) for line in terminal_rows(records, width)]
+
+
+def _rstrip(line: list[Segment]) -> list[Segment]:
+    text, tone = line[-1]
+    return line[:-1] + [(text.rstrip(), tone)] if text.rstrip() else _rstrip(line[:-1]) if len(line) > 1 else []
+
+
+def _wrap(part: list[Segment], width: int, first: str, rest: str) -> list[list[Segment]]:
+    """Greedy word wrap of segments (words never broken, like textwrap with break_long_words off);
+    each word keeps the tone of its characters."""
+    text = "".join(t for t, _ in part)
+    tones = [tone for t, tone in part for _ in t]
+    out: list[list[tuple[int, int]]] = []
+    current: list[tuple[int, int]] = []
+    used = len(first)
+    for match in re.finditer(r"\S+", text):
+        start, end = match.span()
+        need = end - start + (1 if current else 0)
+        if current and used + need > width:
+            out.append(current)
+            current, used, need = [], len(rest), end - start
+        current.append((start, end))
+        used += need
+    if current:
+        out.append(current)
+    lines = []
+    for n, words in enumerate(out):
+        line: list[Segment] = [(first if n == 0 else rest, None)]
+        for i, (start, end) in enumerate(words):
+            if i:  # a space inside one coloured figure stays coloured
+                line.append((" ", tones[start - 1] if tones[start - 1] == tones[start] else None))
+            line += [(text[k], tones[k]) for k in range(start, end)]
+        lines.append(_merge(line))
+    return lines
+
+
+def _merge(line: list[Segment]) -> list[Segment]:
+    out: list[Segment] = []
+    for text, tone in line:
+        if out and out[-1][1] == tone:
+            out[-1] = (out[-1][0] + text, tone)
+        else:
+            out.append((text, tone))
+    return out
 
 
 def _cell(text: Any) -> str:
@@ -68,19 +142,69 @@ def _cell(text: Any) -> str:
 
 
 def markdown_summary(summary: dict[str, Any]) -> str:
-    """The session as Markdown: counts, then one row per scenario item."""
+    """The session as Markdown: counts, then one row per scenario item (with a baseline column when
+    items were compared), then what the comparisons found."""
     counts = ", ".join(f"{n} {status}" for status, n in summary["counts"].items())
     run = summary.get("run") or {}
     where = f" (run `{run['id']}`" + (f", commit `{run['commit'][:12]}`" if run.get("commit") else "") + ")" \
         if run.get("id") else ""
+    compared = any(comparison_of(r) for r in summary["results"])
+    extra = (" baseline |", "---|") if compared else ("", "")
     lines = [f"## pytest-driveeval: {counts}{where}", "",
-             "| verdict | scenario | use case | summary | key figures |", "|---|---|---|---|---|"]
+             f"| verdict | scenario | use case | summary | key figures |{extra[0]}", f"|---|---|---|---|---|{extra[1]}"]
     for r in summary["results"]:
         status = r.get("status", "?")
         text = "; ".join(p for p in (verdict_reason(r), replaced_model(r.get("details") or {})) if p)
-        lines.append(f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
-                     f" | {_cell(text)} | {_cell(_key_figures(r, limit=6))} |")
-    return "\n".join(lines + policy_table(summary["results"]) + search_list(summary["results"])) + "\n"
+        row = (f"| {STATUS_MARK.get(status, '')} {status} | `{_cell(r['nodeid'])}` | {_cell(r.get('use_case') or '')}"
+               f" | {_cell(text)} | {_cell(_markdown_figures(r))} |")
+        if compared:
+            comparison = comparison_of(r)
+            mark = MARKDOWN_MARK.get(status_tone(r) or "", "")
+            row += f" {mark} {comparison['status']} |" if comparison else " |"
+        lines.append(row)
+    return "\n".join(lines + comparison_sections(summary["results"]) + policy_table(summary["results"])
+                     + search_list(summary["results"])) + "\n"
+
+
+def _markdown_figures(record: dict[str, Any]) -> str:
+    deltas = figure_deltas(record)
+    if not deltas:
+        return _key_figures(record, limit=6)
+    return ", ".join(f"{MARKDOWN_MARK[d.tone]} {d.text()}" if d.tone else d.text() for d in deltas)
+
+
+def comparison_sections(records: list[dict[str, Any]]) -> list[str]:
+    """Per reference ("Compared with baseline `<commit>` (<date>)"): the regressions and the
+    improvements with their lines, and how many did not change; then the items not compared."""
+    by_against: dict[str, list[tuple[dict, dict]]] = {}
+    others = []
+    for r in records:
+        comparison = comparison_of(r)
+        if comparison is None:
+            continue
+        if comparison["status"] in COMPARED:
+            by_against.setdefault(comparison.get("against") or "the reference", []).append((r, comparison))
+        else:
+            others.append((r, comparison))
+    lines: list[str] = []
+    for against, found in sorted(by_against.items()):
+        lines += ["", f"### Compared with {_cell(against)}", ""]
+        for status, mark, worse in (("regressed", "🔴", True), ("improved", "🟢", False)):
+            for r, comparison in found:
+                if comparison["status"] == status:
+                    lines.append(f"- {mark} {status}: `{_cell(r['nodeid'])}`")
+                    lines += [f"  - {_cell(c.get('text'))}" for c in comparison.get("changes") or []
+                              if c.get("worse") is worse]
+        unchanged = sum(1 for _, comparison in found if comparison["status"] == "unchanged")
+        if unchanged:
+            lines.append(f"- {unchanged} unchanged")
+    if others:
+        lines += ["", "### Not compared", ""]
+        for r, comparison in others:
+            mark = MARKDOWN_MARK.get(status_tone(r) or "", "")
+            note = (comparison.get("message") or "").splitlines()
+            lines.append(f"- {mark} {comparison['status']}: `{_cell(r['nodeid'])}`: {_cell(note[0] if note else '')}")
+    return lines
 
 
 def search_list(records: list[dict[str, Any]]) -> list[str]:

@@ -1,0 +1,159 @@
+"""Each item's key figures over the output folder's last runs: a small PNG for the html report and allure.
+
+The history (``history.jsonl``, a line per finished session pointing at its ``summary.json``) is read
+once per process and path; a line or a summary that cannot be read (a crash, a hand edit, a run
+pruned since) is skipped, never an error: a trend is a view, not a check.
+"""
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+#: runs a trend shows besides the current one when the output folder keeps all (keep_runs 0)
+DEFAULT_RUNS = 20
+#: x-axis labels at most, so twenty dates stay readable in a small plot
+LABELS = 6
+
+
+@dataclass(frozen=True)
+class RunFigures:
+    """One earlier run: its identity and each item's key figures (numbers only)."""
+    id: str
+    started: str
+    figures: dict[str, dict[str, float]]
+
+
+#: per history file: (what it was when read, its runs); a session reads it once, a second session
+#: in the same process (pytest.main, pytester) once more if a session finished in between
+_histories: dict[str, tuple[tuple, list[RunFigures]]] = {}
+_plots: dict[tuple, bytes | None] = {}
+
+
+def read_history(history: Path, limit: int = DEFAULT_RUNS) -> list[RunFigures]:
+    """The last ``limit`` readable runs of ``history`` (a history.jsonl), oldest first."""
+    try:
+        stat = history.stat()
+        state: tuple = (limit, stat.st_size, stat.st_mtime_ns)
+    except OSError:
+        state = (limit, None)
+    known = _histories.get(str(history))
+    if known is None or known[0] != state:
+        _histories[str(history)] = known = (state, _read(history, limit))
+    return known[1]
+
+
+def _read(history: Path, limit: int) -> list[RunFigures]:
+    try:
+        text = history.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return []
+    runs: list[RunFigures] = []
+    for raw in reversed(text.splitlines()):
+        if len(runs) >= limit:
+            break
+        found = _run_of(raw, history.parent)
+        if found is not None:
+            runs.append(found)
+    return runs[::-1]
+
+
+def _run_of(raw: str, folder: Path) -> RunFigures | None:
+    try:
+        line = json.loads(raw)
+    except ValueError:
+        return None
+    if not isinstance(line, dict) or not isinstance(line.get("run"), dict) or not isinstance(line.get("summary"), str):
+        return None
+    where = PurePosixPath(line["summary"])
+    if where.is_absolute() or ".." in where.parts:
+        return None  # the history names files of its own folder only
+    try:
+        summary = json.loads((folder / where).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    results = summary.get("results") if isinstance(summary, dict) else None
+    if not isinstance(results, list):
+        return None
+    figures = {}
+    for record in results:
+        if isinstance(record, dict) and isinstance(record.get("nodeid"), str):
+            numbers = record_figures(record)
+            if numbers:
+                figures[record["nodeid"]] = numbers
+    run = line["run"]
+    return RunFigures(str(run.get("id", "")), str(run.get("started", "")), figures)
+
+
+def record_figures(record: dict[str, Any]) -> dict[str, float]:
+    """A record's key figures (its comparable payload's; an older record's own figures), numbers only."""
+    payload = record.get("baseline")
+    figures = payload.get("figures") if isinstance(payload, dict) else None
+    if not isinstance(figures, dict):
+        figures = record.get("figures") if isinstance(record.get("figures"), dict) else {}
+    return {k: float(v) for k, v in figures.items() if _number(v)}
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def series(runs: list[RunFigures], nodeid: str, current: dict[str, Any], current_id: str = "") \
+        -> tuple[list[str], dict[str, list[tuple[int, float]]]]:
+    """(a label per run, the current one last; per key figure its (run index, value) points).  The
+    figures are the current run's key figures, each with the earlier runs that have it; a run without
+    the item leaves a gap, not a point."""
+    past = [run for run in runs if nodeid in run.figures and run.id != current_id]
+    names = [k for k, v in current.items() if _number(v)]
+    labels = [run.started[5:16].replace("T", " ") or run.id for run in past] + ["this run"]
+    points = {name: [(i, run.figures[nodeid][name]) for i, run in enumerate(past) if name in run.figures[nodeid]]
+              + [(len(past), float(current[name]))] for name in names}
+    return labels, points
+
+
+def trend_png(history: Path, nodeid: str, current: dict[str, Any], current_id: str = "",
+              limit: int = DEFAULT_RUNS) -> bytes | None:
+    """The item's key figures over the last ``limit`` runs and this one, as PNG bytes; None when
+    no earlier run has the item (a single point is no trend) or it has no numeric key figure."""
+    labels, points = series(read_history(history, limit), nodeid, current, current_id)
+    if len(labels) < 2 or not points or all(len(p) < 2 for p in points.values()):
+        return None
+    key = (str(history), nodeid, current_id, json.dumps(points, sort_keys=True))
+    if key not in _plots:
+        _plots[key] = _render(nodeid, labels, points)
+    return _plots[key]
+
+
+def _render(nodeid: str, labels: list[str], points: dict[str, list[tuple[int, float]]]) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # One small panel per figure, sharing the runs: a rate in % and a distance in m on one axis
+    # would flatten one of them.
+    fig, axes = plt.subplots(len(points), 1, sharex=True, squeeze=False, dpi=80,
+                             figsize=(5.0, 0.55 + 0.85 * len(points)))
+    last = len(labels) - 1
+    for ax, (name, xy) in zip(axes[:, 0], points.items()):
+        xs, ys = [x for x, _ in xy], [y for _, y in xy]
+        ax.plot(xs, ys, "-o", color="#546e7a", markersize=3, linewidth=1)
+        ax.plot([last], [ys[-1]], "o", markersize=7, markerfacecolor="none", markeredgecolor="#d32f2f",
+                markeredgewidth=1.5)
+        ax.set_ylabel(name, fontsize=7, rotation=0, ha="right", va="center")
+        ax.tick_params(labelsize=6)
+        ax.grid(alpha=0.3)
+        ax.margins(y=0.25)
+    step = max(1, math.ceil(len(labels) / LABELS))
+    ticks = sorted(set(range(0, last + 1, step)) | {last})
+    axes[-1, 0].set_xticks(ticks, [labels[i] for i in ticks], fontsize=6, rotation=20, ha="right")
+    axes[-1, 0].set_xlim(-0.5, last + 0.5)
+    fig.suptitle(f"{nodeid}: key figures, last {len(labels)} runs", fontsize=7)
+    fig.tight_layout()
+    out = io.BytesIO()
+    fig.savefig(out, format="png")
+    plt.close(fig)
+    return out.getvalue()
