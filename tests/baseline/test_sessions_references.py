@@ -83,32 +83,54 @@ def test_a_missing_baseline_is_reported_and_fails_only_when_strict(cl):
 
 
 def test_a_corrupt_baseline_fails_its_item_naming_file_and_key_and_the_others_run(cl):
-    names = ("good", "cut", "text", "moved")
+    names = ("good", "cut", "text", "moved", "dataset", "commit", "search")
     cl.makefile(".scenario.yaml", **{n: short(name=n) for n in names})
-    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=4)
+    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=len(names))
     node = {n: f"{n}.scenario.yaml::closed_loop[logs]" for n in names}
     cut = baseline_path(cl, node["cut"])
     cut.write_text(cut.read_text()[:200])
     edit_baseline(cl, node["text"], lambda d: d["figures"].update(
         max_displacement="__import__('pathlib').Path('pwned').touch() or 0"))
     edit_baseline(cl, node["moved"], lambda d: d["key"].update(nodeid=node["good"]))
+    edit_baseline(cl, node["dataset"], lambda d: d["fingerprint"].update(dataset="gen.zarr"))
+    edit_baseline(cl, node["commit"], lambda d: d["run"].update(commit=1234))
+    edit_baseline(cl, node["search"], lambda d: d.update(search={"broke": True, "minimal": [0.1]}))
     result = run(cl)
-    result.assert_outcomes(passed=1, failed=3)
+    result.assert_outcomes(passed=1, failed=len(names) - 1)
     by_id = records(cl)
     assert by_id[node["good"]]["comparison"]["status"] == "unchanged"
     messages = {n: by_id[node[n]]["comparison"]["message"] for n in names[1:]}
     assert all(by_id[node[n]]["comparison"]["status"] == "error" for n in names[1:])
-    where = {n: f"{BASELINES}/{n}.scenario.yaml/closed_loop[logs].json" for n in names}
-    assert messages["cut"].startswith(f"baseline {where['cut']} of {node['cut']} is not valid JSON (truncated?)")
-    assert messages["text"] == f"baseline {where['text']} of {node['text']}: key 'figures.max_displacement' is not a number"
-    assert messages["moved"].startswith(f"baseline {where['moved']}: key 'key.nodeid' says '{node['good']}'")
+    where = {n: f"baseline {BASELINES}/{n}.scenario.yaml/closed_loop[logs].json" for n in names}
+    assert messages["cut"].startswith(f"{where['cut']} of {node['cut']} is not valid JSON (truncated?)")
+    assert messages["moved"].startswith(f"{where['moved']}: key 'key.nodeid' says '{node['good']}'")
+    for name, key in [("text", "'figures.max_displacement' is not a number"),
+                      ("dataset", "'fingerprint.dataset' is a str, not a dict"),
+                      ("commit", "'run.commit' is a int, not a str"),
+                      ("search", "'search.minimal' is a list, not a dict")]:
+        assert messages[name] == f"{where[name]} of {node[name]}: key {key}; rewrite it with " \
+                                 "--driveeval-baseline-update"
     for n in names[1:]:
         result.stdout.fnmatch_lines([f"*{re.sub(r'[][]', '?', messages[n][:90])}*"])
     assert "Traceback" not in result.stdout.str()
     assert not list(cl.path.rglob("pwned"))  # a baseline is read as data, never run
     # An update rewrites them.
-    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=4)
-    run(cl).assert_outcomes(passed=4)
+    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=len(names))
+    run(cl).assert_outcomes(passed=len(names))
+
+
+def test_a_hand_edited_earlier_run_fails_the_item_naming_the_run_and_key(cl):
+    cl.makefile(".scenario.yaml", drive=short(), other=short(name="other"))
+    cl.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=2)
+    path = cl.path / "driveeval-results" / "runs" / summary(cl)["run"]["id"] / "summary.json"
+    data = json.loads(path.read_text())
+    next(r for r in data["results"] if r["nodeid"] == DRIVE)["baseline"]["figures"]["at_fault"] = "0"
+    path.write_text(json.dumps(data))
+    result = cl.runpytest("-q", "-p", "no:randomly", "--driveeval-compare", str(path))
+    result.assert_outcomes(passed=1, failed=1)
+    assert records(cl)[DRIVE]["comparison"]["message"] == (
+        f"run {data['run']['id']} ({path.relative_to(cl.path)}): the record of {DRIVE} cannot be compared: key 'figures.at_fault' is not "
+        "a number")
 
 
 def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
