@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 
 import pytest
 
@@ -150,14 +151,27 @@ def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
                                  "closed_loop[[]logs[]].json, baselines/bench.scenario.yaml/policy_benchmark[[]steady[]]"
                                  ".json); --driveeval-baseline-update --driveeval-baseline-prune removes them"])
     assert all(p.is_file() for p in gone + kept)
+    before = kept[0].read_text()
     result = run(cl, "-k", "bench", "--driveeval-baseline-update", "--driveeval-baseline-prune")
     result.assert_outcomes(passed=1)
     result.stdout.fnmatch_lines(["driveeval baselines: removed 2 of items that no longer exist"])
     assert not any(p.exists() for p in gone) and not (cl.path / BASELINES / "b.scenario.yaml").exists()
     assert all(p.is_file() for p in kept)  # a.scenario.yaml was only not selected
+    assert kept[0].read_text() == before  # and an update leaves the baselines of items that did not run alone
     result = run(cl)
     result.assert_outcomes(passed=2)
     assert "no longer exist" not in result.stdout.str()
+
+
+def test_an_item_that_cannot_run_keeps_its_baseline_through_an_update(cl):
+    cl.makefile(".scenario.yaml", drive=short())
+    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=1)
+    before = baseline_path(cl, DRIVE).read_text()
+    shutil.rmtree(cl.path / "gen.zarr")
+    result = run(cl, "--driveeval-baseline-update")
+    assert result.ret == pytest.ExitCode.TESTS_FAILED and records(cl)[DRIVE]["status"] == "error"
+    result.stdout.fnmatch_lines(["driveeval baselines: wrote 0 in baselines"])
+    assert baseline_path(cl, DRIVE).read_text() == before
 
 
 def test_a_bad_figure_name_in_the_regression_section_is_located(cl):
