@@ -77,14 +77,19 @@ def test_a_missing_baseline_is_reported_and_fails_only_when_strict(cl):
     result = run(cl, "--driveeval-baseline-strict")
     result.assert_outcomes(failed=1)
     result.stdout.fnmatch_lines([f"*{NO_BASELINE}*"])
-    cl.makeini("[pytest]\ndriveeval_baseline_strict = true\n")
-    result = run(cl)
+    cl.makeini("[pytest]\ndriveeval_baseline = baselines\ndriveeval_baseline_strict = true\n")
+    result = cl.runpytest("-q", "-p", "no:randomly")
     result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines(["driveeval baselines (baselines): 1 missing; *"])
     assert records(cl)[DRIVE]["status"] == "failed"
+    # With the ini's folder, an update makes it pass under the ini's strict.
+    cl.runpytest("-q", "-p", "no:randomly", "--driveeval-baseline-update").assert_outcomes(passed=1)
+    cl.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=1)
+    assert statuses(cl) == {DRIVE: "unchanged"}
 
 
 def test_a_corrupt_baseline_fails_its_item_naming_file_and_key_and_the_others_run(cl):
-    names = ("good", "cut", "text", "moved", "dataset", "commit", "search")
+    names = ("good", "cut", "text", "moved", "dataset", "commit", "search", "newer")
     cl.makefile(".scenario.yaml", **{n: short(name=n) for n in names})
     run(cl, "--driveeval-baseline-update").assert_outcomes(passed=len(names))
     node = {n: f"{n}.scenario.yaml::closed_loop[logs]" for n in names}
@@ -96,6 +101,7 @@ def test_a_corrupt_baseline_fails_its_item_naming_file_and_key_and_the_others_ru
     edit_baseline(cl, node["dataset"], lambda d: d["fingerprint"].update(dataset="gen.zarr"))
     edit_baseline(cl, node["commit"], lambda d: d["run"].update(commit=1234))
     edit_baseline(cl, node["search"], lambda d: d.update(search={"broke": True, "minimal": [0.1]}))
+    edit_baseline(cl, node["newer"], lambda d: d.update(driveeval_baseline=2))
     result = run(cl)
     result.assert_outcomes(passed=1, failed=len(names) - 1)
     by_id = records(cl)
@@ -105,6 +111,7 @@ def test_a_corrupt_baseline_fails_its_item_naming_file_and_key_and_the_others_ru
     where = {n: f"baseline {BASELINES}/{n}.scenario.yaml/closed_loop[logs].json" for n in names}
     assert messages["cut"].startswith(f"{where['cut']} of {node['cut']} is not valid JSON (truncated?)")
     assert messages["moved"].startswith(f"{where['moved']}: key 'key.nodeid' says '{node['good']}'")
+    assert messages["newer"].startswith(f"{where['newer']}: format 2 is newer than this pytest-driveeval reads (1)")
     for name, key in [("text", "'figures.max_displacement' is not a number"),
                       ("dataset", "'fingerprint.dataset' is a str, not a dict"),
                       ("commit", "'run.commit' is a int, not a str"),
