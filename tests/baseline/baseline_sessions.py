@@ -69,8 +69,8 @@ def driveeval_pointclouds():
 
 
 def obstacle_scenario() -> str:
-    text = (REPO_ROOT / "scenario_tests" / "obstacle_segmentation" / "robustness" / "filtered.scenario.yaml").read_text()
-    return text.replace("../../../fixtures/t4/clean", "t4")
+    demo = REPO_ROOT / "scenario_tests" / "obstacle_segmentation" / "robustness"
+    return (demo / "filtered.scenario.yaml").read_text().replace("../../../fixtures/t4/clean", "t4")
 
 
 def with_closed_loop_data(pytester) -> None:

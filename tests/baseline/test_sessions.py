@@ -57,7 +57,8 @@ def test_update_writes_one_sorted_indented_file_per_item_and_the_next_session_fi
     commit = git_commit(project)
     result = run(project, "--driveeval-baseline-update")
     result.assert_outcomes(passed=3)
-    result.stdout.fnmatch_lines(["driveeval baselines (baselines): 3 missing", "driveeval baselines: wrote 3 in baselines"])
+    result.stdout.fnmatch_lines(["driveeval baselines (baselines): 3 missing",
+                                 "driveeval baselines: wrote 3 in baselines"])
     run_id = json.loads((project.path / "driveeval-results" / "summary.json").read_text())["run"]["id"]
     for nodeid in (DRIVE, MINE, IDM):
         path = baseline_path(project, nodeid)
@@ -163,7 +164,8 @@ def test_an_improvement_is_reported_and_passes(project):
     result.stdout.fnmatch_lines(["driveeval baselines (baselines): 1 improved"])
     comparison = records(project)[DRIVE]["comparison"]
     assert comparison["status"] == "improved" and comparison["message"].startswith("improvement against baseline")
-    assert {"at_fault", "max_displacement", "scene 2"} <= {c["what"] for c in comparison["changes"] if c["worse"] is False}
+    better = {c["what"] for c in comparison["changes"] if c["worse"] is False}
+    assert {"at_fault", "max_displacement", "scene 2"} <= better
     assert not [c for c in comparison["changes"] if c["worse"]]
     assert "scene 2 failed before, passed now" in comparison["message"]
 
@@ -171,9 +173,14 @@ def test_an_improvement_is_reported_and_passes(project):
 def test_two_workers_compare_like_one_process(project):
     project.makefile(".scenario.yaml", drive=closed_loop(model="constant_velocity", max_displacement=50.0),
                      steady=closed_loop(name="steady", scenes="[4, 5]", steps=10),
-                     bench=policy_benchmark(episodes=6), fresh=closed_loop(name="fresh", scenes="[6]", steps=10))
-    run(project, "--driveeval-baseline-update").assert_outcomes(passed=4, failed=1)
+                     bench=policy_benchmark(episodes=6), fresh=closed_loop(name="fresh", scenes="[6]", steps=10),
+                     old=closed_loop(name="old", scenes="[7]", steps=10),
+                     cut=closed_loop(name="cut", scenes="[8]", steps=10))
+    run(project, "--driveeval-baseline-update").assert_outcomes(passed=6, failed=1)
     baseline_path(project, "fresh.scenario.yaml::closed_loop[logs]").unlink()
+    edit_baseline(project, "old.scenario.yaml::closed_loop[logs]", lambda data: data["fingerprint"].update(seed=1))
+    cut = baseline_path(project, "cut.scenario.yaml::closed_loop[logs]")
+    cut.write_text(cut.read_text()[:100])
 
     def better_before(data):  # scene 2 passed, no collision: the current run regresses
         data["figures"]["at_fault"] = 0
@@ -186,12 +193,13 @@ def test_two_workers_compare_like_one_process(project):
         return {k: (r["status"], r["comparison"]["status"], r["comparison"]["message"],
                     [(c["what"], c["worse"]) for c in r["comparison"]["changes"]]) for k, r in records(project).items()}
 
-    run(project).assert_outcomes(passed=4, failed=1)
+    run(project).assert_outcomes(passed=5, failed=2)
     serial = compared()
     assert {k: v[1] for k, v in serial.items()} == {
         DRIVE: "regressed", MINE: "improved", IDM: "unchanged", "steady.scenario.yaml::closed_loop[logs]": "unchanged",
-        "fresh.scenario.yaml::closed_loop[logs]": "missing"}
-    run(project, "-n", "2").assert_outcomes(passed=4, failed=1)
+        "fresh.scenario.yaml::closed_loop[logs]": "missing", "old.scenario.yaml::closed_loop[logs]": "stale",
+        "cut.scenario.yaml::closed_loop[logs]": "error"}
+    run(project, "-n", "2").assert_outcomes(passed=5, failed=2)
     assert compared() == serial
 
 

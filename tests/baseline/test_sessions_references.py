@@ -137,8 +137,8 @@ def test_a_hand_edited_earlier_run_fails_the_item_naming_the_run_and_key(cl):
     result = cl.runpytest("-q", "-p", "no:randomly", "--driveeval-compare", str(path))
     result.assert_outcomes(passed=1, failed=1)
     assert records(cl)[DRIVE]["comparison"]["message"] == (
-        f"run {data['run']['id']} ({path.relative_to(cl.path)}): the record of {DRIVE} cannot be compared: key 'figures.at_fault' is not "
-        "a number")
+        f"run {data['run']['id']} ({path.relative_to(cl.path)}): the record of {DRIVE} cannot be compared: "
+        "key 'figures.at_fault' is not a number")
 
 
 def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
@@ -155,8 +155,9 @@ def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
     result = run(cl, "-k", "bench")
     result.assert_outcomes(passed=1)
     result.stdout.fnmatch_lines(["driveeval baselines: 2 of items that no longer exist (baselines/b.scenario.yaml/"
-                                 "closed_loop[[]logs[]].json, baselines/bench.scenario.yaml/policy_benchmark[[]steady[]]"
-                                 ".json); --driveeval-baseline-update --driveeval-baseline-prune removes them"])
+                                 "closed_loop[[]logs[]].json, baselines/bench.scenario.yaml/"
+                                 "policy_benchmark[[]steady[]].json); --driveeval-baseline-update "
+                                 "--driveeval-baseline-prune removes them"])
     assert all(p.is_file() for p in gone + kept)
     before = kept[0].read_text()
     result = run(cl, "-k", "bench", "--driveeval-baseline-update", "--driveeval-baseline-prune")
@@ -222,7 +223,8 @@ def test_compare_with_an_earlier_run_by_last_run_id_or_summary_path(cl):
     assert records(cl)[DRIVE]["comparison"]["against"].startswith(f"run {first} (")
     result = cl.runpytest(*compare, first, "--driveeval-model", "constant_velocity")
     result.assert_outcomes(failed=1)
-    result.stdout.fnmatch_lines([f"*regression against run {first} (`no commit`, *):", "    max_displacement * -> * (lower is better; tolerance *"])
+    result.stdout.fnmatch_lines([f"*regression against run {first} (`no commit`, *):",
+                                 "    max_displacement * -> * (lower is better; tolerance *"])
     path = f"driveeval-results/runs/{first}/summary.json"
     cl.runpytest(*compare, path).assert_outcomes(passed=1)
     assert statuses(cl) == {DRIVE: "unchanged"}
@@ -236,8 +238,8 @@ def test_compare_with_an_earlier_run_by_last_run_id_or_summary_path(cl):
 @pytest.mark.parametrize("args, said", [
     (["--driveeval-compare", "nosuchrun"], "*--driveeval-compare: 'nosuchrun' is neither 'last', a run id*"),
     (["--driveeval-baseline-update"], "*--driveeval-baseline-update / -prune need the baseline folder*"),
-    (["--driveeval-baseline", "b", "--driveeval-baseline-prune"], "*--driveeval-baseline-prune removes baselines "
-                                                                  "while updating them: add --driveeval-baseline-update"),
+    (["--driveeval-baseline", "b", "--driveeval-baseline-prune"],
+     "*--driveeval-baseline-prune removes baselines while updating them: add --driveeval-baseline-update"),
 ])
 def test_options_that_cannot_work_are_usage_errors(cl, args, said):
     cl.makefile(".scenario.yaml", drive=short())
