@@ -134,26 +134,47 @@ def check_baseline(text: str, path: Path, nodeid: str) -> dict[str, Any]:
     if data["key"].get("nodeid") != nodeid:
         raise BaselineError(f"baseline {where}: key 'key.nodeid' says {data['key'].get('nodeid')!r}, "
                             f"the file's place is {nodeid!r}'s; move or rewrite it")
-    _check_parts(data, f"baseline {where} of {nodeid}")
-    bad = [k for k, v in data["figures"].items() if not isinstance(v, (int, float, type(None))) or isinstance(v, bool)]
-    if bad:
-        raise BaselineError(f"baseline {where} of {nodeid}: key 'figures.{bad[0]}' is not a number")
+    problem = payload_problem(data)
+    if problem:
+        raise BaselineError(f"baseline {where} of {nodeid}: key {problem}; rewrite it with "
+                            "--driveeval-baseline-update")
     return data
 
 
-def _check_parts(data: dict[str, Any], what: str) -> None:
-    """The parts a comparison reads as mappings are mappings, and the units parse (a record of an
-    earlier run is checked too: a hand-edited summary.json must not crash the comparison)."""
-    for key in ("units", "search", "fingerprint"):
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+# nested key -> what it must be when present (None is always allowed): what a comparison reads
+_NESTED = {("run", "id"): (str,), ("run", "started"): (str,), ("run", "commit"): (str,), ("run", "dirty"): (bool,),
+           ("fingerprint", "dataset"): (dict,), ("fingerprint", "settings"): (dict,),
+           ("search", "minimal"): (dict,), ("search", "broke"): (bool,)}
+
+
+def payload_problem(data: dict[str, Any]) -> str | None:
+    """The first key of a reference (a baseline file's content, an earlier run's record) that a
+    comparison cannot read, as ``'key' is ...``; None when it reads."""
+    for key in ("units", "search", "fingerprint", "run", "figures"):
         if data.get(key) is not None and not isinstance(data[key], dict):
-            raise BaselineError(f"{what}: key '{key}' is not a mapping")
+            return f"'{key}' is not a mapping"
+    for (outer, inner), kinds in _NESTED.items():
+        value = (data.get(outer) or {}).get(inner)
+        if value is not None and not isinstance(value, kinds):
+            return f"'{outer}.{inner}' is a {type(value).__name__}, not a {kinds[0].__name__}"
     if data.get("units"):
         from .units import Units
 
         try:
             Units.from_json(data["units"])
         except ValueError as exc:
-            raise BaselineError(f"{what}: key '{exc}'") from None
+            return f"'{exc}'"
+    for group in ("figures", "search.minimal"):
+        outer, _, inner = group.partition(".")
+        values = ((data.get(outer) or {}).get(inner) if inner else data.get(outer)) or {}
+        bad = [k for k, v in values.items() if not (v is None or _number(v))]
+        if bad:
+            return f"'{group}.{bad[0]}' is not a number"
+    return None
 
 
 class RunReference:
@@ -178,8 +199,12 @@ class RunReference:
         if not isinstance(payload, dict):
             raise BaselineError(f"run {self.run.get('id')} ({display_path(self.path)}) kept no comparable record "
                                 f"of {nodeid} (made before pytest-driveeval kept one, or it did not run)")
-        _check_parts(payload, f"run {self.run.get('id')} ({display_path(self.path)}), record of {nodeid}")
-        return {**payload, "run": self.run}
+        payload = {**payload, "run": self.run}
+        problem = payload_problem(payload)
+        if problem:
+            raise BaselineError(f"run {self.run.get('id')} ({display_path(self.path)}): the record of {nodeid} "
+                                f"cannot be compared: key {problem}")
+        return payload
 
 
 #: ``last`` (the newest finished run) or ``last~N`` (N runs before it)
