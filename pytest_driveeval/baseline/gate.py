@@ -33,6 +33,11 @@ class RegressionFailed(DriveEvalError, AssertionError):
         super().__init__(comparison.message() + own)
 
 
+class BaselineRequired(RegressionFailed):
+    """Under --driveeval-baseline-strict: an item without a current baseline (missing or stale);
+    nothing got worse, but nothing was compared either."""
+
+
 @dataclass
 class BaselineOptions:
     folder: Path | None = None
@@ -109,7 +114,9 @@ def check_item(gate: Gate | None, item: Any, outcome: Outcome) -> Comparison | N
             error = BaselineError(comparison.note)
             error.outcome = outcome
             raise error
-        raise RegressionFailed(comparison, outcome)
+        if comparison.regressed:
+            raise RegressionFailed(comparison, outcome)
+        raise BaselineRequired(comparison, outcome)
     return comparison
 
 
@@ -203,5 +210,5 @@ def prune(paths: list[Path], folder: Path) -> list[str]:
     return problems
 
 
-__all__ = ["BaselineError", "BaselineOptions", "Gate", "RegressionFailed", "check_item", "prune",
+__all__ = ["BaselineError", "BaselineOptions", "BaselineRequired", "Gate", "RegressionFailed", "check_item", "prune",
            "relative_path", "unused_baselines", "update_baselines"]

@@ -54,7 +54,7 @@ def test_a_baseline_made_with_other_settings_is_stale_not_compared_and_fails_onl
     assert said in comparison["message"] and comparison["message"].endswith("not compared (update the baseline)")
     result = run(cl, "--driveeval-baseline-strict")
     result.assert_outcomes(failed=1)
-    result.stdout.fnmatch_lines(["*RegressionFailed: stale baseline `no commit` (*): the settings changed (*"])
+    result.stdout.fnmatch_lines(["*BaselineRequired: stale baseline `no commit` (*): the settings changed (*"])
 
 
 def test_a_policy_baseline_of_other_episodes_is_stale(cl):
