@@ -202,7 +202,8 @@ def settings_from_config(config: pytest.Config) -> Settings:
         raise pytest.UsageError(f"driveeval search profile must be 'default' or 'ci', got {profile!r}")
     executor, _ = pick("driveeval_executor", "driveeval_executor")
     baseline, baseline_base = pick("driveeval_baseline", "driveeval_baseline")
-    update, prune = bool(config.getoption("driveeval_baseline_update")), bool(config.getoption("driveeval_baseline_prune"))
+    update = bool(config.getoption("driveeval_baseline_update"))
+    prune = bool(config.getoption("driveeval_baseline_prune"))
     if (update or prune) and not baseline:
         raise pytest.UsageError("--driveeval-baseline-update / -prune need the baseline folder: "
                                 "--driveeval-baseline DIR or ini driveeval_baseline")
@@ -232,7 +233,8 @@ def settings_from_config(config: pytest.Config) -> Settings:
         baseline_dir=(baseline_base / baseline).resolve() if baseline else None,
         baseline_update=update,
         baseline_prune=prune,
-        baseline_strict=bool(config.getoption("driveeval_baseline_strict") or config.getini("driveeval_baseline_strict")),
+        baseline_strict=bool(config.getoption("driveeval_baseline_strict")
+                             or config.getini("driveeval_baseline_strict")),
         compare=config.getoption("driveeval_compare") or None,
     )
 
