@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from math import comb
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,13 +39,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pytest_driveeval.baseline.compare import Comparison, compare  # noqa: E402
-from pytest_driveeval.baseline.paired import PairedRate, paired_rate  # noqa: E402
+from pytest_driveeval.baseline.paired import PairedRate, paired_rate, two_sided_p  # noqa: E402
 from pytest_driveeval.baseline.payload import make_payload  # noqa: E402
 from pytest_driveeval.outcome import PASSED, Outcome  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
 from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
 from pytest_driveeval.usecase import get_usecase  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark import regression  # noqa: E402
+from pytest_driveeval.usecases.policy_benchmark.regression import FIGURES  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun, run_policy, seeds_for  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,6 +111,20 @@ def gate(before: PolicyRun, now: PolicyRun, what: str, confidence: float) -> Row
                                confidence)
              for name, event in zip(RATES, ("goal", "collision", "off_road"))}
     return Row(what, before, now, comparison, tests)
+
+
+def chance_of_firing(row: Row, confidence: float) -> float:
+    """How likely the gate is to fire on this pair's discordant counts if the two policies are
+    equally good (each discordant episode as likely to go either way): per rate, the exact test's
+    chance of rejecting on its worse side; summed over the rates (a bound: they can fire together)."""
+    alpha = 1.0 - confidence / 100.0
+    total = 0.0
+    for name, test in row.tests.items():
+        d = test.worse + test.better
+        # the count on the worse side: goals lost for the goal rate, the event gained for the others
+        worse_side = range(d // 2 + 1) if FIGURES[name].better == "higher" else range(d - d // 2, d + 1)
+        total += sum(comb(d, k) for k in worse_side if 2 * k != d and two_sided_p(min(k, d - k), d) < alpha) / 2 ** d
+    return total
 
 
 @dataclass
@@ -198,6 +214,9 @@ def main() -> None:
           f"(some rate significantly different either way: {changed} of {len(result.pairs)}); "
           f"discordant goal episodes per pair: median {np.median(discordant) if discordant else 0:g}, "
           f"range {min(discordant, default=0)}-{max(discordant, default=0)}")
+    expected = sum(chance_of_firing(row, args.confidence) for row in result.pairs)
+    print(f"expected false alarms if the pairs are equally good, given their discordant counts (exact): "
+          f"{expected:.2f} of {len(result.pairs)} ({100 * expected / max(1, len(result.pairs)):.1f} % per pair)")
     print(f"{result.seconds:.0f} s")
 
 

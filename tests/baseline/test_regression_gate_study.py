@@ -87,3 +87,11 @@ def test_the_table_prints_every_comparison(script, small):
     text = script.table(small)
     assert text.count("\n") == 2 + 2 + len(small.pairs) - 1
     assert "gnn -> gnn+noise[0]" in text and text.splitlines()[2].endswith("regressed")
+
+
+def test_the_chance_of_a_false_alarm_is_the_exact_tests_worse_side(script, small):
+    """At most half of each rate's two-sided alpha (only the worse side fails an item), summed."""
+    for row in small.pairs:
+        chance = script.chance_of_firing(row, small.confidence)
+        assert 0 <= chance <= 3 * (1 - small.confidence / 100) / 2
+    assert script.chance_of_firing(small.rerun, small.confidence) == 0.0
