@@ -121,7 +121,7 @@ def chance_of_firing(row: Row, confidence: float) -> float:
     total = 0.0
     for name, test in row.tests.items():
         d = test.worse + test.better
-        # the count on the worse side: goals lost for the goal rate, the event gained for the others
+        # k counts the discordant episodes that gained the event: few is worse for goals, many for crashes
         worse_side = range(d // 2 + 1) if FIGURES[name].better == "higher" else range(d - d // 2, d + 1)
         total += sum(comb(d, k) for k in worse_side if 2 * k != d and two_sided_p(min(k, d - k), d) < alpha) / 2 ** d
     return total

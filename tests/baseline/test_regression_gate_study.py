@@ -37,7 +37,7 @@ def script():
 
 @pytest.fixture(scope="module")
 def small(script):
-    return script.study(episodes=64, pairs=2, noise=0.4)
+    return script.study(episodes=64, pairs=1, noise=0.4)
 
 
 def expected_regression(before, now, confidence: float) -> bool:
@@ -66,7 +66,7 @@ def test_a_rerun_of_the_deterministic_gnn_changes_no_episode(small):
 
 
 def test_the_gate_on_equally_good_policies_is_the_paired_tests(small):
-    assert len(small.pairs) == 2
+    assert len(small.pairs) == 1
     for row in small.pairs + [small.regression, small.rerun]:
         assert row.fired == expected_regression(row.before, row.now, small.confidence), row.what
         # the two noisy copies differ in some episodes: the comparison is not a trivial one
