@@ -19,6 +19,11 @@ from .settings import DECLARED_SUFFIXES, get_settings
 from .usecase import Case, usecase_of
 
 
+#: config.stash: scenario file -> the names of the items it collected in this process, so that the
+#: session's end (baselines of items that no longer exist) need not load every file again
+_COLLECTED = pytest.StashKey["dict[Path, set[str]]"]()
+
+
 def is_scenario_file(path: Path, patterns: Iterable[str]) -> bool:
     return any(fnmatch.fnmatch(path.name, pattern) for pattern in patterns)
 
@@ -131,6 +136,7 @@ class ScenarioFile(pytest.File):
             yield ScenarioItem.from_parent(
                 self, name=case.name, callobj=_scenario_function(scenario), scenario=scenario, case=case,
             )
+        self.config.stash.setdefault(_COLLECTED, {})[self.path] = seen
 
 
 def scenario_item_names(path: Path, config: pytest.Config) -> set[str] | None:
@@ -139,6 +145,10 @@ def scenario_item_names(path: Path, config: pytest.Config) -> set[str] | None:
     settings = get_settings(config)
     if not is_scenario_file(path, settings.patterns):
         return None
+    # Collected here before -k or -m deselected any (an xdist controller collects nothing: it loads)
+    collected = config.stash.get(_COLLECTED, {}).get(path)
+    if collected is not None:
+        return set(collected)
     try:
         scenario = load_scenario(path, data_root=settings.data_root,
                                  envelope_optional=not path.name.endswith(DECLARED_SUFFIXES))

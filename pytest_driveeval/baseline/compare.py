@@ -186,8 +186,9 @@ def _paired_change(name: str, rule: FigureRule, before: float, after: float, bu:
     test = paired_rate(was, now, confidence)
     if not test.significant():
         return []
-    # The rate counts ``event``; which direction of it is worse is the rule's.
-    worse = (test.low > 0) == (rule.better == "lower")
+    # The rate counts ``event``; which direction of it is worse is the rule's.  The direction is the
+    # counts' (at the knife edge p == alpha an end of the interval is exactly zero).
+    worse = (test.worse > test.better) == (rule.better == "lower")
     word = " / ".join(au.word(code) for code in event)
     gained = [u for (i, j, u), w, n in zip(shared, was, now) if n and not w]
     lost = [u for (i, j, u), w, n in zip(shared, was, now) if w and not n]

@@ -6,7 +6,9 @@ nothing about a difference: only the discordant ones do (McNemar).  Under "no di
 binomial(d, 1/2): the exact test conditions on ``d``.  The interval of the difference in rates is
 the Clopper-Pearson interval of that binomial's proportion, scaled by ``d / n``; it excludes zero
 exactly when the two-sided exact test rejects at the same level, so the verdict and the interval
-printed beside it never disagree.
+printed beside it never disagree.  That holds in exact arithmetic; the two are computed by different
+routines, so where the p-value equals alpha (an interval's end at zero) rounding could put that end a
+hair on either side: the p-value decides, and the end is put at zero on the side it says.
 """
 from __future__ import annotations
 
@@ -31,7 +33,24 @@ class PairedRate:
         return 100.0 * (self.worse - self.better) / self.episodes if self.episodes else 0.0
 
     def significant(self) -> bool:
-        return self.low > 0 or self.high < 0
+        return self.p_value < 1.0 - self.confidence / 100.0
+
+
+#: Up to this many discordant episodes the p-value is summed in whole numbers (under a millisecond)
+EXACT_LIMIT = 2048
+
+
+def two_sided_p(k: int, d: int) -> float:
+    """P(X <= k or X >= d - k) for X ~ binomial(d, 1/2), k <= d / 2.  Exact (then rounded once) for
+    the small ``d`` where a p-value can equal a confidence's alpha, as 1/16 = 93.75 % does: the
+    verdict at that edge is the exact test's, not the rounding's."""
+    if d > EXACT_LIMIT:
+        return min(1.0, 2.0 * float(special.bdtr(k, d, 0.5)))
+    term = total = 1
+    for i in range(1, k + 1):
+        term = term * (d - i + 1) // i
+        total += term
+    return min(1.0, total / 2 ** (d - 1))
 
 
 def paired_rate(bad_before: np.ndarray, bad_now: np.ndarray, confidence: float) -> PairedRate:
@@ -44,8 +63,15 @@ def paired_rate(bad_before: np.ndarray, bad_now: np.ndarray, confidence: float) 
     alpha = 1.0 - confidence / 100.0
     if d == 0:
         return PairedRate(n, 0, 0, 1.0, 0.0, 0.0, confidence)
-    p = min(1.0, 2.0 * float(special.bdtr(min(worse, better), d, 0.5)))
+    p = two_sided_p(min(worse, better), d)
     lo = 0.0 if worse == 0 else float(special.betaincinv(worse, d - worse + 1, alpha / 2))
     hi = 1.0 if worse == d else float(special.betaincinv(worse + 1, d - worse, 1 - alpha / 2))
     scale = 100.0 * d / n
-    return PairedRate(n, worse, better, p, scale * (2 * lo - 1), scale * (2 * hi - 1), confidence)
+    low, high = scale * (2 * lo - 1), scale * (2 * hi - 1)
+    if p >= alpha:
+        low, high = min(low, 0.0), max(high, 0.0)
+    elif worse > better:
+        low = max(low, 0.0)
+    else:
+        high = min(high, 0.0)
+    return PairedRate(n, worse, better, p, low, high, confidence)
