@@ -26,10 +26,10 @@ from .execute import ExecutorSpec, executor_from_option
 from .outcome import OUTCOME_ATTR, Outcome
 from .progress import item_progress
 from .report.attachments import allure_wanted, attach_to_allure, junit_properties
+from .results import item_trend
 from .scenario import Scenario, load_scenario
 from .search.spec import SearchOptions, parse_replay
-from .report.trends import DEFAULT_RUNS, trend_png
-from .runs import HISTORY_NAME, start_run
+from .runs import start_run
 from .settings import TIME_LIMIT_KEYS, Settings, get_settings, item_seed
 from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
@@ -186,17 +186,6 @@ def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome, ori
     if allure_wanted(request.config):
         attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None,
                          trend=item_trend(request.node))
-
-
-def item_trend(item: pytest.Item) -> bytes | None:
-    """The item's key figures over the output folder's last runs and this one (a PNG), or None:
-    no earlier run has it, or its outcome made no comparable record."""
-    payload = getattr(item, PAYLOAD_ATTR, None)
-    if not payload or not payload.get("figures"):
-        return None
-    settings = get_settings(item.config)
-    return trend_png(settings.output_dir / HISTORY_NAME, item.nodeid, payload["figures"], settings.run.id,
-                     settings.keep_runs or DEFAULT_RUNS)
 
 
 def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | None, str]:

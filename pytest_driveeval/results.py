@@ -18,12 +18,12 @@ from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, prune, unused_baseline
 from .collect import InvalidScenarioItem, scenario_item_names
 from .errors import DriveEvalError, display_path
 from .failure import Failure
-from .fixtures import item_trend
 from .baseline.session import COMPARE_KEY, session_gate
 from .outcome import OUTCOME_ATTR, Outcome, replaced_model
 from .report.attachments import comparison_cell, html_extras, html_wanted
 from .report.summary import SUMMARY_NAME, TERMINAL_MARKUP, policy_table_html, terminal_rows, verdict_reason
-from .runs import finish_run
+from .report.trends import DEFAULT_RUNS, trend_png
+from .runs import HISTORY_NAME, finish_run
 from .settings import RUN_KEY, get_settings
 
 REPORT_ATTR = "driveeval"
@@ -59,6 +59,17 @@ def item_record(item: pytest.Item, failure: Failure | None, with_outcome: bool) 
     if failure is not None:
         record.update(failure.to_json())
     return record
+
+
+def item_trend(item: pytest.Item) -> bytes | None:
+    """The item's key figures over the output folder's last runs and this one (a PNG), or None:
+    no earlier run has it, or its outcome made no comparable record."""
+    payload = getattr(item, PAYLOAD_ATTR, None)
+    if not payload or not payload.get("figures"):
+        return None
+    settings = get_settings(item.config)
+    return trend_png(settings.output_dir / HISTORY_NAME, item.nodeid, payload["figures"], settings.run.id,
+                     settings.keep_runs or DEFAULT_RUNS)
 
 
 def annotate_report(item: pytest.Item, call: pytest.CallInfo, report: pytest.TestReport) -> None:
