@@ -1,7 +1,7 @@
 """Where references live: a folder of baseline files committed with the scenarios, or the summary
 of an earlier run in the output folder.
 
-A baseline file is JSON, indented, keys sorted, one per item at ``<DIR>/<scenario file>/<item>.json``
+A baseline file is JSON, indented, keys sorted, one per item at ``<DIR>/<scenario file>.d/<item>.json``
 (the scenario file's path from the rootdir), so that a changed figure is a changed line in a diff.
 Reading one parses JSON and checks its shape; it never runs anything in it.  Writing replaces the
 file atomically (two sessions updating at once leave one whole file), never through a symbolic link.
@@ -20,6 +20,7 @@ from ..runs import HISTORY_NAME, RUNS_FOLDER
 
 BASELINE_FORMAT = 1
 SUFFIX = ".json"
+FOLDER_SUFFIX = ".d"
 _UNSAFE = re.compile(r"[^A-Za-z0-9._=,+@\[\]-]+")
 MAX_NAME = 150
 
@@ -40,9 +41,12 @@ def _safe(part: str) -> str:
 
 
 def relative_path(nodeid: str) -> PurePosixPath:
-    """``a/b.scenario.yaml::closed_loop[x]`` -> ``a/b.scenario.yaml/closed_loop[x].json``."""
+    """``a/b.scenario.yaml::closed_loop[x]`` -> ``a/b.scenario.yaml.d/closed_loop[x].json``."""
     file, _, item = nodeid.partition("::")
     parts = [_safe(p) for p in PurePosixPath(file).parts if p not in ("", ".", "/")]
+    if parts:
+        # A folder named like the scenario file would be found by every "**/*.yaml" glob.
+        parts[-1] += FOLDER_SUFFIX
     return PurePosixPath(*parts, _safe(item.replace("::", "__") or "item") + SUFFIX)
 
 

@@ -127,11 +127,11 @@ def test_every_way_of_naming_a_run_gives_the_same_rows(pytester):
     # One unreadable baseline file is named; the rest of the folder still compares.
     broken = pytester.path / "broken"
     shutil.copytree(pytester.path / "baselines", broken)
-    same = next(broken.rglob("same.scenario.yaml/*.json"))
+    same = next(broken.rglob("same.scenario.yaml.d/*.json"))
     same.write_text(same.read_text()[:40])
     result = cli(pytester.path, "broken", "last")
     assert result.returncode == 2
-    assert f"error: baseline broken/same.scenario.yaml/{same.name} of (unknown item) is not valid JSON (truncated?)" \
+    assert f"error: baseline broken/same.scenario.yaml.d/{same.name} of (unknown item) is not valid JSON (truncated?)" \
         in result.stderr
     assert next(x for x in result.stdout.splitlines() if A_ITEM in x).startswith("regressed")
 

@@ -37,7 +37,7 @@ def test_gate_compares_with_the_baseline_file(tmp_path):
     gate = Gate(BaselineOptions(tmp_path))
     result = gate.compare("s.yaml::t", payload("s.yaml::t", at_fault=2))
     assert result.status == REGRESSED and result.against.startswith("baseline `abcdef`")
-    assert result.source.endswith("s.yaml/t.json")
+    assert result.source.endswith("s.yaml.d/t.json")
     missing = gate.compare("s.yaml::u", payload("s.yaml::u"))
     assert (missing.status, missing.note) == (MISSING, NO_BASELINE)
 
@@ -88,7 +88,7 @@ def test_unused_baselines_are_those_of_gone_files_and_gone_items(tmp_path):
 
 def test_files_the_plugin_did_not_write_there_are_never_unused(tmp_path):
     root, folder, store = baselines(tmp_path, ["gone.yaml::x"])
-    moved = folder / "gone.yaml" / "elsewhere.json"
+    moved = folder / "gone.yaml.d" / "elsewhere.json"
     store.path_for("gone.yaml::x").rename(moved)            # its content names another place
     (folder / "notes.json").write_text("[1]")               # not ours
     (folder / "broken.json").write_text("{")
@@ -98,14 +98,14 @@ def test_files_the_plugin_did_not_write_there_are_never_unused(tmp_path):
 def test_prune_removes_the_files_and_the_folders_they_leave_empty_and_nothing_else(tmp_path):
     root, folder, store = baselines(tmp_path, ["gone/deep/a.yaml::x", "gone/deep/a.yaml::y", "kept/b.yaml::x",
                                                "kept/b.yaml::y"])
-    foreign = folder / "kept" / "b.yaml" / "README.txt"
+    foreign = folder / "kept" / "b.yaml.d" / "README.txt"
     foreign.write_text("mine")
     paths = [store.path_for(n) for n in ("gone/deep/a.yaml::x", "gone/deep/a.yaml::y", "kept/b.yaml::x")]
     assert prune(paths, folder) == []
     assert not (folder / "gone").exists()
     assert folder.is_dir()
     assert sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*")) == [
-        "kept", "kept/b.yaml", "kept/b.yaml/README.txt", "kept/b.yaml/y.json"]
+        "kept", "kept/b.yaml.d", "kept/b.yaml.d/README.txt", "kept/b.yaml.d/y.json"]
     assert foreign.read_text() == "mine"
 
 
@@ -143,7 +143,7 @@ def test_update_reports_a_file_it_cannot_write_and_goes_on(tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     (tmp_path / "b").mkdir()
-    (tmp_path / "b" / "link.yaml").symlink_to(elsewhere, target_is_directory=True)
+    (tmp_path / "b" / "link.yaml.d").symlink_to(elsewhere, target_is_directory=True)
     records = [{"nodeid": "link.yaml::t", "status": "passed", "baseline": payload("link.yaml::t")},
                {"nodeid": "ok.yaml::t", "status": "passed", "baseline": payload("ok.yaml::t")}]
     written, problems = update_baselines(tmp_path / "b", records, {})

@@ -62,7 +62,7 @@ def test_update_writes_one_sorted_indented_file_per_item_and_the_next_session_fi
     run_id = json.loads((project.path / "driveeval-results" / "summary.json").read_text())["run"]["id"]
     for nodeid in (DRIVE, MINE, IDM):
         path = baseline_path(project, nodeid)
-        assert path.parent == project.path / BASELINES / nodeid.split("::")[0]
+        assert path.parent == project.path / BASELINES / (nodeid.split("::")[0] + ".d")
         text = path.read_text()
         data = json.loads(text)
         assert text == json.dumps(data, indent=1, sort_keys=True, ensure_ascii=False) + "\n"  # diff-friendly

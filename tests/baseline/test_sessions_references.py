@@ -108,7 +108,7 @@ def test_a_corrupt_baseline_fails_its_item_naming_file_and_key_and_the_others_ru
     assert by_id[node["good"]]["comparison"]["status"] == "unchanged"
     messages = {n: by_id[node[n]]["comparison"]["message"] for n in names[1:]}
     assert all(by_id[node[n]]["comparison"]["status"] == "error" for n in names[1:])
-    where = {n: f"baseline {BASELINES}/{n}.scenario.yaml/closed_loop[logs].json" for n in names}
+    where = {n: f"baseline {BASELINES}/{n}.scenario.yaml.d/closed_loop[logs].json" for n in names}
     assert messages["cut"].startswith(f"{where['cut']} of {node['cut']} is not valid JSON (truncated?)")
     assert messages["moved"].startswith(f"{where['moved']}: key 'key.nodeid' says '{node['good']}'")
     assert messages["newer"].startswith(f"{where['newer']}: format 2 (key 'driveeval_baseline') is newer than this pytest-driveeval reads (1)")
@@ -154,8 +154,8 @@ def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
             baseline_path(cl, "bench.scenario.yaml::policy_benchmark[idm]")]
     result = run(cl, "-k", "bench")
     result.assert_outcomes(passed=1)
-    result.stdout.fnmatch_lines(["driveeval baselines: 2 of items that no longer exist (baselines/b.scenario.yaml/"
-                                 "closed_loop[[]logs[]].json, baselines/bench.scenario.yaml/"
+    result.stdout.fnmatch_lines(["driveeval baselines: 2 of items that no longer exist (baselines/b.scenario.yaml.d/"
+                                 "closed_loop[[]logs[]].json, baselines/bench.scenario.yaml.d/"
                                  "policy_benchmark[[]steady[]].json); --driveeval-baseline-update "
                                  "--driveeval-baseline-prune removes them"])
     assert all(p.is_file() for p in gone + kept)

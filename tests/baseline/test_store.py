@@ -49,8 +49,8 @@ def test_different_node_ids_never_share_a_file():
 
 
 def test_plain_node_ids_keep_readable_paths():
-    assert relative_path("a/b.scenario.yaml::closed_loop[x]") == PurePosixPath("a/b.scenario.yaml/closed_loop[x].json")
-    assert relative_path("t.py::C::test[1-2]") == PurePosixPath("t.py/C__test[1-2].json")
+    assert relative_path("a/b.scenario.yaml::closed_loop[x]") == PurePosixPath("a/b.scenario.yaml.d/closed_loop[x].json")
+    assert relative_path("t.py::C::test[1-2]") == PurePosixPath("t.py.d/C__test[1-2].json")
 
 
 def test_a_long_name_is_cut_with_a_digest_of_all_of_it():
@@ -93,10 +93,10 @@ def test_write_refuses_a_symlinked_folder_on_the_way(tmp_path):
     root, elsewhere = tmp_path / "baselines", tmp_path / "elsewhere"
     root.mkdir()
     elsewhere.mkdir()
-    (root / "s.yaml").symlink_to(elsewhere, target_is_directory=True)
+    (root / "s.yaml.d").symlink_to(elsewhere, target_is_directory=True)
     (elsewhere / "t.json").write_text("not ours")
     store = BaselineStore(root)
-    with pytest.raises(BaselineError, match="s.yaml is a symbolic link"):
+    with pytest.raises(BaselineError, match="s.yaml.d is a symbolic link"):
         store.write("s.yaml::t", PAYLOAD, RUN)
     with pytest.raises(BaselineError, match="symbolic link"):
         store.read("s.yaml::t")
