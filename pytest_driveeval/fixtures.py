@@ -16,8 +16,7 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from .baseline.compare import Comparison
-from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, Gate, check_item, payload_of
+from .baseline.gate import PAYLOAD_ATTR, ItemBaseline
 from .baseline.payload import make_payload
 from .baseline.session import session_gate
 from .deadline import time_limit
@@ -36,6 +35,8 @@ from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()
 _SEARCH_KEY = pytest.StashKey[SearchOptions]()
+
+
 def session_executor(config: pytest.Config) -> ExecutorSpec | None:
     """The executor --driveeval-executor (or ini driveeval_executor) sets for the session, or None."""
     if _EXECUTOR_KEY not in config.stash:
@@ -197,38 +198,6 @@ def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | No
         return settings.time_limit, (f"the default of {settings.time_limit:g} s; set TimeLimit in the scenario "
                                      f"or {TIME_LIMIT_KEYS}, 0 for none")
     return settings.time_limit, TIME_LIMIT_KEYS
-
-
-class ItemBaseline:
-    """What the ``driveeval_baseline`` fixture gives a test: its item's reference and the gate.
-
-    ``check(outcome)`` compares and returns the comparison; ``gate(outcome)`` also fails the test
-    when the session's rules say so (a regression; a missing or stale baseline under strict).
-    """
-
-    def __init__(self, gate: Gate | None, item: pytest.Item):
-        self._gate = gate
-        self._item = item
-
-    @property
-    def active(self) -> bool:
-        return self._gate is not None
-
-    @property
-    def reference(self) -> dict | None:
-        return self._gate.reference(self._item.nodeid)[0] if self._gate is not None else None
-
-    def check(self, outcome: Outcome) -> Comparison | None:
-        """The comparison of ``outcome`` with the reference (kept for the reports); never raises."""
-        if self._gate is None:
-            return None
-        comparison = self._gate.compare(self._item.nodeid, payload_of(self._item, outcome))
-        setattr(self._item, COMPARISON_ATTR, comparison)
-        return comparison
-
-    def gate(self, outcome: Outcome) -> Comparison | None:
-        __tracebackhide__ = True
-        return check_item(self._gate, self._item, outcome)
 
 
 @pytest.fixture

@@ -148,6 +148,38 @@ def assert_no_regression(outcome: Outcome, baseline: Any) -> Comparison:
     return comparison
 
 
+class ItemBaseline:
+    """What the ``driveeval_baseline`` fixture gives a test: its item's reference and the gate.
+
+    ``check(outcome)`` compares and returns the comparison; ``gate(outcome)`` also fails the test
+    when the session's rules say so (a regression; a missing or stale baseline under strict).
+    """
+
+    def __init__(self, gate: Gate | None, item: Any):
+        self._gate = gate
+        self._item = item
+
+    @property
+    def active(self) -> bool:
+        return self._gate is not None
+
+    @property
+    def reference(self) -> dict | None:
+        return self._gate.reference(self._item.nodeid)[0] if self._gate is not None else None
+
+    def check(self, outcome: Outcome) -> Comparison | None:
+        """The comparison of ``outcome`` with the reference (kept for the reports); never raises."""
+        if self._gate is None:
+            return None
+        comparison = self._gate.compare(self._item.nodeid, payload_of(self._item, outcome))
+        setattr(self._item, COMPARISON_ATTR, comparison)
+        return comparison
+
+    def gate(self, outcome: Outcome) -> Comparison | None:
+        __tracebackhide__ = True
+        return check_item(self._gate, self._item, outcome)
+
+
 def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str, Any]) -> tuple[int, list[str]]:
     """Write the baselines of the items that ran to the end (controller only).  Returns (written,
     problems); an item that errored keeps its old baseline."""
@@ -210,5 +242,5 @@ def prune(paths: list[Path], folder: Path) -> list[str]:
     return problems
 
 
-__all__ = ["BaselineError", "BaselineOptions", "BaselineRequired", "Gate", "RegressionFailed", "check_item", "prune",
+__all__ = ["BaselineError", "BaselineOptions", "BaselineRequired", "ItemBaseline", "Gate", "RegressionFailed", "check_item", "prune",
            "relative_path", "unused_baselines", "update_baselines"]
