@@ -304,7 +304,9 @@ def render_text(a: Side, b: Side, rows: list[Row], shown: list[Row], width: int)
         f"{'status':<{status_width}}  item / verdict; key figures: A -> B (change)", width=width)
     indent = " " * (status_width + 2)
     for row in shown:
-        parts = [verdict_text(row), *(figure_text(f, row.status, arrows) for f in row.figures)]
+        # A Python test that made no outcome has no verdict: nothing to say, rather than "None".
+        parts = [p for p in (verdict_text(row),) if p != "None"] + [figure_text(f, row.status, arrows)
+                                                                      for f in row.figures]
         line = f"{row.status:<{status_width}}  {row.nodeid:<{id_width}}  {'; '.join(parts)}".rstrip()
         if len(line) <= width:
             lines.append(line)
