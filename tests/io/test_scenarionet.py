@@ -8,6 +8,8 @@ import pytest
 from pytest_driveeval.io.safe_pickle import UnsafePickleError
 from pytest_driveeval.io.scenarionet import (ScenarioNetError, feature_group, read_scenario, scenario_files)
 
+from scenarionet_made import scenario, write
+
 
 @pytest.fixture
 def nuscenes(shared_data):
@@ -41,37 +43,6 @@ def test_every_documented_feature_type_has_its_group():
     assert feature_group("LANE_FREEWAY") == "lane" and feature_group("ROAD_LINE_PASSING_DOUBLE_YELLOW") == "road_line"
     assert feature_group("ROAD_EDGE_SIDEWALK") == "road_edge" and feature_group("CROSSWALK") == "area"
     assert feature_group("STOP_SIGN") == "point" and feature_group("SOMETHING_NEW") == "other"
-
-
-def scenario(steps=4, **change):
-    def track(kind="VEHICLE"):
-        return {"type": kind, "state": {
-            "position": np.zeros((steps, 3)), "heading": np.zeros(steps), "velocity": np.zeros((steps, 2)),
-            "valid": np.ones(steps), "length": np.full((steps, 1), 4.5), "width": np.full((steps, 1), 2.0),
-            "height": np.full((steps, 1), 1.5)}}
-
-    data = {"id": "s1", "version": "x", "length": steps,
-            "metadata": {"sdc_id": "ego", "ts": np.arange(steps) * 0.1, "sample_rate": 0.1, "dataset": "test"},
-            "tracks": {"ego": track(), "car": track(), "cone": track("TRAFFIC_CONE")},
-            "map_features": {"lane_1": {"type": "LANE_SURFACE_STREET", "polyline": np.array([[0.0, 0], [10, 0]]),
-                                        "polygon": np.array([[0.0, -2], [10, -2], [10, 2], [0, 2]])},
-                             "stop": {"type": "STOP_SIGN", "position": np.array([5.0, 2.0, 0.0])},
-                             "walk": {"type": "CROSSWALK", "polygon": np.array([[4.0, -2], [5, -2], [5, 2]])}},
-            "dynamic_map_states": {"tl": {"lane": "lane_1", "state": {"object_state": ["LANE_STATE_GO"] * steps},
-                                          "stop_point": np.array([9.0, 0.0, 0.0])}}}
-    for keypath, value in change.items():
-        *outer, last = keypath.split("__")
-        target = data
-        for key in outer:
-            target = target[key]
-        target[last] = value
-    return data
-
-
-def write(tmp_path, data, name="sd_test.pkl"):
-    path = tmp_path / name
-    path.write_bytes(pickle.dumps(data, protocol=4))
-    return path
 
 
 def test_a_made_scenario_reads_with_its_lights_and_point_features(tmp_path):
