@@ -45,9 +45,10 @@ class ClosedLoop(UseCase):
         return regression.scene_units(outcome)
 
     def load_dataset(self, ctx: RunContext) -> L5Dataset:
-        from pytest_driveeval.io.l5kit_zarr import L5Dataset
+        from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
 
-        return L5Dataset.open(super().load_dataset(ctx))
+        declared = (ctx.dataset.options or {}).get("Format") if ctx.dataset is not None else None
+        return open_dataset(super().load_dataset(ctx), declared)
 
     def load_model(self, ctx: RunContext, spec: str | None):
         from pytest_driveeval.policies.loading import (

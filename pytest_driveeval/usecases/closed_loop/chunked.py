@@ -61,14 +61,14 @@ def _policy(chunk: SceneChunk) -> Any:
 
 def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     """A chunk's scenes unrolled, judged and drawn, on whichever process runs it."""
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.usecases.closed_loop.config import replayed_agents
     from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_gif
     from pytest_driveeval.usecases.closed_loop.evaluate import collision_events, judge_scene, unroll_scenes
 
     config, spec = chunk.config, chunk.config.Unroll
-    dataset = L5Dataset.open(chunk.dataset)
+    dataset = open_dataset(chunk.dataset)
     from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
     semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder)
@@ -114,13 +114,13 @@ class SearchChunk:
 
 def run_search_chunk(chunk: SearchChunk) -> list:
     """The chunk's examples judged as the local search judges them (robustness.closed_loop_searchable)."""
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.usecases.closed_loop.config import replayed_agents
     from pytest_driveeval.usecases.closed_loop.robustness import closed_loop_searchable
 
     scenes = chunk.scenes
-    dataset = L5Dataset.open(scenes.dataset)
+    dataset = open_dataset(scenes.dataset)
     searchable = closed_loop_searchable(scenes.config, dataset, _policy(scenes), list(scenes.scenes),
                                         replayed_agents(scenes.config.Unroll.Agents), show=None)
     with one_torch_thread():

@@ -1,0 +1,57 @@
+"""ScenarioNet scenario folders as closed-loop datasets in a scenario file: recognised from their
+files or declared with Format, the real nuScenes-mini scenes driven by the shipped planning model."""
+import json
+
+import numpy as np
+import pytest
+
+from conftest import REPO_ROOT
+from pytest_driveeval.errors import DataError
+from pytest_driveeval.usecases.closed_loop.datasets import format_of, open_dataset
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - nuscenes_mini:
+        Path: {data}
+{format}  Model: {model}
+  Unroll:
+    StartFrame: 10
+    Steps: 60
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
+    Displacement: {{Max: 30.0}}
+"""
+
+
+def test_the_files_tell_the_format(shared_data, tmp_path):
+    assert format_of(shared_data / "scenarionet" / "nuscenes") == "scenarionet"
+    assert format_of(next((shared_data / "scenarionet" / "nuscenes").glob("*.pkl"))) == "scenarionet"
+    assert format_of(REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr") == "l5kit"
+    with pytest.raises(DataError, match="Format says l5kit, but the files are scenarionet's"):
+        open_dataset(shared_data / "scenarionet" / "nuscenes", "l5kit")
+    with pytest.raises(DataError, match="Format 'waymo' is not one of l5kit, scenarionet"):
+        open_dataset(shared_data / "scenarionet" / "nuscenes", "waymo")
+
+
+def test_the_planning_model_drives_the_real_nuscenes_scenes_from_a_scenario(pytester, shared_data):
+    def scenario(name, declared):
+        return SCENARIO.format(name=name, data=shared_data / "scenarionet" / "nuscenes",
+                               format="        Format: scenarionet\n" if declared else "",
+                               model=REPO_ROOT / "fixtures" / "models" / "planning_model.pt2")
+
+    pytester.makefile(".scenario.yaml", declared=scenario("declared", True), found=scenario("found", False))
+    pytester.runpytest("-p", "no:randomly")
+    records = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]
+    assert [r["scenario"] for r in records] == ["declared", "found"]
+    for record in records:
+        assert record["figures"]["scenes"] == 6 and record["figures"]["steps"] == 6 * 60
+        assert [s["scene"] for s in record["details"]["scenes"]] == list(range(6))
+        assert all(np.isfinite(s["max_displacement"]) for s in record["details"]["scenes"])
+    # Declared or found from the files, the same reader: the same unroll, figure for figure.
+    assert records[0]["figures"] == records[1]["figures"]
+    assert records[0]["details"]["scenes"] == records[1]["details"]["scenes"]
