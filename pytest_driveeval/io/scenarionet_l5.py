@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import DataError
 from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
 
@@ -104,12 +105,25 @@ class ScenarioNetDataset:
             self._scenes[index] = l5_scene(self.source(index), index)
         return self._scenes[index]
 
+    def problem(self, index: int) -> str | None:
+        """Why scene ``index`` cannot be read (its file, scenario and object named), or None: a
+        folder's broken scenario fails alone, the others still run."""
+        try:
+            self.scene(index)
+        except DataError as exc:
+            return str(exc)
+        return None
+
     @property
     def scenes(self) -> np.ndarray:
-        """The l5kit scene table (frame intervals as if the scenes were stored one after another)."""
+        """The l5kit scene table (frame intervals as if the scenes were stored one after another);
+        a scenario that cannot be read has no frames."""
         table = np.zeros(self.num_scenes, SCENE_DTYPE)
         start = 0
         for i in range(self.num_scenes):
+            if self.problem(i) is not None:
+                table[i]["frame_index_interval"] = (start, start)
+                continue
             scene = self.scene(i)
             table[i] = ((start, start + scene.num_frames), scene.host, scene.start_time, scene.end_time)
             start += scene.num_frames

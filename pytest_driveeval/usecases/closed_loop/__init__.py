@@ -109,6 +109,12 @@ class ClosedLoop(UseCase):
         ids, out_of_range = select_scenes(dataset.num_scenes, spec.Scenes, spec.SceneStride)
         findings = [Finding(f"scene {s} is out of range: {dataset.path} has scenes 0..{dataset.num_scenes - 1}",
                             scene=s, keypath=("Evaluation", "Unroll", "Scenes")) for s in out_of_range]
+        # A dataset of one file per scene (ScenarioNet) can have one broken file: it fails alone.
+        problem = getattr(dataset, "problem", None)
+        broken = {s: problem(s) for s in ids} if problem is not None else {}
+        findings += [Finding(f"scene {s} cannot be read: {why}", scene=s, keypath=("Evaluation", "Datasets"))
+                     for s, why in broken.items() if why is not None]
+        ids = [s for s in ids if broken.get(s) is None]
         past_end = starts_past_end(dataset, ids, spec.StartFrame)
         findings += [Finding(f"StartFrame {spec.StartFrame} is past the end of scene {s} of {dataset.path} "
                              f"({n} frames, 0..{n - 1})", scene=s, keypath=("Evaluation", "Unroll", "StartFrame"))

@@ -55,3 +55,23 @@ def test_the_planning_model_drives_the_real_nuscenes_scenes_from_a_scenario(pyte
     # Declared or found from the files, the same reader: the same unroll, figure for figure.
     assert records[0]["figures"] == records[1]["figures"]
     assert records[0]["details"]["scenes"] == records[1]["details"]["scenes"]
+
+
+def test_a_broken_scenario_in_a_folder_fails_alone_and_the_others_run(pytester, shared_data):
+    import shutil
+
+    folder = pytester.path / "scenes"
+    folder.mkdir()
+    real = sorted((shared_data / "scenarionet" / "nuscenes").glob("*.pkl"))
+    for path in real[:2]:
+        shutil.copy(path, folder / path.name)
+    (folder / "sd_zz_cut.pkl").write_bytes(real[2].read_bytes()[:5000])  # truncated
+    pytester.makefile(".scenario.yaml", cut=SCENARIO.format(
+        name="cut", data=folder, format="", model=REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"))
+    pytester.runpytest("-p", "no:randomly")
+    record = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"][0]
+    assert record["verdict"] == "failed"
+    assert [s["scene"] for s in record["details"]["scenes"]] == [0, 1]  # the readable two were unrolled
+    messages = [f["message"] for f in record["findings"] if f.get("scene") == 2]
+    assert len(messages) == 1 and "scene 2 cannot be read:" in messages[0]
+    assert "sd_zz_cut.pkl is not a readable pickle" in messages[0] and "truncated" in messages[0]
