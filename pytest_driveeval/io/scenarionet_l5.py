@@ -12,12 +12,14 @@ scenario sampled at another rate is refused with the way to resample it.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import DataError
 from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
+from .scenarionet_map import active_faces, merged, scenario_map
 
 STEP_TIME = 0.1
 #: ScenarioNet track type -> l5kit perception label (l5kit feeds labels CAR .. ANIMAL to models;
@@ -64,10 +66,19 @@ def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
     agents["track_id"] = rows + 1
     labels = np.array([label_index(LABELS.get(kind, "UNKNOWN")) for kind in tracks.types], dtype=np.int64)
     agents["label_probabilities"][np.arange(len(rows)), labels[rows]] = 1.0
+    faces_per_step = [active_faces(scene, t, index) for t in range(steps)]
+    lit = [len(f) for f in faces_per_step]
+    ends = np.cumsum(lit)
+    frames["traffic_light_faces_index_interval"][:, 0] = ends - lit
+    frames["traffic_light_faces_index_interval"][:, 1] = ends
+    faces = np.zeros(int(ends[-1]) if steps else 0, TL_FACE_DTYPE)
+    faces["face_id"] = [f for step in faces_per_step for f in step]
+    faces["traffic_light_id"] = [f.rsplit(":", 1)[0] for step in faces_per_step for f in step]
+    faces["traffic_light_face_status"] = (1.0, 0.0, 0.0)  # ACTIVE: only lit faces are listed
     start = int(round(scene.timestamps[0] * 1e9))
     return L5Scene(index=index, host=scene.dataset[:16] or "scenarionet", start_time=start,
                    end_time=start + int(frames["timestamp"][-1]), frames=frames, agents=agents,
-                   traffic_light_faces=np.zeros(0, TL_FACE_DTYPE), source=str(scene.path))
+                   traffic_light_faces=faces, source=str(scene.path))
 
 
 class ScenarioNetDataset:
@@ -131,6 +142,16 @@ class ScenarioNetDataset:
 
     def __iter__(self):
         return (self.scene(i) for i in range(self.num_scenes))
+
+    def semantic_map(self, ids: list[int]) -> Any:
+        """The map of scenes ``ids`` as one semantic map, for rasters that draw it.  Their scenarios must
+        share a map (``metadata.map``): two cities' coordinates overlap, and one would be drawn under
+        the other's roads."""
+        places = {str(self.source(i).metadata.get("map", "")) for i in ids}
+        if len(places) > 1:
+            raise ScenarioNetError(f"{self.path}: the scenes {ids} lie on {len(places)} maps ({', '.join(sorted(places))}); "
+                                   "a raster with the map draws one: choose the scenes of one map with Unroll.Scenes")
+        return merged([scenario_map(self.source(i), i) for i in ids])
 
 
 __all__ = ["LABELS", "PERCEPTION_LABELS", "ScenarioNetDataset", "l5_scene"]

@@ -71,7 +71,12 @@ def lane_width(centre: np.ndarray, polygon: np.ndarray | None) -> tuple[float, s
     return DEFAULT_LANE_WIDTH, "default"
 
 
-def scenario_map(scene: ScenarioNetScene) -> ScenarioMap:
+def face_id(scene_index: int, light_index: int, colour: str) -> str:
+    """A face's id: l5kit's face table holds 16 characters, so ids are made, not the light's own."""
+    return f"{scene_index}:{light_index}:{colour[0]}"
+
+
+def scenario_map(scene: ScenarioNetScene, index: int = 0) -> ScenarioMap:
     lanes = [f for f in scene.map_features if f.group == "lane" and f.polyline is not None]
     ids, lefts, rights, widths, sources, surfaces = [], [], [], [], [], []
     for lane in lanes:
@@ -91,10 +96,10 @@ def scenario_map(scene: ScenarioNetScene) -> ScenarioMap:
                         else np.concatenate([centre + offset, (centre - offset)[::-1]]))
     controls: dict[str, list[str]] = {lane_id: [] for lane_id in ids}
     face_ids, colours, light_ids, light_index = [], [], [], []
-    for light in scene.lights:
+    for number, light in enumerate(scene.lights):
         light_ids.append(light.id)
         for name, colour in FACES:
-            face = f"{light.id}_{name}"
+            face = face_id(index, number, name)
             face_ids.append(face)
             colours.append(colour)
             light_index.append(len(light_ids) - 1)
@@ -120,11 +125,36 @@ def scenario_map(scene: ScenarioNetScene) -> ScenarioMap:
     return ScenarioMap(semantic, np.array(widths), tuple(sources), Polylines.from_list(surfaces))
 
 
-def active_faces(scene: ScenarioNetScene, step: int) -> list[str]:
+def active_faces(scene: ScenarioNetScene, step: int, index: int = 0) -> list[str]:
     """The face ids lit at ``step``: one per light whose state names a colour."""
     out = []
-    for light in scene.lights:
+    for number, light in enumerate(scene.lights):
         name = FACE_OF_STATE.get(light.states[step]) if step < len(light.states) else None
         if name is not None:
-            out.append(f"{light.id}_{name}")
+            out.append(face_id(index, number, name))
     return out
+
+
+def merged(maps: list[ScenarioMap]) -> SemanticMap:
+    """One semantic map of several scenes' maps (of the same place: the caller checks)."""
+    parts = [m.semantic for m in maps]
+
+    def lines(name: str) -> Polylines:
+        return Polylines.from_list([getattr(p, name)[i] for p in parts for i in range(len(getattr(p, name)))])
+
+    lights = np.cumsum([0] + [len(p.traffic_light_ids) for p in parts[:-1]])
+    controls = [p.lane_controls(i) for p in parts for i in range(len(p.lane_ids))]
+    return SemanticMap(
+        lane_ids=np.concatenate([p.lane_ids for p in parts]) if parts else np.zeros(0, str),
+        lanes_left=lines("lanes_left"), lanes_right=lines("lanes_right"),
+        lane_control_offsets=np.concatenate([[0], np.cumsum([len(c) for c in controls])]).astype(np.int64),
+        lane_control_ids=np.concatenate(controls) if controls else np.zeros(0, str),
+        crosswalk_ids=np.concatenate([p.crosswalk_ids for p in parts]) if parts else np.zeros(0, str),
+        crosswalks=lines("crosswalks"),
+        face_ids=np.concatenate([p.face_ids for p in parts]) if parts else np.zeros(0, str),
+        face_colours=np.concatenate([p.face_colours for p in parts]).astype(np.int8) if parts else np.zeros(0, np.int8),
+        world_to_ecef=np.eye(4),
+        traffic_light_ids=np.concatenate([p.traffic_light_ids for p in parts]) if parts else np.zeros(0, str),
+        face_light_index=np.concatenate([p.face_light_index + k for p, k in zip(parts, lights)]).astype(np.int64)
+        if parts else np.zeros(0, np.int64),
+    )

@@ -6,6 +6,7 @@ import pytest
 from pytest_driveeval.geometry.polygons import points_in_polygon
 from pytest_driveeval.io.l5_semantic_map import GREEN, RED
 from pytest_driveeval.io.scenarionet import read_scenario, scenario_files
+from pytest_driveeval.io.scenarionet_l5 import l5_scene
 from pytest_driveeval.io.scenarionet_map import DEFAULT_LANE_WIDTH, active_faces, scenario_map
 
 from scenarionet_made import scenario, write
@@ -34,12 +35,15 @@ def test_lane_boundaries_lie_half_the_measured_width_either_side_of_the_centre_l
 
 def test_a_light_is_three_faces_on_its_lane_and_its_state_lights_one(tmp_path):
     scene = made(tmp_path)
-    smap = scenario_map(scene).semantic
+    smap = scenario_map(scene, index=7).semantic
     one = list(smap.lane_ids).index("lane_1")
-    assert list(smap.lane_controls(one)) == ["tl_red", "tl_yellow", "tl_green"]
-    assert smap.face_colours[list(smap.face_ids).index("tl_red")] == RED
-    assert smap.face_colours[list(smap.face_ids).index("tl_green")] == GREEN
-    assert [active_faces(scene, t) for t in range(3)] == [["tl_green"], ["tl_red"], []]
+    assert list(smap.lane_controls(one)) == ["7:0:r", "7:0:y", "7:0:g"]
+    assert smap.face_colours[list(smap.face_ids).index("7:0:r")] == RED
+    assert smap.face_colours[list(smap.face_ids).index("7:0:g")] == GREEN
+    assert [active_faces(scene, t, 7) for t in range(3)] == [["7:0:g"], ["7:0:r"], []]
+    # ... and the engine's scene lists the lit face at each frame, as an L5 scene does
+    l5 = l5_scene(scene, 7)
+    assert [list(l5.tl_faces_of_frame(t)["face_id"]) for t in range(3)] == [["7:0:g"], ["7:0:r"], []]
 
 
 def test_on_the_real_nuscenes_scenes_the_logged_car_drives_on_the_lane_surfaces(shared_data):

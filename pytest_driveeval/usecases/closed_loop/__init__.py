@@ -132,7 +132,8 @@ class ClosedLoop(UseCase):
             return self._evaluate_chunks(config, ctx, ids, problems, executor)
         from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
-        semantic_map = semantic_map_for(spec.Inputs, dataset.path, ctx.scenario.folder) if ids else None
+        semantic_map = semantic_map_for(spec.Inputs, dataset.path, ctx.scenario.folder, dataset, ids) \
+            if ids else None
         unroll = unroll_scenes(dataset, ctx.fixtures["driveeval_model"], ids, **spec.unroll_options(),
                                agents=replayed_agents(spec.Agents), perturbation=perturbation,
                                semantic_map=semantic_map,

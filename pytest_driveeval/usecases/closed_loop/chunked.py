@@ -71,7 +71,7 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     dataset = open_dataset(chunk.dataset)
     from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
-    semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder)
+    semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder, dataset, chunk.scenes)
     ids = list(chunk.scenes)
     with one_torch_thread():  # as the design of run_chunks asks: the same float sums wherever it runs
         unroll = unroll_scenes(dataset, _policy(chunk), ids, **spec.unroll_options(),

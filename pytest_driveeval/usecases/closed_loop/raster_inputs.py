@@ -70,8 +70,13 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
     return semantic_map
 
 
-def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike) -> Any:
-    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None."""
+def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike,
+                     dataset: Any = None, ids: Any = None) -> Any:
+    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None.  A
+    dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``."""
     if inputs.Kind != "raster" or inputs.MapType != "py_semantic":
         return None
+    own = getattr(dataset, "semantic_map", None)
+    if own is not None:
+        return own(list(ids))
     return load_semantic_map(dataset_path, inputs.SemanticMap, inputs.Meta, folder)

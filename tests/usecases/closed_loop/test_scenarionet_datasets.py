@@ -75,3 +75,37 @@ def test_a_broken_scenario_in_a_folder_fails_alone_and_the_others_run(pytester, 
     messages = [f["message"] for f in record["findings"] if f.get("scene") == 2]
     assert len(messages) == 1 and "scene 2 cannot be read:" in messages[0]
     assert "sd_zz_cut.pkl is not a readable pickle" in messages[0] and "truncated" in messages[0]
+
+
+RASTER = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - nuscenes_mini:
+        Path: {data}
+  Model: {model}
+  Unroll:
+    Scenes: {scenes}
+    StartFrame: 10
+    Steps: 30
+    Inputs: {{Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5], EgoCenter: [0.25, 0.5]}}
+  Conditions:
+    Displacement: {{Max: 30.0}}
+"""
+
+
+def test_the_raster_model_sees_the_scenarios_own_map_and_scenes_of_two_cities_are_refused(pytester, shared_data):
+    def scenario(name, scenes):
+        return RASTER.format(name=name, data=shared_data / "scenarionet" / "nuscenes", scenes=scenes,
+                             model=REPO_ROOT / "fixtures" / "models" / "raster_model.pt2")
+
+    pytester.makefile(".scenario.yaml", boston=scenario("boston", "[1, 2]"), mixed=scenario("mixed", "[0, 1]"))
+    pytester.runpytest("-p", "no:randomly")
+    records = {r["scenario"]: r for r in
+               json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]}
+    assert records["boston"]["figures"]["scenes"] == 2 and records["boston"]["figures"]["steps"] == 60
+    assert records["mixed"]["status"] == "failed"
+    assert "lie on 2 maps (boston-seaport, singapore-onenorth)" in records["mixed"]["message"]
