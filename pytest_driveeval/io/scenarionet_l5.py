@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DataError
+from ..errors import DataError, display_path
 from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
 from .scenarionet_map import active_faces, merged, scenario_map
@@ -37,7 +37,7 @@ def _rotation(yaw: np.ndarray) -> np.ndarray:
 
 
 def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
-    here = f"{scene.path} (scenario {scene.id})"
+    here = f"{display_path(scene.path)} (scenario {scene.id})"
     if abs(scene.sample_rate - STEP_TIME) > 1e-6:
         raise ScenarioNetError(f"{here}: sampled every {scene.sample_rate:g} s; the closed loop steps every "
                                f"{STEP_TIME:g} s (convert the dataset with ScenarioNet at 10 Hz)")
