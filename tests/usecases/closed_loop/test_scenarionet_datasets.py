@@ -20,13 +20,20 @@ Evaluation:
         Path: {data}
 {format}  Model: {model}
   Unroll:
-    StartFrame: 10
-    Steps: 60
+{unroll}    StartFrame: 10
+    Steps: {steps}
   Conditions:
     Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
     Displacement: {{Max: 30.0}}
 """
 
+
+def scenario_text(name, data, model="planning_model.pt2", declared=False, scenes=None, raster=False, steps=60):
+    unroll = (f"    Scenes: {scenes}\n" if scenes else "") + (
+        "    Inputs: {Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5], "
+        "EgoCenter: [0.25, 0.5]}\n" if raster else "")
+    return SCENARIO.format(name=name, data=data, format="        Format: scenarionet\n" if declared else "",
+                           model=REPO_ROOT / "fixtures" / "models" / model, unroll=unroll, steps=steps)
 
 def test_the_files_tell_the_format(shared_data, tmp_path):
     assert format_of(shared_data / "scenarionet" / "nuscenes") == "scenarionet"
@@ -39,12 +46,9 @@ def test_the_files_tell_the_format(shared_data, tmp_path):
 
 
 def test_the_planning_model_drives_the_real_nuscenes_scenes_from_a_scenario(pytester, shared_data):
-    def scenario(name, declared):
-        return SCENARIO.format(name=name, data=shared_data / "scenarionet" / "nuscenes",
-                               format="        Format: scenarionet\n" if declared else "",
-                               model=REPO_ROOT / "fixtures" / "models" / "planning_model.pt2")
-
-    pytester.makefile(".scenario.yaml", declared=scenario("declared", True), found=scenario("found", False))
+    data = shared_data / "scenarionet" / "nuscenes"
+    pytester.makefile(".scenario.yaml", declared=scenario_text("declared", data, declared=True),
+                      found=scenario_text("found", data))
     pytester.runpytest("-p", "no:randomly")
     records = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]
     assert [r["scenario"] for r in records] == ["declared", "found"]
@@ -66,8 +70,7 @@ def test_a_broken_scenario_in_a_folder_fails_alone_and_the_others_run(pytester, 
     for path in real[:2]:
         shutil.copy(path, folder / path.name)
     (folder / "sd_zz_cut.pkl").write_bytes(real[2].read_bytes()[:5000])  # truncated
-    pytester.makefile(".scenario.yaml", cut=SCENARIO.format(
-        name="cut", data=folder, format="", model=REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"))
+    pytester.makefile(".scenario.yaml", cut=scenario_text("cut", folder))
     pytester.runpytest("-p", "no:randomly")
     record = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"][0]
     assert record["verdict"] == "failed"
@@ -77,30 +80,10 @@ def test_a_broken_scenario_in_a_folder_fails_alone_and_the_others_run(pytester, 
     assert "sd_zz_cut.pkl is not a readable pickle" in messages[0] and "truncated" in messages[0]
 
 
-RASTER = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Datasets:
-    - nuscenes_mini:
-        Path: {data}
-  Model: {model}
-  Unroll:
-    Scenes: {scenes}
-    StartFrame: 10
-    Steps: 30
-    Inputs: {{Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5], EgoCenter: [0.25, 0.5]}}
-  Conditions:
-    Displacement: {{Max: 30.0}}
-"""
-
-
 def test_the_raster_model_sees_the_scenarios_own_map_and_scenes_of_two_cities_are_refused(pytester, shared_data):
     def scenario(name, scenes):
-        return RASTER.format(name=name, data=shared_data / "scenarionet" / "nuscenes", scenes=scenes,
-                             model=REPO_ROOT / "fixtures" / "models" / "raster_model.pt2")
+        return scenario_text(name, shared_data / "scenarionet" / "nuscenes", "raster_model.pt2", scenes=scenes,
+                             raster=True, steps=30)
 
     pytester.makefile(".scenario.yaml", boston=scenario("boston", "[1, 2]"), mixed=scenario("mixed", "[0, 1]"))
     pytester.runpytest("-p", "no:randomly")
