@@ -95,6 +95,11 @@ def jsonable(value: Any) -> Any:
     return str(value)
 
 
+def is_number(value: Any) -> bool:
+    """A finite int or float (not a bool): a figure that can be compared or plotted."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def format_figure(value: Any) -> str:
     if isinstance(value, bool):
         return str(value).lower()

@@ -191,6 +191,26 @@ def _append_line(path: Path, line: str) -> None:
         os.close(fd)
 
 
+def history_runs(output_dir: Path) -> list[tuple[dict[str, Any], Path]]:
+    """(run identity, its summary.json) of each line of the history, newest first.  A torn or
+    hand-edited line is skipped, and so is a summary path that leads out of the output folder."""
+    history = output_dir / HISTORY_NAME
+    try:
+        lines = history.read_text(encoding="utf-8", errors="replace").splitlines() if history.is_file() else []
+    except OSError:
+        return []
+    out = []
+    for raw in reversed(lines):
+        try:
+            entry = json.loads(raw)
+            run, where = entry["run"], PurePosixPath(entry["summary"])
+        except (ValueError, KeyError, TypeError):
+            continue
+        if isinstance(run, dict) and not where.is_absolute() and ".." not in where.parts:
+            out.append((run, output_dir / where))
+    return out
+
+
 def read_run(folder: Path) -> dict[str, Any] | None:
     if _kind(folder / RUN_FILE) != "file":  # a link's run.json is another folder's
         return None

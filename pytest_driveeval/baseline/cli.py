@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import shutil
 import sys
@@ -41,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import display_path
-from ..outcome import format_figure
+from ..outcome import format_figure, is_number
 from ..runs import RUN_FILE, RUNS_FOLDER
 from ..settings import DEFAULT_OUTPUT
 from .compare import ERROR, IMPROVED, REGRESSED, STALE, UNCHANGED, Comparison, against_text, compare
@@ -171,7 +170,7 @@ class Figure:
 
     @property
     def delta(self) -> float | None:
-        if _number(self.a) and _number(self.b):
+        if is_number(self.a) and is_number(self.b):
             return self.b - self.a
         return None
 
@@ -198,9 +197,6 @@ class Row:
             return [self.comparison.note]
         return [c.text for c in self.comparison.changes if c.worse is not None]
 
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _figure_names(*payloads: dict[str, Any] | None) -> list[str]:

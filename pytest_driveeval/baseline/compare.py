@@ -5,13 +5,12 @@ payload's (the scenario as it is now decides what counts as worse).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from ..outcome import format_figure
+from ..outcome import format_figure, is_number
 from .paired import paired_rate
 from .rules import FigureRule, Rules
 from .units import Units, unit_changes
@@ -93,7 +92,7 @@ def compare(reference: dict[str, Any], current: dict[str, Any], against: str = "
         before_units, after_units = _units(reference), _units(current)
         for name, rule in rules.figures.items():
             before, after = (reference.get("figures") or {}).get(name), (current.get("figures") or {}).get(name)
-            if not _number(before) or not _number(after):
+            if not is_number(before) or not is_number(after):
                 continue
             if rule.paired and before_units is not None and after_units is not None \
                     and rule.paired[0] in before_units.columns and rule.paired[0] in after_units.columns:
@@ -117,9 +116,6 @@ def compare(reference: dict[str, Any], current: dict[str, Any], against: str = "
         else UNCHANGED
     return Comparison(status, against, source, changes, reference_figures=dict(reference.get("figures") or {}))
 
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _units(payload: dict[str, Any]) -> Units | None:
@@ -239,7 +235,7 @@ def _search_changes(before: dict | None, after: dict | None, rules: Rules) -> li
     out = []
     for parameter in sorted(set(b_min) | set(a_min)):
         b, a = b_min.get(parameter, 0.0), a_min.get(parameter, 0.0)
-        if not (_number(b) and _number(a)):
+        if not (is_number(b) and is_number(a)):
             continue
         allowed = rules.search.allowed(parameter, b)
         closer = abs(b) - abs(a)

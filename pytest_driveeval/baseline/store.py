@@ -16,7 +16,7 @@ from typing import Any
 
 from ..atomic import write_text_atomic
 from ..errors import DriveEvalError, display_path
-from ..runs import HISTORY_NAME, RUNS_FOLDER
+from ..runs import HISTORY_NAME, RUNS_FOLDER, history_runs
 
 BASELINE_FORMAT = 1
 SUFFIX = ".json"
@@ -218,19 +218,8 @@ LAST = re.compile(r"last(?:~(\d+))?")
 def finished_runs(output_dir: Path, skip: str | None = None) -> list[tuple[str, Path]]:
     """(run id, summary.json) of the history's finished runs whose summary is still there, newest
     first; ``skip`` leaves out one run (the session asking)."""
-    history = output_dir / HISTORY_NAME
-    lines = history.read_text(encoding="utf-8").splitlines() if history.is_file() else []
-    out = []
-    for line in reversed(lines):
-        try:
-            entry = json.loads(line)
-            summary = output_dir / entry["summary"]
-            run_id = entry["run"]["id"]
-        except (ValueError, KeyError, TypeError):
-            continue  # a torn or hand-edited line names no run
-        if run_id != skip and summary.is_file():
-            out.append((run_id, summary))
-    return out
+    return [(run.get("id"), summary) for run, summary in history_runs(output_dir)
+            if run.get("id") != skip and summary.is_file()]
 
 
 def resolve_compare(spec: str, output_dir: Path, current_run: str | None = None) -> Path:

@@ -6,11 +6,10 @@ Reads records only: ``record["comparison"]`` (the comparison with its reference'
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
-from ..outcome import format_figure
+from ..outcome import format_figure, is_number
 
 #: the statuses under which figures were compared (missing, stale and error ones were not)
 COMPARED = ("regressed", "improved", "unchanged")
@@ -36,7 +35,7 @@ class Delta:
 
     @property
     def change(self) -> str:
-        if not _number(self.before) or not _number(self.now):
+        if not is_number(self.before) or not is_number(self.now):
             return "new" if self.before is None else "changed" if self.before != self.now else "="
         moved = self.now - self.before
         if moved == 0:
@@ -47,9 +46,6 @@ class Delta:
         before = "" if self.before is None else f"{format_figure(self.before)}, "
         return f"{self.name}={format_figure(self.now)} ({before}{self.change})"
 
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def comparison_of(record: dict[str, Any]) -> dict[str, Any] | None:
@@ -80,7 +76,7 @@ def figure_deltas(record: dict[str, Any]) -> list[Delta]:
 
 
 def _direction(now: Any, before: Any, better: str | None) -> str | None:
-    if not (_number(now) and _number(before)) or now == before or better not in ("lower", "higher"):
+    if not (is_number(now) and is_number(before)) or now == before or better not in ("lower", "higher"):
         return None
     return "better" if (now < before) == (better == "lower") else "worse"
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+from ..outcome import is_number
+
 #: runs a trend shows besides the current one when the output folder keeps all (keep_runs 0)
 DEFAULT_RUNS = 20
 #: x-axis labels at most, so twenty dates stay readable in a small plot
@@ -94,11 +96,8 @@ def record_figures(record: dict[str, Any]) -> dict[str, float]:
     figures = payload.get("figures") if isinstance(payload, dict) else None
     if not isinstance(figures, dict):
         figures = record.get("figures") if isinstance(record.get("figures"), dict) else {}
-    return {k: float(v) for k, v in figures.items() if _number(v)}
+    return {k: float(v) for k, v in figures.items() if is_number(v)}
 
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def series(runs: list[RunFigures], nodeid: str, current: dict[str, Any], current_id: str = "") \
@@ -107,7 +106,7 @@ def series(runs: list[RunFigures], nodeid: str, current: dict[str, Any], current
     figures are the current run's key figures, each with the earlier runs that have it; a run without
     the item leaves a gap, not a point."""
     past = [run for run in runs if nodeid in run.figures and run.id != current_id]
-    names = [k for k, v in current.items() if _number(v)]
+    names = [k for k, v in current.items() if is_number(v)]
     labels = [run.started[5:16].replace("T", " ") or run.id for run in past] + ["this run"]
     points = {name: [(i, run.figures[nodeid][name]) for i, run in enumerate(past) if name in run.figures[nodeid]]
               + [(len(past), float(current[name]))] for name in names}
