@@ -1,0 +1,86 @@
+"""A score case (benchmarks/nuplan_oracle/CASE_FORMAT.md) as the score's inputs: what nuplan-devkit
+and the harness are both fed when they are compared.  Collisions are found and blamed by the
+engine's own rules (metrics.collisions), one agent at a time, so each agent's first contact counts."""
+from __future__ import annotations
+
+import numpy as np
+
+from pytest_driveeval.metrics.collisions import detect_collisions
+
+from .inputs import AgentCells, EgoStates, ScoreInputs, first_collisions
+from .lanes import ScoreMap
+
+#: CASE_FORMAT's agent types -> the score's collision groups
+GROUP_OF_TYPE = {"vehicle": 0, "pedestrian": 1, "bicycle": 1, "traffic_cone": 2, "barrier": 2, "czone_sign": 2,
+                 "generic_object": 2}
+STATIC_TYPES = {"traffic_cone", "barrier", "czone_sign", "generic_object"}
+GROUP_NAMES = ("vehicle", "vru", "object")
+
+
+def _array(rows, width: int) -> np.ndarray:
+    return np.asarray(rows, dtype=np.float64).reshape(-1, width)
+
+
+def map_from_case(spec: dict | None) -> ScoreMap | None:
+    if spec is None:
+        return None
+    lanes = spec.get("lanes", [])
+    index = {lane["id"]: n for n, lane in enumerate(lanes)}
+    limits = [np.nan if lane.get("speed_limit") is None else float(lane["speed_limit"]) for lane in lanes]
+    return ScoreMap(lane_ids=[lane["id"] for lane in lanes],
+                    polygons=[_array(lane["polygon"], 2) for lane in lanes],
+                    baselines=[_array(lane["baseline"], 2) for lane in lanes],
+                    speed_limits=np.array(limits), connector=[bool(lane.get("connector")) for lane in lanes],
+                    outgoing=[[index[o] for o in lane.get("outgoing", []) if o in index] for lane in lanes],
+                    drivable=[_array(p, 2) for p in spec.get("drivable_area", [])],
+                    intersections=[_array(p, 2) for p in spec.get("intersections", [])])
+
+
+def agents_from_case(specs: list[dict], frames: int) -> AgentCells:
+    if not specs:
+        return AgentCells.empty(frames)
+    a = len(specs)
+    cells = AgentCells(center=np.zeros((frames, a, 3)), length=np.zeros((frames, a)), width=np.zeros((frames, a)),
+                       velocity=np.zeros((frames, a, 2)), available=np.zeros((frames, a), bool),
+                       token=np.full((frames, a), -1, np.int64), group=np.zeros((frames, a), np.int8),
+                       static=np.zeros((frames, a), bool))
+    for column, spec in enumerate(specs):
+        rows = np.asarray(spec["frames"], dtype=np.int64)
+        cells.center[rows, column] = _array(spec["center"], 3)
+        cells.velocity[rows, column] = _array(spec.get("velocity", np.zeros((len(rows), 2))), 2)
+        cells.length[rows, column], cells.width[rows, column] = spec["length"], spec["width"]
+        cells.available[rows, column] = True
+        cells.token[rows, column] = column
+        cells.group[rows, column] = GROUP_OF_TYPE[spec["type"]]
+        cells.static[rows, column] = spec["type"] in STATIC_TYPES
+    return cells
+
+
+def inputs_from_case(case: dict) -> ScoreInputs:
+    times = np.asarray(case["timestamps"], dtype=np.float64)
+    e = case["ego"]
+    center = _array(e["center"], 3)
+    ego = EgoStates(center, float(e["length"]), float(e["width"]), float(e["rear_axle_to_center"]),
+                    _array(e["velocity"], 2), _array(e["acceleration"], 2),
+                    np.asarray(e["angular_velocity"], dtype=np.float64),
+                    np.asarray(e["angular_acceleration"], dtype=np.float64))
+    agents = agents_from_case(case.get("agents", []), len(times))
+    h = center[:, 2]
+    world_velocity = np.stack([np.cos(h) * ego.velocity[:, 0] - np.sin(h) * ego.velocity[:, 1],
+                               np.sin(h) * ego.velocity[:, 0] + np.cos(h) * ego.velocity[:, 1]], axis=1)
+    records = []
+    for column in range(agents.center.shape[1]):
+        found = detect_collisions(center[:, :2], h, np.array([ego.length, ego.width]),
+                                  agents.center[:, column:column + 1, :2], agents.center[:, column:column + 1, 2],
+                                  np.stack([agents.length[:, column:column + 1], agents.width[:, column:column + 1]], -1),
+                                  agents.available[:, column:column + 1],
+                                  np.where(agents.static[:, column:column + 1, None], 0.0,
+                                           agents.velocity[:, column:column + 1]),
+                                  world_velocity)
+        for k in np.flatnonzero(found.kind > 0):
+            records.append((int(k), column, bool(found.at_fault[k])))
+    records.sort()
+    groups = {c: GROUP_NAMES[GROUP_OF_TYPE[s["type"]]] for c, s in enumerate(case.get("agents", []))}
+    collisions = first_collisions([r[0] for r in records], [r[1] for r in records], [r[2] for r in records], groups)
+    return ScoreInputs(times, ego, _array(case["expert"]["center"], 3), agents, collisions,
+                       map_from_case(case.get("map")))

@@ -1,0 +1,74 @@
+"""``ego_is_comfortable``: six filtered signals strictly inside their bounds on every frame
+(docs/nuplan_score.md §3.8).  The filters are scipy's Savitzky-Golay with nuplan-devkit's own
+arguments (an even window of 8 for accelerations, 15 for jerks, 5 for yaw), so the numbers match."""
+from __future__ import annotations
+
+import numpy as np
+
+from .inputs import ScoreInputs
+from .term import Term
+
+#: signal -> (lower, upper) bounds, strict (nuplan-devkit's low-level metric configs)
+BOUNDS = {"ego_lon_acceleration": (-4.05, 2.40), "ego_lat_acceleration": (-4.89, 4.89),
+          "ego_lon_jerk": (-4.13, 4.13), "ego_jerk": (-8.37, 8.37),
+          "ego_yaw_rate": (-0.95, 0.95), "ego_yaw_acceleration": (-1.93, 1.93)}
+#: the fewest frames all six filters accept (the yaw acceleration's cubic needs a window of 4)
+MIN_FRAMES = 4
+
+
+def _smooth(signal: np.ndarray) -> np.ndarray:
+    from scipy.signal import savgol_filter
+
+    return np.round(savgol_filter(signal, window_length=min(8, len(signal)), polyorder=2), 8)
+
+
+def _derivative(signal: np.ndarray, times: np.ndarray, window: int, order: int, deriv: int) -> np.ndarray:
+    from scipy.signal import savgol_filter
+
+    return np.round(savgol_filter(signal, window_length=min(window, len(signal)), polyorder=order, deriv=deriv,
+                                  delta=float(np.mean(np.diff(times)))), 8)
+
+
+def unwrap_phase(headings: np.ndarray) -> np.ndarray:
+    """nuplan-devkit's unwrapping: whole turns removed by the rounded step over 2 pi."""
+    turns = np.zeros_like(headings)
+    turns[1:] = np.cumsum(np.round(np.diff(headings) / (2 * np.pi)))
+    return headings - 2 * np.pi * turns
+
+
+def comfort_signals(inputs: ScoreInputs) -> dict[str, np.ndarray]:
+    ego, times = inputs.ego, inputs.times
+    # nuplan-devkit's centre acceleration: the rear axle's plus d (w^2 + dw/dt) on the x component only
+    lon = ego.acceleration[:, 0] + ego.rear_axle_to_center * (ego.angular_velocity ** 2 + ego.angular_acceleration)
+    lon_smooth = _smooth(lon)
+    heading = unwrap_phase(ego.center[:, 2])
+    return {"ego_lon_acceleration": lon_smooth,
+            "ego_lat_acceleration": _smooth(ego.acceleration[:, 1]),
+            "ego_lon_jerk": _derivative(lon_smooth, times, 15, 2, 1),
+            "ego_jerk": _derivative(_smooth(np.hypot(ego.acceleration[:, 0], ego.acceleration[:, 1])), times, 15, 2, 1),
+            "ego_yaw_rate": _derivative(heading, times, 5, 2, 1),
+            "ego_yaw_acceleration": _derivative(heading, times, 5, 3, 2)}
+
+
+def ego_is_comfortable(inputs: ScoreInputs) -> Term:
+    name = "ego_is_comfortable"
+    if inputs.num_frames < MIN_FRAMES:
+        return Term.not_available(name, f"{inputs.num_frames} frame(s); the comfort filters need {MIN_FRAMES}")
+    if np.any(np.diff(inputs.times) <= 0):
+        return Term.not_available(name, "the frames' times do not increase")
+    signals = comfort_signals(inputs)
+    detail, failing = {}, []
+    bad = np.zeros(inputs.num_frames, dtype=bool)
+    for signal, values in signals.items():
+        lo, hi = BOUNDS[signal]
+        detail[f"{signal}_min"], detail[f"{signal}_max"] = float(values.min()), float(values.max())
+        outside = ~((values > lo) & (values < hi))
+        if outside.any():
+            k = int(np.flatnonzero(outside)[0])
+            failing.append(f"{signal} {values[k]:.2f} at frame {int(inputs.frame_numbers[k])} (bounds {lo:g}, {hi:g})")
+            bad |= outside
+    term = Term(name, 0.0 if failing else 1.0, detail=detail)
+    if failing:
+        term.frames = np.flatnonzero(bad).tolist()
+        term.message = "; ".join(failing)
+    return term

@@ -1,0 +1,133 @@
+"""What nuPlan's closed-loop score reads of one scene: the ego's states, the expert's path, the other
+agents, the collisions already classified, and the map (None: the scene has none)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pytest_driveeval.geometry.planar import wrap_angle
+
+from .lanes import ScoreMap
+
+#: nuPlan's ego (a Chrysler Pacifica): its box centre lies this fraction of its length ahead of the rear axle
+REAR_AXLE_SHARE = 1.461 / 5.176
+#: nuPlan's collision groups; a collision with a static object of group "object" costs half
+GROUPS = ("vehicle", "vru", "object")
+
+
+@dataclass
+class EgoStates:
+    """Per frame: the box centre's pose (T, 3) x, y, heading; the rear axle's velocity and acceleration
+    (T, 2) in the ego's frame (x forward, y left); the heading's rate and its rate of change (T,)."""
+
+    center: np.ndarray
+    length: float
+    width: float
+    rear_axle_to_center: float
+    velocity: np.ndarray
+    acceleration: np.ndarray
+    angular_velocity: np.ndarray
+    angular_acceleration: np.ndarray
+
+    @property
+    def rear_axle(self) -> np.ndarray:
+        h = self.center[:, 2]
+        back = self.rear_axle_to_center * np.stack([np.cos(h), np.sin(h)], axis=1)
+        return self.center[:, :2] - back
+
+    @property
+    def speed(self) -> np.ndarray:
+        return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+
+
+def ego_from_poses(center_xy: np.ndarray, heading: np.ndarray, times: np.ndarray, length: float, width: float,
+                   rear_axle_to_center: float | None = None) -> EgoStates:
+    """Ego states from driven poses alone: the rear axle's velocity and acceleration by central
+    differences over the frames' times (a simulator's controller would report them; a log replay has
+    only poses), rotated into the ego's frame."""
+    d = REAR_AXLE_SHARE * length if rear_axle_to_center is None else rear_axle_to_center
+    heading = np.asarray(heading, dtype=np.float64)
+    rear = center_xy - d * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    unwrapped = np.unwrap(heading)
+    if len(times) >= 2:
+        world_v = np.gradient(rear, times, axis=0)
+        world_a = np.gradient(world_v, times, axis=0)
+        yaw_rate = np.gradient(unwrapped, times)
+        yaw_accel = np.gradient(yaw_rate, times)
+    else:
+        world_v = world_a = np.zeros((len(times), 2))
+        yaw_rate = yaw_accel = np.zeros(len(times))
+    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+
+    def body(v):
+        return np.concatenate([c * v[:, :1] + s * v[:, 1:], -s * v[:, :1] + c * v[:, 1:]], axis=1)
+
+    center = np.concatenate([center_xy, wrap_angle(heading)[:, None]], axis=1)
+    return EgoStates(center, float(length), float(width), float(d), body(world_v), body(world_a), yaw_rate, yaw_accel)
+
+
+@dataclass
+class AgentCells:
+    """The other agents, (T, A) cells: A columns, a column may hold different agents over time (``token``
+    says whose state a cell holds, -1 where empty).  ``center`` (T, A, 3); ``length``/``width`` (T, A);
+    ``velocity`` (T, A, 2) world frame; ``group`` (T, A) index into :data:`GROUPS`; ``static`` (T, A):
+    a static object (nuPlan builds no velocity for it)."""
+
+    center: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    velocity: np.ndarray
+    available: np.ndarray
+    token: np.ndarray
+    group: np.ndarray
+    static: np.ndarray
+
+    @classmethod
+    def empty(cls, frames: int) -> "AgentCells":
+        z = np.zeros((frames, 0))
+        return cls(np.zeros((frames, 0, 3)), z, z, np.zeros((frames, 0, 2)), z.astype(bool), z.astype(np.int64),
+                   z.astype(np.int8), z.astype(bool))
+
+
+@dataclass(frozen=True)
+class Collision:
+    """The ego's first contact with one agent: at frame row ``frame``, blamed on the ego or not."""
+
+    frame: int
+    token: int
+    group: str
+    at_fault: bool
+
+
+@dataclass
+class ScoreInputs:
+    """One scene.  ``times`` (T,) seconds; ``frame_numbers`` (T,) how findings name the frames (the
+    log's numbering); ``expert`` (Te, 3) the logged ego's centre poses."""
+
+    times: np.ndarray
+    ego: EgoStates
+    expert: np.ndarray
+    agents: AgentCells
+    collisions: list[Collision]
+    map: ScoreMap | None
+    frame_numbers: np.ndarray = field(default=None)
+
+    def __post_init__(self):
+        if self.frame_numbers is None:
+            self.frame_numbers = np.arange(len(self.times))
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.times)
+
+
+def first_collisions(frames: np.ndarray, tokens: np.ndarray, at_fault: np.ndarray, groups: dict[int, str]
+                     ) -> list[Collision]:
+    """Per agent, its first collision (nuPlan never counts an agent twice), from per-frame records:
+    ``frames`` row index, ``tokens`` the agent hit, ``at_fault`` the blame of that frame."""
+    seen: dict[int, Collision] = {}
+    for f, t, a in zip(np.asarray(frames).tolist(), np.asarray(tokens).tolist(), np.asarray(at_fault).tolist()):
+        if t not in seen:
+            seen[t] = Collision(int(f), int(t), groups.get(int(t), "object"), bool(a))
+    return sorted(seen.values(), key=lambda c: (c.frame, c.token))

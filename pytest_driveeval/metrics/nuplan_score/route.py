@@ -1,0 +1,65 @@
+"""Which lanes the ego is on, frame by frame, as nuPlan's route extractor assigns them
+(``nuplan/planning/metrics/utils/route_extractor.py``).
+
+A frame keeps the previous frame's lanes that still hold the point, else the lanes that the
+previous single lane leads into, else it looks again: one lane (nuPlan's maps never overlap lanes;
+ScenarioNet's may, so the one whose baseline points most nearly along the ego's heading), or else
+every lane connector holding the point.  An empty list: off every lane.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pytest_driveeval.geometry.planar import wrap_angle
+
+from .lanes import ScoreMap
+
+
+def _aligned_first(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
+    if len(lanes) < 2:
+        return lanes
+    off = [abs(float(wrap_angle(score_map.direction_at(n, point[None])[0] - heading))) for n in lanes]
+    return [lanes[i] for i in np.argsort(off, kind="stable")]
+
+
+def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
+                 holding: np.ndarray | None = None) -> list[list[int]]:
+    """Per frame, the lanes assigned to the point (first: the one the terms use).
+    ``holding``: ``score_map.lanes_at(points)`` when the caller has it."""
+    holding = score_map.lanes_at(points) if holding is None else holding
+    rows, cols = np.nonzero(holding)
+    here: list[list[int]] = [[] for _ in range(len(points))]
+    for r, c in zip(rows.tolist(), cols.tolist()):
+        here[r].append(c)
+    connector, outgoing = score_map.connector, score_map.outgoing
+    route: list[list[int]] = []
+    previous: list[int] = []
+    for k, lanes in enumerate(here):
+        kept = [n for n in previous if n in lanes]
+        if not kept and len(previous) == 1:
+            kept = [n for n in outgoing[previous[0]] if n in lanes]
+        if not kept and lanes:
+            plain = [n for n in lanes if not connector[n]]
+            if plain:
+                kept = _aligned_first(score_map, plain, points[k], headings[k])[:1]
+            else:
+                kept = _aligned_first(score_map, lanes, points[k], headings[k])
+        route.append(kept)
+        previous = kept
+    return route
+
+
+def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None) -> np.ndarray:
+    """(T,) bool: all four corners (FL, FR, RR, RL) on one lane, or the rear ones on a lane that leads
+    into the front ones' lane (nuPlan's "common or connected" route objects); False when the ego
+    straddles lanes or is partly or wholly off them."""
+    t = len(corners)
+    holding = score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding
+    holding = holding.reshape(t, 4, -1)
+    front = holding[:, 0] & holding[:, 1]
+    rear = holding[:, 2] & holding[:, 3]
+    out = (front & rear).any(axis=1)
+    for k in np.flatnonzero(~out & front.any(axis=1) & rear.any(axis=1)):
+        ahead = set(np.flatnonzero(front[k]).tolist())
+        out[k] = any(ahead.intersection(score_map.outgoing[n]) for n in np.flatnonzero(rear[k]))
+    return out

@@ -1,0 +1,90 @@
+"""A scene's score from its terms, and an item's from its scenes' (nuplan-devkit's weighted-average
+aggregator: docs/nuplan_score.md §4-6)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .comfort import ego_is_comfortable
+from .inputs import ScoreInputs
+from .route import centre_route, corners_in_one_lane
+from .term import MULTIPLIERS, TERMS, WEIGHTS, Term
+from .terms import (driving_direction_compliance, drivable_area_compliance, ego_corners, ego_is_making_progress,
+                    expert_progress, no_ego_at_fault_collisions, speed_limit_compliance)
+from .ttc import time_to_collision_within_bound
+
+
+@dataclass
+class SceneScore:
+    score: float
+    terms: dict[str, Term]
+
+    def figures(self) -> dict[str, float]:
+        """The score, each available term and the terms' own measures, as numbers."""
+        out = {"score": self.score}
+        for name, term in self.terms.items():
+            if term.value is not None:
+                out[name] = term.value
+            out.update({k: v for k, v in term.detail.items() if isinstance(v, (int, float)) and np.isfinite(v)})
+        return out
+
+    def not_available(self) -> dict[str, str]:
+        return {name: term.reason for name, term in self.terms.items() if term.value is None}
+
+    def failed(self) -> list[Term]:
+        """The terms that cost the scene something, in the score's order."""
+        return [t for t in self.terms.values() if t.used is not None and t.used < 1.0]
+
+
+def combine(terms: dict[str, Term]) -> float:
+    """Multipliers times the weighted mean of the weighted terms, each over those the score uses."""
+    product = 1.0
+    for name in MULTIPLIERS:
+        if terms[name].used is not None:
+            product *= terms[name].used
+    used = [(WEIGHTS[n], terms[n].used) for n in WEIGHTS if terms[n].used is not None]
+    total = sum(w for w, _ in used)
+    return product * (sum(w * v for w, v in used) / total if total else 0.0)
+
+
+def score_scene(inputs: ScoreInputs) -> SceneScore:
+    corners = ego_corners(inputs)
+    heading = inputs.ego.center[:, 2]
+    if inputs.map is not None:
+        score_map = inputs.map
+        centre_lanes = score_map.lanes_at(inputs.ego.center[:, :2])
+        corner_lanes = score_map.lanes_at(corners.reshape(-1, 2))
+        route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
+        in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes)
+        in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
+    else:  # as nuplan-devkit's extractor finds no lane anywhere
+        corner_lanes, route = None, [[] for _ in range(inputs.num_frames)]
+        in_one_lane = np.zeros(inputs.num_frames, dtype=bool)
+        in_intersection = np.zeros(inputs.num_frames, dtype=bool)
+    progress = expert_progress(inputs)
+    terms = {
+        "no_ego_at_fault_collisions": no_ego_at_fault_collisions(inputs),
+        "drivable_area_compliance": drivable_area_compliance(inputs, corners, corner_lanes, route),
+        "ego_is_making_progress": ego_is_making_progress(progress),
+        "driving_direction_compliance": driving_direction_compliance(inputs, route),
+        "ego_progress_along_expert_route": progress,
+        "time_to_collision_within_bound": time_to_collision_within_bound(inputs, in_one_lane, in_intersection),
+        "speed_limit_compliance": speed_limit_compliance(inputs, route),
+        "ego_is_comfortable": ego_is_comfortable(inputs),
+    }
+    assert tuple(terms) == TERMS
+    return SceneScore(combine(terms), terms)
+
+
+def item_figures(scores: list[SceneScore]) -> dict[str, float]:
+    """nuPlan's final score: the mean of the scenes' scores; each term's mean over the scenes where it
+    is available (``<term>_scenes`` counts them)."""
+    if not scores:
+        return {}
+    out = {"score": float(np.mean([s.score for s in scores]))}
+    for name in TERMS:
+        values = [s.terms[name].value for s in scores if s.terms[name].value is not None]
+        if values:
+            out[name] = float(np.mean(values))
+    return out

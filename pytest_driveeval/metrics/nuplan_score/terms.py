@@ -1,0 +1,193 @@
+"""The score's terms that read the map or the expert, and the collision multiplier
+(docs/nuplan_score.md §3.1-3.5, 3.7: what nuplan-devkit's source computes, and where the harness differs)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .inputs import ScoreInputs
+from .lanes import ScoreMap, arc_lengths, project
+from .term import Term
+
+#: nuplan-devkit's thresholds (its simulation_metric configs)
+DRIVABLE_MARGIN = 0.3
+DIRECTION_COMPLIANCE, DIRECTION_VIOLATION, DIRECTION_HORIZON = 2.0, 6.0, 1.0
+PROGRESS_THRESHOLD, MIN_PROGRESS_RATIO = 2.0, 0.2
+MAX_OVERSPEED = 2.23
+#: nuPlan's allowance of at-fault collisions per group before the multiplier reaches 0
+ALLOWED = {"vehicle": 0, "vru": 0, "object": 1}
+
+
+def no_ego_at_fault_collisions(inputs: ScoreInputs) -> Term:
+    counts = {g: 0 for g in ALLOWED}
+    blamed = [c for c in inputs.collisions if c.at_fault]
+    for c in blamed:
+        counts[c.group] = counts.get(c.group, 0) + 1
+    value = 1.0
+    for group, n in counts.items():
+        value *= max(0.0, 1.0 - n / (ALLOWED.get(group, 0) + 1))
+    term = Term("no_ego_at_fault_collisions", value, detail={f"at_fault_{g}": n for g, n in counts.items()})
+    if blamed:
+        xy = inputs.ego.center[:, :2]
+        term.frames = [c.frame for c in blamed]
+        term.places = [tuple(map(float, xy[c.frame])) for c in blamed]
+        first = blamed[0]
+        term.message = (f"{len(blamed)} at-fault collision(s), first with agent {first.token} ({first.group}) "
+                        f"at frame {int(inputs.frame_numbers[first.frame])}")
+    return term
+
+
+def ego_corners(inputs: ScoreInputs) -> np.ndarray:
+    """(T, 4, 2) corners FL, FR, RR, RL of the ego's box."""
+    from pytest_driveeval.geometry.boxes import box_corners
+
+    ego = inputs.ego
+    return box_corners(ego.center[:, :2], ego.center[:, 2], np.array([ego.length, ego.width]))
+
+
+def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_lanes: np.ndarray,
+                             route: list[list[int]]) -> Term:
+    name = "drivable_area_compliance"
+    if inputs.map is None:
+        return Term.not_available(name, "the scene has no map")
+    score_map: ScoreMap = inputs.map
+    t = len(corners)
+    points = corners.reshape(-1, 2)
+    outside = ~corner_lanes.any(axis=1)
+    outside[outside] = ~score_map.in_drivable(points[outside])
+    far = np.zeros(len(points), dtype=bool)
+    depth = np.zeros(len(points))
+    rows = np.flatnonzero(outside)
+    if len(rows):
+        to_drivable = score_map.distance_to_drivable(points[rows], DRIVABLE_MARGIN)
+        to_route = score_map.distance_to_lanes(points[rows], [route[r // 4] for r in rows], DRIVABLE_MARGIN)
+        excused = (to_drivable < DRIVABLE_MARGIN) | (to_route < DRIVABLE_MARGIN)
+        far[rows] = ~excused
+        depth[rows] = score_map.distance_to_drivable(points[rows], np.inf)
+    far = far.reshape(t, 4)
+    frames = np.flatnonzero(far.any(axis=1))
+    term = Term(name, 0.0 if len(frames) else 1.0,
+                detail={"frames_off_drivable_area": int(len(frames)),
+                        "max_corner_off_drivable_area": float(depth.max()) if len(depth) else 0.0})
+    if len(frames):
+        depth = depth.reshape(t, 4)
+        corner = [int(np.argmax(np.where(far[k], depth[k], -1))) for k in frames]
+        term.frames = frames.tolist()
+        term.places = [tuple(map(float, corners[k, c])) for k, c in zip(frames, corner)]
+        k0, c0 = frames[0], corner[0]
+        term.message = (f"a corner {depth[k0, c0]:.2f} m off the drivable area at frame "
+                        f"{int(inputs.frame_numbers[k0])} ({len(frames)} frame(s)); {DRIVABLE_MARGIN:g} m tolerated")
+    return term
+
+
+def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
+    name = "driving_direction_compliance"
+    if inputs.map is None:
+        return Term.not_available(name, "the scene has no map")
+    score_map: ScoreMap = inputs.map
+    xy = inputs.ego.center[:, :2]
+    steps = np.zeros(len(route))
+    last = route[0][0] if route and route[0] else None
+    before = None
+    for k, lanes in enumerate(route):
+        if not lanes:
+            continue
+        lane = lanes[0]
+        if lane != last:
+            before, last = None, lane
+            continue
+        s = float(project(xy[k:k + 1], score_map.baselines[lane], score_map.cumulative[lane])[0])
+        steps[k] = s - before if before is not None and s else 0.0
+        before = s
+    spacing = float(np.mean(np.diff(inputs.times))) if len(inputs.times) > 1 else 0.1
+    n = int(DIRECTION_HORIZON / spacing) if spacing > 0 else 0
+    window = np.convolve(steps, np.ones(n + 1))[:len(steps)]  # each frame's last n + 1 steps
+    worst = abs(float(window.min())) if len(window) else 0.0
+    value = 1.0 if worst < DIRECTION_COMPLIANCE else 0.5 if worst < DIRECTION_VIOLATION else 0.0
+    term = Term(name, value, detail={"max_backward_motion": worst})
+    if value < 1.0:
+        bad = np.flatnonzero(-window >= DIRECTION_COMPLIANCE)
+        term.frames = bad.tolist()
+        term.places = [tuple(map(float, xy[k])) for k in bad]
+        term.message = (f"{worst:.2f} m against the lane's direction within {(n + 1) * spacing:.1f} s, worst "
+                        f"at frame {int(inputs.frame_numbers[int(np.argmin(window))])} "
+                        f"(under {DIRECTION_COMPLIANCE:g} m complies, from {DIRECTION_VIOLATION:g} m scores 0)")
+    return term
+
+
+def expert_progress(inputs: ScoreInputs) -> Term:
+    """``ego_progress_along_expert_route``.  nuPlan measures progress along the baselines of the
+    roadblocks the expert drove; ScenarioNet maps have no roadblocks, so both are measured along the
+    expert's own path (equal where the expert follows one lane's baseline)."""
+    name = "ego_progress_along_expert_route"
+    expert = inputs.expert[:, :2]
+    if inputs.map is not None and not inputs.map.lanes_at(expert).any():
+        return Term(name, 1.0, reason="the expert never drives on a lane: 1, as nuPlan scores it",
+                    detail={"ego_progress": float("nan"), "expert_progress": 0.0})
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(expert, axis=0), axis=1) > 1e-9])
+    path = expert[keep]
+    if len(path) < 2:
+        ego_along, expert_along = 0.0, 0.0
+    else:
+        cumulative = arc_lengths(path)
+        s = project(inputs.ego.center[:, :2], path, cumulative)
+        ego_along, expert_along = float(s[-1] - s[0]), float(cumulative[-1])
+    if ego_along < -PROGRESS_THRESHOLD:
+        ratio = 0.0
+    else:
+        ratio = min(1.0, max(ego_along, PROGRESS_THRESHOLD) / max(expert_along, PROGRESS_THRESHOLD))
+    term = Term(name, ratio, detail={"ego_progress": ego_along, "expert_progress": expert_along})
+    if ratio < 1.0:
+        term.message = f"{ego_along:.1f} m along the expert's route against its {expert_along:.1f} m"
+    return term
+
+
+def ego_is_making_progress(progress: Term) -> Term:
+    value = 1.0 if progress.used >= MIN_PROGRESS_RATIO else 0.0
+    term = Term("ego_is_making_progress", value, reason=progress.reason)
+    if not value:
+        term.message = f"progress ratio {progress.used:.3f} < {MIN_PROGRESS_RATIO:g}: {progress.message}"
+    return term
+
+
+def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
+    name = "speed_limit_compliance"
+    if inputs.map is None:
+        return Term.not_available(name, "the scene has no map")
+    score_map: ScoreMap = inputs.map
+    limits = np.full(len(route), np.nan)
+    for k, lanes in enumerate(route):
+        if not lanes:
+            continue
+        if score_map.connector[lanes[0]]:
+            around = [m for n in lanes for m in (*score_map.outgoing[n], *_incoming(score_map, n))]
+            values = score_map.speed_limits[around] if around else np.array([np.nan])
+        else:
+            values = score_map.speed_limits[lanes[:1]]
+        if np.all(np.isfinite(values) & (values > 0)):
+            limits[k] = values.max()
+    known = np.isfinite(limits)
+    if not known.any():
+        why = "the map gives no speed limit" if not score_map.has_speed_limits else \
+            "no lane the ego drove on gives a speed limit"
+        return Term.not_available(name, f"{why}: counted 1, as nuPlan counts a frame without one", used=1.0)
+    over = np.where(known, np.maximum(0.0, inputs.ego.speed - np.where(known, limits, 0.0)), 0.0)
+    duration = float(inputs.times[-1] - inputs.times[0])
+    if not over.any() or duration <= 0:
+        value = 1.0
+    else:
+        loss = over.sum() * float(np.mean(np.diff(inputs.times))) / (max(MAX_OVERSPEED, 1e-3) * duration)
+        value = max(0.0, 1.0 - loss)
+    term = Term(name, value, detail={"max_over_speed_limit": float(over.max()),
+                                     "frames_with_speed_limit": int(known.sum())})
+    if value < 1.0:
+        bad = np.flatnonzero(over > 0)
+        term.frames = bad.tolist()
+        term.places = [tuple(map(float, inputs.ego.center[k, :2])) for k in bad]
+        worst = int(np.argmax(over))
+        term.message = (f"over the speed limit on {len(bad)} frame(s), by up to {over[worst]:.2f} m/s at frame "
+                        f"{int(inputs.frame_numbers[worst])}")
+    return term
+
+
+def _incoming(score_map: ScoreMap, lane: int) -> list[int]:
+    return [n for n, ahead in enumerate(score_map.outgoing) if lane in ahead]
