@@ -17,13 +17,18 @@ from .verdict import within
 # A use case's own helpers live with the use case, which knows its results;
 # they are re-exported here so that every helper is one import away.  One line
 # per use case (each module is also registered for rewriting in ``__init__``).
-from .usecases.closed_loop.assertions import assert_collision_free, assert_drift_within
+from .usecases.closed_loop.assertions import (assert_collision_free, assert_comfortable, assert_drift_within,
+                                              assert_drivable_area_compliant, assert_driving_direction_compliant,
+                                              assert_making_progress, assert_score_at_least, assert_speed_limit_compliant,
+                                              assert_term_at_least, assert_time_to_collision_within_bound)
 from .usecases.obstacle_segmentation.assertions import assert_pass_rate
 from .usecases.policy_benchmark.assertions import assert_beats, assert_collision_rate, assert_goal_rate
 
 __all__ = [
     "assert_figure_within", "assert_no_regression", "assert_passed", "assert_values_within",
-    "assert_collision_free", "assert_drift_within",  # closed_loop
+    "assert_collision_free", "assert_drift_within", "assert_score_at_least", "assert_term_at_least",  # closed_loop
+    "assert_drivable_area_compliant", "assert_driving_direction_compliant", "assert_time_to_collision_within_bound",
+    "assert_comfortable", "assert_speed_limit_compliant", "assert_making_progress",
     "assert_pass_rate",  # obstacle_segmentation
     "assert_beats", "assert_collision_rate", "assert_goal_rate",  # policy_benchmark
 ]

@@ -5,6 +5,7 @@ this API is its :mod:`~pytest_driveeval.usecases.closed_loop.evaluate` module.
 """
 from pytest_driveeval.usecases.closed_loop.evaluate import (KIND_CODE, KINDS, SceneVerdict, Unroll, collision_events,
                                                             judge_scene, scene_figures, select_scenes, unroll_scenes)
+from pytest_driveeval.usecases.closed_loop.score import score_unroll
 
 __all__ = ["KINDS", "KIND_CODE", "SceneVerdict", "Unroll", "collision_events", "judge_scene", "scene_figures",
-           "select_scenes", "unroll_scenes"]
+           "score_unroll", "select_scenes", "unroll_scenes"]

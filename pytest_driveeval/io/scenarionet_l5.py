@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import DataError, display_path
 from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
-from .scenarionet_map import active_faces, merged, scenario_map
+from .scenarionet_map import ScenarioMap, active_faces, merged, scenario_map
 
 STEP_TIME = 0.1
 #: ScenarioNet track type -> l5kit perception label (l5kit feeds labels CAR .. ANIMAL to models;
@@ -89,6 +89,7 @@ class ScenarioNetDataset:
         self.files = scenario_files(self.path)
         self._scenes: dict[int, L5Scene] = {}
         self._sources: dict[int, ScenarioNetScene] = {}
+        self._maps: dict[int, ScenarioMap] = {}
 
     @classmethod
     def open(cls, path: str | Path) -> "ScenarioNetDataset":
@@ -151,7 +152,13 @@ class ScenarioNetDataset:
         if len(places) > 1:
             raise ScenarioNetError(f"{self.path}: the scenes {ids} lie on {len(places)} maps ({', '.join(sorted(places))}); "
                                    "a raster with the map draws one: choose the scenes of one map with Unroll.Scenes")
-        return merged([scenario_map(self.source(i), i) for i in ids])
+        return merged([self.scenario_map(i) for i in ids])
+
+    def scenario_map(self, index: int) -> ScenarioMap:
+        """Scene ``index``'s map (lanes, lights, drivable surfaces), made once."""
+        if index not in self._maps:
+            self._maps[index] = scenario_map(self.source(index), index)
+        return self._maps[index]
 
 
 __all__ = ["LABELS", "PERCEPTION_LABELS", "ScenarioNetDataset", "l5_scene"]

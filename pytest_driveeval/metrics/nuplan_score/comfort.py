@@ -1,11 +1,13 @@
 """``ego_is_comfortable``: six filtered signals strictly inside their bounds on every frame
 (docs/nuplan_score.md §3.8).  The filters are scipy's Savitzky-Golay with nuplan-devkit's own
-arguments (an even window of 8 for accelerations, 15 for jerks, 5 for yaw), so the numbers match."""
+arguments (an even window of 8 for accelerations, 15 for jerks, 5 for yaw; :mod:`.savgol` gives
+scipy's numbers), so the figures match."""
 from __future__ import annotations
 
 import numpy as np
 
 from .inputs import ScoreInputs
+from .savgol import savgol
 from .term import Term
 
 #: signal -> (lower, upper) bounds, strict (nuplan-devkit's low-level metric configs)
@@ -17,16 +19,11 @@ MIN_FRAMES = 4
 
 
 def _smooth(signal: np.ndarray) -> np.ndarray:
-    from scipy.signal import savgol_filter
-
-    return np.round(savgol_filter(signal, window_length=min(8, len(signal)), polyorder=2), 8)
+    return np.round(savgol(signal, min(8, len(signal)), 2), 8)
 
 
 def _derivative(signal: np.ndarray, times: np.ndarray, window: int, order: int, deriv: int) -> np.ndarray:
-    from scipy.signal import savgol_filter
-
-    return np.round(savgol_filter(signal, window_length=min(window, len(signal)), polyorder=order, deriv=deriv,
-                                  delta=float(np.mean(np.diff(times)))), 8)
+    return np.round(savgol(signal, min(window, len(signal)), order, deriv, float(np.mean(np.diff(times)))), 8)
 
 
 def unwrap_phase(headings: np.ndarray) -> np.ndarray:

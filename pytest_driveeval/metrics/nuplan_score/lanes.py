@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pytest_driveeval.geometry.polygons import points_in_polygon
+from pytest_driveeval.geometry.polygons import polygon_edges
 
 
 def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
@@ -19,16 +19,30 @@ def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
     return np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polygons])
 
 
-def _containing(points: np.ndarray, polygons: list[np.ndarray], bounds: np.ndarray) -> np.ndarray:
-    """(P, N) bool: point p lies in polygon n."""
-    out = np.zeros((len(points), len(polygons)), dtype=bool)
-    if not len(polygons) or not len(points):
+def _edge_tables(polygons: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
+    """Per polygon, the (xi, yi, yj, slope) columns of its non-horizontal edges (polygon_edges' table)."""
+    out = []
+    for polygon in polygons:
+        table = polygon_edges(polygon)[0]
+        table = table[table[:, 1] != table[:, 2]]
+        out.append(tuple(np.ascontiguousarray(table[:, i]) for i in range(4)))
+    return out
+
+
+def _containing(points: np.ndarray, tables: list[tuple[np.ndarray, ...]], bounds: np.ndarray) -> np.ndarray:
+    """(P, N) bool: point p lies in polygon n (the crossing-number rule of geometry.polygons)."""
+    out = np.zeros((len(points), len(tables)), dtype=bool)
+    if not len(tables) or not len(points):
         return out
     x, y = points[:, 0:1], points[:, 1:2]
     near = (x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3])
-    for n in np.flatnonzero(near.any(axis=0)):
-        rows = np.flatnonzero(near[:, n])
-        out[rows, n] = points_in_polygon(points[rows, 0], points[rows, 1], polygons[n])
+    with np.errstate(over="ignore"):  # a nearly horizontal edge's slope: see geometry.polygons
+        for n in np.flatnonzero(near.any(axis=0)):
+            rows = np.flatnonzero(near[:, n])
+            xi, yi, yj, slope = tables[n]
+            px, py = points[rows, 0:1], points[rows, 1:2]
+            crosses = ((yi <= py) != (yj <= py)) & (px < xi + (py - yi) * slope)
+            out[rows, n] = (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
     return out
 
 
@@ -72,6 +86,8 @@ class ScoreMap:
     outgoing: list[list[int]]
     drivable: list[np.ndarray] = field(default_factory=list)
     intersections: list[np.ndarray] = field(default_factory=list)
+    #: why the map has no speed limits, where its source says (said in the term's reason)
+    no_limits_reason: str | None = None
 
     def __post_init__(self):
         self.polygons = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.polygons]
@@ -81,6 +97,9 @@ class ScoreMap:
         self.speed_limits = np.asarray(self.speed_limits, dtype=np.float64)
         self.connector = np.asarray(self.connector, dtype=bool)
         self.lane_bounds = _bounds(self.polygons)
+        self.lane_edges = _edge_tables(self.polygons)
+        self.drivable_edges = _edge_tables(self.drivable)
+        self.intersection_edges = _edge_tables(self.intersections)
         self.drivable_bounds = _bounds(self.drivable)
         self.intersection_bounds = _bounds(self.intersections)
         self.cumulative = [arc_lengths(b) for b in self.baselines]
@@ -96,14 +115,14 @@ class ScoreMap:
 
     def lanes_at(self, points: np.ndarray) -> np.ndarray:
         """(P, N) bool: which lane surfaces hold each point."""
-        return _containing(points, self.polygons, self.lane_bounds)
+        return _containing(points, self.lane_edges, self.lane_bounds)
 
     def in_drivable(self, points: np.ndarray) -> np.ndarray:
         """(P,) bool: in one of the drivable polygons besides the lanes."""
-        return _containing(points, self.drivable, self.drivable_bounds).any(axis=1)
+        return _containing(points, self.drivable_edges, self.drivable_bounds).any(axis=1)
 
     def in_intersection(self, points: np.ndarray) -> np.ndarray:
-        return _containing(points, self.intersections, self.intersection_bounds).any(axis=1)
+        return _containing(points, self.intersection_edges, self.intersection_bounds).any(axis=1)
 
     def distance_to_drivable(self, points: np.ndarray, within: float) -> np.ndarray:
         """(P,) distance to the nearest lane surface or drivable polygon, inf beyond ``within`` (m)."""

@@ -20,14 +20,9 @@ class SceneScore:
     score: float
     terms: dict[str, Term]
 
-    def figures(self) -> dict[str, float]:
-        """The score, each available term and the terms' own measures, as numbers."""
-        out = {"score": self.score}
-        for name, term in self.terms.items():
-            if term.value is not None:
-                out[name] = term.value
-            out.update({k: v for k, v in term.detail.items() if isinstance(v, (int, float)) and np.isfinite(v)})
-        return out
+    def figures_of_terms(self) -> dict[str, float]:
+        """The score and each available term, as numbers (the terms' own measures: ``Term.detail``)."""
+        return {"score": self.score} | {n: t.value for n, t in self.terms.items() if t.value is not None}
 
     def not_available(self) -> dict[str, str]:
         return {name: term.reason for name, term in self.terms.items() if term.value is None}
@@ -51,10 +46,15 @@ def combine(terms: dict[str, Term]) -> float:
 def score_scene(inputs: ScoreInputs) -> SceneScore:
     corners = ego_corners(inputs)
     heading = inputs.ego.center[:, 2]
+    t = inputs.num_frames
+    expert_on_lane = None
     if inputs.map is not None:
         score_map = inputs.map
-        centre_lanes = score_map.lanes_at(inputs.ego.center[:, :2])
-        corner_lanes = score_map.lanes_at(corners.reshape(-1, 2))
+        # one lookup for the centres, the corners and the expert: each polygon is tested once
+        holding = score_map.lanes_at(np.concatenate([inputs.ego.center[:, :2], corners.reshape(-1, 2),
+                                                     inputs.expert[:, :2]]))
+        centre_lanes, corner_lanes = holding[:t], holding[t:5 * t]
+        expert_on_lane = bool(holding[5 * t:].any())
         route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
         in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
@@ -62,7 +62,7 @@ def score_scene(inputs: ScoreInputs) -> SceneScore:
         corner_lanes, route = None, [[] for _ in range(inputs.num_frames)]
         in_one_lane = np.zeros(inputs.num_frames, dtype=bool)
         in_intersection = np.zeros(inputs.num_frames, dtype=bool)
-    progress = expert_progress(inputs)
+    progress = expert_progress(inputs, expert_on_lane)
     terms = {
         "no_ego_at_fault_collisions": no_ego_at_fault_collisions(inputs),
         "drivable_area_compliance": drivable_area_compliance(inputs, corners, corner_lanes, route),
@@ -77,14 +77,12 @@ def score_scene(inputs: ScoreInputs) -> SceneScore:
     return SceneScore(combine(terms), terms)
 
 
-def item_figures(scores: list[SceneScore]) -> dict[str, float]:
-    """nuPlan's final score: the mean of the scenes' scores; each term's mean over the scenes where it
-    is available (``<term>_scenes`` counts them)."""
-    if not scores:
-        return {}
-    out = {"score": float(np.mean([s.score for s in scores]))}
-    for name in TERMS:
-        values = [s.terms[name].value for s in scores if s.terms[name].value is not None]
+def item_figures(scenes: list[dict]) -> dict[str, float]:
+    """nuPlan's final score, the mean of the scenes' scores, and each term's mean over the scenes where it
+    is available, from each scene's :meth:`SceneScore.figures_of_terms`."""
+    out = {}
+    for name in ("score", *TERMS):
+        values = [figures[name] for figures in scenes if name in figures]
         if values:
             out[name] = float(np.mean(values))
     return out

@@ -10,6 +10,8 @@ from .term import Term
 
 #: nuplan-devkit's thresholds (its simulation_metric configs)
 DRIVABLE_MARGIN = 0.3
+#: metres: a corner further off the drivable area is reported as this far (the term fails either way)
+DEPTH_REPORTED = 3.0
 DIRECTION_COMPLIANCE, DIRECTION_VIOLATION, DIRECTION_HORIZON = 2.0, 6.0, 1.0
 PROGRESS_THRESHOLD, MIN_PROGRESS_RATIO = 2.0, 0.2
 MAX_OVERSPEED = 2.23
@@ -60,9 +62,11 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_la
     if len(rows):
         to_drivable = score_map.distance_to_drivable(points[rows], DRIVABLE_MARGIN)
         to_route = score_map.distance_to_lanes(points[rows], [route[r // 4] for r in rows], DRIVABLE_MARGIN)
-        excused = (to_drivable < DRIVABLE_MARGIN) | (to_route < DRIVABLE_MARGIN)
-        far[rows] = ~excused
-        depth[rows] = score_map.distance_to_drivable(points[rows], np.inf)
+        far[rows] = ~((to_drivable < DRIVABLE_MARGIN) | (to_route < DRIVABLE_MARGIN))
+        depth[rows] = np.where(np.isfinite(to_drivable), to_drivable, 0.0)
+        out_far = rows[far[rows]]
+        # how far out is measured up to DEPTH_REPORTED; beyond, only that it is at least that
+        depth[out_far] = np.minimum(score_map.distance_to_drivable(points[out_far], DEPTH_REPORTED), DEPTH_REPORTED)
     far = far.reshape(t, 4)
     frames = np.flatnonzero(far.any(axis=1))
     term = Term(name, 0.0 if len(frames) else 1.0,
@@ -85,17 +89,21 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
         return Term.not_available(name, "the scene has no map")
     score_map: ScoreMap = inputs.map
     xy = inputs.ego.center[:, :2]
+    lane_of = np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
+    along = np.zeros(len(route))
+    for lane in np.unique(lane_of[lane_of >= 0]):
+        rows = np.flatnonzero(lane_of == lane)
+        along[rows] = project(xy[rows], score_map.baselines[lane], score_map.cumulative[lane])
     steps = np.zeros(len(route))
-    last = route[0][0] if route and route[0] else None
+    last = int(lane_of[0]) if len(lane_of) and lane_of[0] >= 0 else None
     before = None
-    for k, lanes in enumerate(route):
-        if not lanes:
+    for k, lane in enumerate(lane_of.tolist()):
+        if lane < 0:
             continue
-        lane = lanes[0]
         if lane != last:
             before, last = None, lane
             continue
-        s = float(project(xy[k:k + 1], score_map.baselines[lane], score_map.cumulative[lane])[0])
+        s = float(along[k])
         steps[k] = s - before if before is not None and s else 0.0
         before = s
     spacing = float(np.mean(np.diff(inputs.times))) if len(inputs.times) > 1 else 0.1
@@ -114,13 +122,17 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     return term
 
 
-def expert_progress(inputs: ScoreInputs) -> Term:
+def expert_progress(inputs: ScoreInputs, expert_on_lane: bool | None = None) -> Term:
     """``ego_progress_along_expert_route``.  nuPlan measures progress along the baselines of the
     roadblocks the expert drove; ScenarioNet maps have no roadblocks, so both are measured along the
-    expert's own path (equal where the expert follows one lane's baseline)."""
+    expert's own path (equal where the expert follows one lane's baseline).  The per-frame steps
+    nuPlan sums telescope, so only the first and last positions' projections count.
+    ``expert_on_lane``: whether the expert touches a lane, when the caller has looked."""
     name = "ego_progress_along_expert_route"
     expert = inputs.expert[:, :2]
-    if inputs.map is not None and not inputs.map.lanes_at(expert).any():
+    if expert_on_lane is None and inputs.map is not None:
+        expert_on_lane = bool(inputs.map.lanes_at(expert).any())
+    if inputs.map is not None and not expert_on_lane:
         return Term(name, 1.0, reason="the expert never drives on a lane: 1, as nuPlan scores it",
                     detail={"ego_progress": float("nan"), "expert_progress": 0.0})
     keep = np.concatenate([[True], np.linalg.norm(np.diff(expert, axis=0), axis=1) > 1e-9])
@@ -129,7 +141,7 @@ def expert_progress(inputs: ScoreInputs) -> Term:
         ego_along, expert_along = 0.0, 0.0
     else:
         cumulative = arc_lengths(path)
-        s = project(inputs.ego.center[:, :2], path, cumulative)
+        s = project(inputs.ego.center[[0, -1], :2], path, cumulative)
         ego_along, expert_along = float(s[-1] - s[0]), float(cumulative[-1])
     if ego_along < -PROGRESS_THRESHOLD:
         ratio = 0.0
@@ -154,21 +166,20 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     if inputs.map is None:
         return Term.not_available(name, "the scene has no map")
     score_map: ScoreMap = inputs.map
-    limits = np.full(len(route), np.nan)
-    for k, lanes in enumerate(route):
-        if not lanes:
-            continue
-        if score_map.connector[lanes[0]]:
-            around = [m for n in lanes for m in (*score_map.outgoing[n], *_incoming(score_map, n))]
-            values = score_map.speed_limits[around] if around else np.array([np.nan])
-        else:
-            values = score_map.speed_limits[lanes[:1]]
-        if np.all(np.isfinite(values) & (values > 0)):
-            limits[k] = values.max()
+    first = np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
+    usable = np.where(np.isfinite(score_map.speed_limits) & (score_map.speed_limits > 0), score_map.speed_limits,
+                      np.nan)
+    limits = np.where(first >= 0, usable[first], np.nan)
+    for k in np.flatnonzero((first >= 0) & score_map.connector[first]):
+        # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have one
+        around = [m for n in route[k] for m in (*score_map.outgoing[n], *_incoming(score_map, n))]
+        values = usable[around] if around else np.array([np.nan])
+        limits[k] = values.max() if np.all(np.isfinite(values)) else np.nan
     known = np.isfinite(limits)
     if not known.any():
-        why = "the map gives no speed limit" if not score_map.has_speed_limits else \
-            "no lane the ego drove on gives a speed limit"
+        why = "no lane the ego drove on gives a speed limit" if score_map.has_speed_limits else \
+            f"no speed limit in the map ({score_map.no_limits_reason})" if score_map.no_limits_reason else \
+            "no speed limit in the map"
         return Term.not_available(name, f"{why}: counted 1, as nuPlan counts a frame without one", used=1.0)
     over = np.where(known, np.maximum(0.0, inputs.ego.speed - np.where(known, limits, 0.0)), 0.0)
     duration = float(inputs.times[-1] - inputs.times[0])

@@ -30,10 +30,9 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
         ttc[at_fault] = 0.0
         return ttc
     # Agents already hit (at fault or not) are out of the projection from their first contact on.
-    hit_from = {c.token: c.frame for c in inputs.collisions}
-    first_hit = np.vectorize(lambda tok: hit_from.get(int(tok), t + 1), otypes=[np.int64])(agents.token) \
-        if hit_from else np.full(agents.token.shape, t + 1)
-    collided = first_hit <= np.arange(t)[:, None]
+    collided = np.zeros(agents.token.shape, dtype=bool)
+    for c in inputs.collisions:
+        collided[c.frame:] |= agents.token[c.frame:] == c.token
     rear = ego.rear_axle
     heading = ego.center[:, 2]
     to_agent = agents.center[..., :2] - rear[:, None, :]

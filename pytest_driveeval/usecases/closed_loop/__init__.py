@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from pytest_driveeval.errors import ModelError, display_path
+from pytest_driveeval.metrics.nuplan_score.score import item_figures
 from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop import regression
@@ -162,7 +163,15 @@ class ClosedLoop(UseCase):
         figures.update(scenes=len(verdicts), scenes_passed=passed, steps=sum(v.figures["steps"] for v in verdicts))
         if verdicts:
             figures["max_displacement"] = max(v.figures["max_displacement"] for v in verdicts)
-        ok = bool(verdicts) and not problems and rate >= config.Conditions.ScenePassRate
+        figures.update(item_figures([v.figures for v in verdicts]))
+        score_limit = config.Conditions.Score.MeanAtLeast if config.Conditions.Score is not None else None
+        score_low = score_limit is not None and figures.get("score", 0.0) < score_limit
+        if score_low:
+            findings.insert(0, Finding(
+                f"mean nuPlan score {figures.get('score', 0.0):.3f} over {len(verdicts)} scene(s) < {score_limit:g}",
+                figure="score", value=figures.get("score"), limit=score_limit,
+                keypath=("Evaluation", "Conditions", "Score", "MeanAtLeast")))
+        ok = bool(verdicts) and not problems and rate >= config.Conditions.ScenePassRate and not score_low
         if not verdicts and not findings:
             findings.append(Finding(f"{dataset.path} has no scene to unroll", keypath=("Evaluation", "Datasets")))
         if verdicts and rate < config.Conditions.ScenePassRate:  # with none unrolled the reason is said above
@@ -172,10 +181,11 @@ class ClosedLoop(UseCase):
                 keypath=("Evaluation", "Conditions", "ScenePassRate")))
         summary = (f"{passed}/{len(verdicts)} scenes passed; collisions front {figures['front']}, side "
                    f"{figures['side']}, rear {figures['rear']} ({figures['at_fault']} at fault); "
-                   f"{figures['drift_resets']} drift reset(s)")
+                   f"{figures['drift_resets']} drift reset(s)"
+                   + (f"; nuPlan score {figures['score']:.3f}" if "score" in figures else ""))
         artefacts = artefacts_for(figures)
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
-                               "error": errors[row]} for row, v in enumerate(verdicts)]}
+                               "score_terms": v.score_terms, "error": errors[row]} for row, v in enumerate(verdicts)]}
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
 

@@ -46,6 +46,7 @@ def write_scene_artefacts(ctx: RunContext, config: ClosedLoopConfig, verdicts: l
     result_path = ctx.artefact("closed_loop.json")
     write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
                                                    "collisions": events[v.scene],
+                                                   "score_terms": v.score_terms,
                                                    "findings": [f.to_json() for f in v.findings]}
                                                   for v in verdicts]}, indent=1))
     out["result"] = result_path

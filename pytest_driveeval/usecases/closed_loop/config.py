@@ -23,6 +23,8 @@
         DistanceToReference: {Max: 2.0, Measure: polyline}   # or l5kit
         MaxResets: 0
         ScenePassRate: 100.0   # % of unrolled scenes that must pass
+        Score: {AtLeast: 0.8, Terms: {drivable_area_compliance: 1}}   # nuPlan's closed-loop score, per scene
+                               # (MeanAtLeast: over the scenes); every scene's score is reported regardless
       Artefacts: {Animations: all}   # all | failing | none
       Perturbation:            # optional: search for the smallest start perturbation that fails a scene
         Lateral: [-3.0, 3.0]   # m, in the ego's frame at the start; each range holds its no-change value
@@ -242,6 +244,33 @@ class ReferenceLimit(RangeLimit):
     Measure: Literal["polyline", "l5kit"] = "polyline"
 
 
+class ScoreConditions(Section):
+    """nuPlan's closed-loop score (metrics.nuplan_score): ``AtLeast`` for each scene's score,
+    ``MeanAtLeast`` for the item's (the mean over its scenes, nuPlan's final score), ``Terms`` a lower
+    bound per term by nuPlan's metric name, e.g. ``{drivable_area_compliance: 1}``.  A term bounded
+    here that a scene cannot compute (no map, no speed limit) fails that scene, saying why."""
+
+    AtLeast: float | None = Field(None, ge=0.0, le=1.0)
+    MeanAtLeast: float | None = Field(None, ge=0.0, le=1.0)
+    Terms: dict[str, float] | None = None
+
+    @field_validator("Terms")
+    @classmethod
+    def _known_terms(cls, terms):
+        import difflib
+
+        from pytest_driveeval.metrics.nuplan_score import TERMS
+
+        for name, limit in (terms or {}).items():
+            if name not in TERMS:
+                close = difflib.get_close_matches(name, TERMS, n=1)
+                hint = f"; did you mean {close[0]}?" if close else f"; the terms: {', '.join(TERMS)}"
+                raise ValueError(f"unknown score term {name!r}{hint}")
+            if not 0.0 <= limit <= 1.0:
+                raise ValueError(f"{name}: a term lies in [0, 1], not {limit:g}")
+        return terms
+
+
 class ClosedLoopConditions(Section):
     Collisions: CollisionLimits = Field(default_factory=CollisionLimits)
     Displacement: RangeLimit | None = None
@@ -249,6 +278,7 @@ class ClosedLoopConditions(Section):
     SpeedDifference: RangeLimit | None = None
     MaxResets: NonNegativeInt | None = None
     ScenePassRate: float = Field(100.0, ge=0.0, le=100.0)
+    Score: ScoreConditions | None = None
 
 
 class ArtefactSpec(Section):

@@ -36,6 +36,8 @@ class Unroll:
     log: Any             # sim.logreplay.LogArrays: the agents where they were (the log, or the reactive agents' moves)
     drift_threshold: float | None
     step_time: float
+    #: scene id -> the score's map (metrics.nuplan_score.ScoreMap) of the scenes whose dataset has one
+    maps: dict = field(default_factory=dict)
 
     @property
     def scene_ids(self) -> list[int]:
@@ -100,7 +102,11 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    return unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
+    from pytest_driveeval.usecases.closed_loop.score import dataset_score_maps
+
+    unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
+    unrolled.maps = dataset_score_maps(dataset, ids)
+    return unrolled
 
 
 def kept_scenes(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None
@@ -165,6 +171,10 @@ class SceneVerdict:
     passed: bool
     figures: dict[str, float | int]
     findings: list[Finding] = field(default_factory=list)
+    #: nuPlan's score terms as the reports show them (usecases.closed_loop.score.terms_json), and
+    #: where the GIF marks the failed ones
+    score_terms: dict = field(default_factory=dict)
+    markers: list = field(default_factory=list)
 
 
 def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_fault_only: bool = False
@@ -258,5 +268,14 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
     if conditions.MaxResets is not None:
         findings.append(violations(np.flatnonzero(r.reset[row]), conditions.MaxResets, what="reset(s) on drift",
                                    figure="drift_resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
+    from pytest_driveeval.usecases.closed_loop.score import markers, scene_score, score_findings, terms_json
+
+    score = scene_score(unroll, row)
+    terms, marks = {}, []
+    if score is not None:
+        frame_numbers = np.flatnonzero(r.valid[row])
+        figures.update(score.figures_of_terms())
+        findings.extend(score_findings(score, conditions.Score, scene, frame_numbers))
+        terms, marks = terms_json(score, frame_numbers), markers(score, frame_numbers)
     found = [f for f in findings if f is not None]
-    return SceneVerdict(scene, not found, figures, found)
+    return SceneVerdict(scene, not found, figures, found, terms, marks)

@@ -1,0 +1,170 @@
+"""nuPlan's closed-loop score of an unrolled scene (metrics.nuplan_score) from what the engine
+recorded, on the scene's map where the dataset has one (ScenarioNet), and the findings that the
+scenario's ``Conditions.Score`` draws from it.
+
+The collisions are the engine's, blamed by its own rules (metrics.collisions), each agent counted
+at its first contact as nuPlan does; the engine records one partner per frame (l5kit's rule).
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from pytest_driveeval.metrics.nuplan_score import (AgentCells, SceneScore, ScoreInputs, ScoreMap, ego_from_poses,
+                                                   first_collisions, score_scene)
+from pytest_driveeval.metrics.nuplan_score.inputs import GROUPS
+from pytest_driveeval.outcome import Finding
+
+#: l5kit perception labels by the collision group nuPlan gives such an object
+_VEHICLES = {"CAR", "VAN", "TRAM", "BUS", "TRUCK", "EMERGENCY_VEHICLE", "OTHER_VEHICLE"}
+_VULNERABLE = {"BICYCLE", "MOTORCYCLE", "CYCLIST", "MOTORCYCLIST", "PEDESTRIAN"}
+
+
+def _label_groups() -> np.ndarray:
+    from pytest_driveeval.io.l5kit_zarr import PERCEPTION_LABELS
+
+    names = [label.rsplit("LABEL_", 1)[-1] for label in PERCEPTION_LABELS]
+    return np.array([0 if n in _VEHICLES else 1 if n in _VULNERABLE else 2 for n in names], dtype=np.int8)
+
+
+def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
+    """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
+    as the score reads it.  ScenarioNet has no roadblocks, connectors or drivable-area layer: every lane
+    is a lane, and the drivable area is the lanes' surfaces plus any driveway."""
+    semantic = scenario_map.semantic
+    ids = [str(i) for i in semantic.lane_ids]
+    features = {f.id: f for f in source.map_features}
+    index = {lane: n for n, lane in enumerate(ids)}
+    limits = np.array([features[i].speed_limit_kmh / 3.6 if features.get(i) is not None
+                       and features[i].speed_limit_kmh else np.nan for i in ids])
+    unknown = None
+    if "nuscenes" in str(source.dataset).lower():
+        # ScenarioNet's nuScenes converter writes 100 km/h on every lane it gives a limit, a placeholder
+        # ("TODO Add speed limit if needed" in its source): nuScenes maps have no speed limits.
+        limits[:] = np.nan
+        unknown = "ScenarioNet's nuScenes lanes carry a placeholder 100 km/h, not a speed limit"
+    outgoing = [[index[str(o)] for o in np.atleast_1d(features[i].extra.get("exit_lanes", [])) if str(o) in index]
+                if features.get(i) is not None else [] for i in ids]
+    surfaces = [scenario_map.surfaces[n] for n in range(len(ids))]
+    driveways = [f.polygon[:, :2] for f in source.map_features if f.type == "DRIVEWAY" and f.polygon is not None]
+    return ScoreMap(lane_ids=ids, polygons=surfaces,
+                    baselines=[(semantic.lanes_left[n] + semantic.lanes_right[n]) / 2 for n in range(len(ids))],
+                    speed_limits=limits, connector=np.zeros(len(ids), bool), outgoing=outgoing,
+                    drivable=surfaces + driveways, no_limits_reason=unknown)
+
+
+def dataset_score_maps(dataset: Any, ids: Sequence[int]) -> dict[int, ScoreMap]:
+    """The score's map of each scene that has one (a ScenarioNet dataset's scenes)."""
+    if not hasattr(dataset, "scenario_map"):
+        return {}
+    return {int(i): score_map_of(dataset.source(int(i)), dataset.scenario_map(int(i))) for i in ids}
+
+
+def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInputs | None:
+    """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled)."""
+    from pytest_driveeval.sim.logreplay import EGO_EXTENT
+
+    r, log = unroll.result, unroll.log
+    keep = r.valid[row]
+    frames = np.flatnonzero(keep)
+    if not len(frames):
+        return None
+    times = frames * unroll.step_time
+    ego = ego_from_poses(r.driven_xy[row][keep], r.driven_yaw[row][keep], times, EGO_EXTENT[0], EGO_EXTENT[1])
+    expert = np.concatenate([r.logged_xy[row][keep], r.logged_yaw[row][keep][:, None]], axis=1)
+    groups = _label_groups()[log.label[row][keep]]
+    tokens = log.track_id[row][keep]
+    available = log.available[row][keep]
+    agents = AgentCells(
+        center=np.concatenate([log.agent_xy[row][keep], log.agent_yaw[row][keep][..., None]], axis=-1),
+        length=log.agent_extent[row][keep][..., 0].astype(np.float64),
+        width=log.agent_extent[row][keep][..., 1].astype(np.float64),
+        velocity=log.agent_velocity[row][keep].astype(np.float64), available=available, token=tokens,
+        group=groups, static=groups == 2)
+    hit = np.flatnonzero(r.collision_kind[row][keep] > 0)
+    hit_tokens = r.collision_track_id[row][keep][hit]
+    group_of = {}
+    for k, token in zip(hit.tolist(), hit_tokens.tolist()):
+        cell = np.flatnonzero(tokens[k] == token)
+        group_of[token] = GROUPS[int(groups[k, cell[0]])] if len(cell) else "object"
+    collisions = first_collisions(hit, hit_tokens, r.collision_at_fault[row][keep][hit], group_of)
+    return ScoreInputs(times, ego, expert, agents, collisions, score_map, frame_numbers=frames)
+
+
+def scene_score(unroll: Any, row: int) -> SceneScore | None:
+    """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by."""
+    if unroll.log is None:
+        return None
+    maps = getattr(unroll, "maps", None) or {}
+    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])))
+    return score_scene(inputs) if inputs is not None else None
+
+
+def score_unroll(unroll: Any) -> dict[int, SceneScore]:
+    """Each unrolled scene's score by scene id (scenes without an unrolled frame are left out)."""
+    scores = {int(scene): scene_score(unroll, row) for row, scene in enumerate(unroll.result.scene_ids)}
+    return {scene: score for scene, score in scores.items() if score is not None}
+
+
+def _first_frame(score: SceneScore, names: Sequence[str], frame_numbers: np.ndarray) -> int | None:
+    frames = [score.terms[n].frames[0] for n in names if score.terms[n].frames]
+    return int(frame_numbers[min(frames)]) if frames else None
+
+
+def describe(score: SceneScore) -> str:
+    """What cost the scene its score, term by term."""
+    parts = [f"{t.name} {t.used:.3g}" + (f" ({t.message})" if t.message else "") for t in score.failed()]
+    return "; ".join(parts) if parts else "every term 1"
+
+
+def score_findings(score: SceneScore | None, spec: Any, scene: int, frame_numbers: np.ndarray) -> list[Finding]:
+    """Findings of scene ``scene`` against ``Conditions.Score`` (usecases.closed_loop.config.ScoreConditions)."""
+    if spec is None or score is None:
+        return []
+    out = []
+    where = ("Evaluation", "Conditions", "Score")
+    if spec.AtLeast is not None and score.score < spec.AtLeast:
+        names = [t.name for t in score.failed()]
+        out.append(Finding(f"scene {scene}: nuPlan score {score.score:.3f} < {spec.AtLeast:g}: {describe(score)}",
+                           figure="score", value=score.score, limit=spec.AtLeast,
+                           frame=_first_frame(score, names, frame_numbers), scene=scene, keypath=(*where, "AtLeast")))
+    for name, limit in (spec.Terms or {}).items():
+        term = score.terms[name]
+        if term.value is None:
+            out.append(Finding(f"scene {scene}: {name} not available ({term.reason}); cannot check it is at least "
+                               f"{limit:g}", figure=name, limit=limit, scene=scene, keypath=(*where, "Terms", name)))
+        elif term.value < limit:
+            out.append(Finding(f"scene {scene}: {name} {term.value:.3f} < {limit:g}: {term.message}", figure=name,
+                               value=term.value, limit=limit, frame=_first_frame(score, [name], frame_numbers),
+                               scene=scene, keypath=(*where, "Terms", name)))
+    return out
+
+
+def terms_json(score: SceneScore, frame_numbers: np.ndarray) -> dict:
+    """Each term as the reports show it: value (None: not available), what the score used, why, the
+    frames where it failed (the log's numbers, as the findings give them) and its own measures."""
+    out = {}
+    for name, term in score.terms.items():
+        entry = {"value": term.value, "used": term.used}
+        if term.reason:
+            entry["reason"] = term.reason
+        if term.message:
+            entry["message"] = term.message
+        if term.frames:
+            entry["frames"] = [int(frame_numbers[k]) for k in term.frames]
+        entry.update({k: v for k, v in term.detail.items() if np.isfinite(v)})
+        out[name] = entry
+    return out
+
+
+def markers(score: SceneScore, frame_numbers: np.ndarray) -> list[tuple[int, float, float, str]]:
+    """Where the GIF marks a failed term: (frame number, x, y, kind), one per term and failing frame."""
+    kinds = {"drivable_area_compliance": "off_drivable_area", "driving_direction_compliance": "wrong_direction",
+             "time_to_collision_within_bound": "time_to_collision", "no_ego_at_fault_collisions": "collision"}
+    out = []
+    for name, kind in kinds.items():
+        term = score.terms[name]
+        for k, (x, y) in zip(term.frames, term.places):
+            out.append((int(frame_numbers[k]), float(x), float(y), kind))
+    return out
