@@ -485,7 +485,9 @@ def _finite(value: Any) -> Optional[float]:
 
 def evaluate(case: Dict[str, Any], configs: List[Tuple[str, Dict[str, Any]]],
              aggregator: WeightedAverageMetricAggregator, save_dir: Path, repeat: int = 1) -> Dict[str, Any]:
+    start = time.perf_counter()
     history, scenario = build_history(case)
+    build_seconds = time.perf_counter() - start
     seconds = []
     for _ in range(max(1, repeat)):
         engine = build_engine(configs, save_dir)
@@ -500,11 +502,12 @@ def evaluate(case: Dict[str, Any], configs: List[Tuple[str, Dict[str, Any]]],
                       else float(by_name[name].metric_score)) for name in scored_metric_names()}
     comfort = {name: [float(np.min(by_name[name].time_series.values)), float(np.max(by_name[name].time_series.values))]
                for name in COMFORT}
-    ttc = by_name["time_to_collision_within_bound"].statistics
-    min_ttc = next(s.value for s in ttc if s.name == "min_time_to_collision")
+    ttc = by_name["time_to_collision_within_bound"]
+    min_ttc = next(s.value for s in ttc.statistics if s.name == "min_time_to_collision")
     out = {"name": case["name"], "metrics": metrics, "comfort": comfort,
-           "min_time_to_collision": _finite(min_ttc), "score": float(columns[case["name"]]["score"]),
-           "seconds": statistics.median(seconds)}
+           "min_time_to_collision": _finite(min_ttc),
+           "time_to_collision": [_finite(v) for v in ttc.time_series.values], "score": float(columns[case["name"]]["score"]),
+           "seconds": statistics.median(seconds), "build_seconds": build_seconds}
     if repeat > 1:
         out["repeats"] = len(seconds)
     return out
