@@ -483,16 +483,32 @@ def _finite(value: Any) -> Optional[float]:
     return value if math.isfinite(value) else None
 
 
+def timed_per_metric(engine: MetricsEngine, history: SimulationHistory, scenario: CaseScenario,
+                     per_metric: Dict[str, List[float]]) -> Dict[str, Any]:
+    """What MetricsEngine.compute_metric_results does (each metric in order), timing each metric."""
+    results = {}
+    for metric in engine.metrics:
+        start = time.perf_counter()
+        results[metric.name] = metric.compute(history, scenario=scenario)
+        per_metric.setdefault(metric.name, []).append(time.perf_counter() - start)
+    return results
+
+
 def evaluate(case: Dict[str, Any], configs: List[Tuple[str, Dict[str, Any]]],
-             aggregator: WeightedAverageMetricAggregator, save_dir: Path, repeat: int = 1) -> Dict[str, Any]:
+             aggregator: WeightedAverageMetricAggregator, save_dir: Path, repeat: int = 1,
+             per_metric: bool = False) -> Dict[str, Any]:
     start = time.perf_counter()
     history, scenario = build_history(case)
     build_seconds = time.perf_counter() - start
-    seconds = []
+    seconds: List[float] = []
+    metric_seconds: Dict[str, List[float]] = {}
     for _ in range(max(1, repeat)):
         engine = build_engine(configs, save_dir)
         start = time.perf_counter()
-        results = engine.compute_metric_results(history=history, scenario=scenario)
+        if per_metric:
+            results = timed_per_metric(engine, history, scenario, metric_seconds)
+        else:
+            results = engine.compute_metric_results(history=history, scenario=scenario)
         seconds.append(time.perf_counter() - start)
     by_name = {stat.name: stat for stats in results.values() for stat in stats}
     # One column per metric-statistics name, its metric_score as value: what _group_scenario_metrics builds.
@@ -510,6 +526,8 @@ def evaluate(case: Dict[str, Any], configs: List[Tuple[str, Dict[str, Any]]],
            "seconds": statistics.median(seconds), "build_seconds": build_seconds}
     if repeat > 1:
         out["repeats"] = len(seconds)
+    if per_metric:
+        out["metric_seconds"] = {name: statistics.median(runs) for name, runs in metric_seconds.items()}
     return out
 
 
@@ -525,6 +543,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--repeat", type=int, default=1,
                         help="compute each case's metrics N times; 'seconds' is the median wall time")
     parser.add_argument("--only", nargs="*", help="case names to run (default: all)")
+    parser.add_argument("--per-metric", action="store_true",
+                        help="also time each metric ('metric_seconds', medians over the repeats)")
     args = parser.parse_args(argv)
     cases = load_cases(args.cases)
     if args.only:
@@ -536,7 +556,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         aggregator = build_aggregator(Path(tmp) / "aggregator")
         for case in cases:
             try:
-                out = evaluate(case, configs, aggregator, Path(tmp) / "metrics", args.repeat)
+                out = evaluate(case, configs, aggregator, Path(tmp) / "metrics", args.repeat, args.per_metric)
             except Exception as error:  # a metric that raises makes nuPlan drop the scenario: report it, go on
                 failed += 1
                 out = {"name": case.get("name"), "error": f"{type(error).__name__}: {error}"}

@@ -133,7 +133,8 @@ def devkit_source(devkit: Path, venv: Path, say) -> Path:
                        check=True)
         staging = Path(tmp) / "src"
         with tarfile.open(archive) as tar:
-            tar.extractall(staging, filter="data")
+            # the "data" filter (refuse links and paths leading out) exists from Python 3.11.4
+            tar.extractall(staging, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
         target.parent.mkdir(parents=True, exist_ok=True)
         staging.rename(target)
     return target
