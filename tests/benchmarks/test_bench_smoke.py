@@ -38,11 +38,16 @@ SMOKED = {
     "bench_unroll.py": (rf"^engine vs issue 14: {NUMBER} scene-steps/s", ("torch",)),
     "bench_unroll_memory.py": (rf"^peak RSS {NUMBER} MB", ("torch",)),
 }
-# Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs them where l5kit's venv exists.
+# Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs l5kit's where its venv exists,
+# the nuPlan score comparison test nuplan-devkit's.
 NOT_SMOKED = {
     "l5kit_oracle/compare_rasters.py": "compares with l5kit itself, in its own venv",
     "l5kit_oracle/oracle_venv.py": "creates l5kit's venv: pip installs, minutes",
     "l5kit_oracle/rasterize.py": "imports l5kit: runs inside its venv only",
+    "nuplan_oracle/cases.py": "writes the score cases and sets oracle answers against them; no timing of its own",
+    "nuplan_oracle/crime_ttc.py": "imports commonroad-crime: runs inside its own venv only",
+    "nuplan_oracle/nuplan_metrics.py": "imports nuplan-devkit: runs inside its venv only",
+    "nuplan_oracle/oracle_venv.py": "creates nuplan-devkit's venv: pip installs, minutes",
 }
 
 
