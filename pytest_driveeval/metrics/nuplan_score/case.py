@@ -84,3 +84,60 @@ def inputs_from_case(case: dict) -> ScoreInputs:
     collisions = first_collisions([r[0] for r in records], [r[1] for r in records], [r[2] for r in records], groups)
     return ScoreInputs(times, ego, _array(case["expert"]["center"], 3), agents, collisions,
                        map_from_case(case.get("map")))
+
+
+def answer(case: dict) -> dict:
+    """The harness's score of a case in the oracle's answer format (CASE_FORMAT.md, "What the oracle
+    answers"), so that the two compare key by key."""
+    from .score import score_scene
+
+    result = score_scene(inputs_from_case(case))
+    ttc = result.terms["time_to_collision_within_bound"].series["time_to_collision"]
+    comfort = result.terms["ego_is_comfortable"].series
+    return {"name": case.get("name"), "score": result.score,
+            "metrics": {name: term.used for name, term in result.terms.items()},
+            "comfort": {signal: [float(v.min()), float(v.max())] for signal, v in comfort.items()},
+            "min_time_to_collision": None if not np.isfinite(ttc.min()) else float(ttc.min()),
+            "time_to_collision": [None if not np.isfinite(v) else float(v) for v in ttc]}
+
+
+TYPE_OF_GROUP = {0: "vehicle", 1: "pedestrian", 2: "generic_object"}
+
+
+def case_from_inputs(inputs: ScoreInputs, name: str, *, lanes_as_connectors: bool = False) -> dict:
+    """A scene's score inputs as a case, to feed nuplan-devkit the very numbers the harness scores.
+    Each lane becomes its own roadblock (ScenarioNet has none); ``lanes_as_connectors`` makes them lane
+    connectors, which nuPlan's map lets overlap (its lanes may not: ScenarioNet's nuScenes lanes do)."""
+    ego, agents = inputs.ego, inputs.agents
+    specs = []
+    for token in np.unique(agents.token[agents.available]):
+        rows, cols = np.nonzero(agents.available & (agents.token == token))
+        specs.append({"token": str(int(token)), "type": TYPE_OF_GROUP[int(agents.group[rows[0], cols[0]])],
+                      "length": float(agents.length[rows[0], cols[0]]), "width": float(agents.width[rows[0], cols[0]]),
+                      "frames": rows.tolist(), "center": agents.center[rows, cols].tolist(),
+                      "velocity": agents.velocity[rows, cols].tolist()})
+    score_map = inputs.map
+    spec_map = None
+    if score_map is not None:
+        incoming = [[] for _ in score_map.lane_ids]
+        for n, ahead in enumerate(score_map.outgoing):
+            for m in ahead:
+                incoming[m].append(score_map.lane_ids[n])
+        connector = [lanes_as_connectors or bool(c) for c in score_map.connector]
+        spec_map = {"lanes": [{"id": lane, "polygon": score_map.polygons[n].tolist(),
+                               "baseline": score_map.baselines[n].tolist(),
+                               "speed_limit": None if not np.isfinite(score_map.speed_limits[n])
+                               else float(score_map.speed_limits[n]),
+                               "roadblock": f"rb-{lane}", "connector": connector[n], "incoming": incoming[n],
+                               "outgoing": [score_map.lane_ids[m] for m in score_map.outgoing[n]]}
+                              for n, lane in enumerate(score_map.lane_ids)],
+                    "roadblocks": [{"id": f"rb-{lane}", "polygon": score_map.polygons[n].tolist(),
+                                    "connector": connector[n]} for n, lane in enumerate(score_map.lane_ids)],
+                    "drivable_area": [p.tolist() for p in score_map.drivable],
+                    "intersections": [p.tolist() for p in score_map.intersections]}
+    return {"name": name, "timestamps": inputs.times.tolist(),
+            "ego": {"length": ego.length, "width": ego.width, "rear_axle_to_center": ego.rear_axle_to_center,
+                    "center": ego.center.tolist(), "velocity": ego.velocity.tolist(),
+                    "acceleration": ego.acceleration.tolist(), "angular_velocity": ego.angular_velocity.tolist(),
+                    "angular_acceleration": ego.angular_acceleration.tolist()},
+            "expert": {"center": inputs.expert.tolist()}, "agents": specs, "map": spec_map}

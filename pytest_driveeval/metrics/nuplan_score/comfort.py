@@ -64,7 +64,7 @@ def ego_is_comfortable(inputs: ScoreInputs) -> Term:
             k = int(np.flatnonzero(outside)[0])
             failing.append(f"{signal} {values[k]:.2f} at frame {int(inputs.frame_numbers[k])} (bounds {lo:g}, {hi:g})")
             bad |= outside
-    term = Term(name, 0.0 if failing else 1.0, detail=detail)
+    term = Term(name, 0.0 if failing else 1.0, detail=detail, series=signals)
     if failing:
         term.frames = np.flatnonzero(bad).tolist()
         term.message = "; ".join(failing)

@@ -26,6 +26,8 @@ class Term:
     places: list[tuple[float, float]] = field(default_factory=list)
     message: str | None = None
     detail: dict = field(default_factory=dict)
+    #: per-frame measures behind it (e.g. each frame's time to collision), for drawing and checking
+    series: dict = field(default_factory=dict)
 
     def __post_init__(self):
         if self.used is None and self.value is not None:

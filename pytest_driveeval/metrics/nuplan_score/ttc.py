@@ -76,7 +76,7 @@ def time_to_collision_within_bound(inputs: ScoreInputs, in_one_lane: np.ndarray,
     bad = np.flatnonzero(~(ttc > LEAST_TTC))
     term = Term("time_to_collision_within_bound", 0.0 if len(bad) else 1.0,
                 detail={"min_time_to_collision": float(ttc.min()) if len(ttc) else float("inf"),
-                        "frames_below_time_to_collision_bound": int(len(bad))})
+                        "frames_below_time_to_collision_bound": int(len(bad))}, series={"time_to_collision": ttc})
     if len(bad):
         term.frames = bad.tolist()
         term.places = [tuple(map(float, inputs.ego.center[k, :2])) for k in bad]
