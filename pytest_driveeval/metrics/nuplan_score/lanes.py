@@ -7,10 +7,13 @@ exact crossing-number test only for the polygons some point's box test admitted.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from pytest_driveeval.geometry.polygons import polygon_edges
+
+from . import kernels
 
 
 def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
@@ -19,30 +22,70 @@ def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
     return np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polygons])
 
 
-def _edge_tables(polygons: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
-    """Per polygon, the (xi, yi, yj, slope) columns of its non-horizontal edges (polygon_edges' table)."""
-    out = []
-    for polygon in polygons:
-        table = polygon_edges(polygon)[0]
-        table = table[table[:, 1] != table[:, 2]]
-        out.append(tuple(np.ascontiguousarray(table[:, i]) for i in range(4)))
-    return out
+class PolygonSet:
+    """Polygons as flat tables: the (xi, yi, yj, slope) columns of their non-horizontal edges
+    (geometry.polygons.polygon_edges' table), polygon n's edges at ``edge_starts[n]:edge_starts[n + 1]``;
+    their vertices, polygon n's at ``vertex_starts[n]:vertex_starts[n + 1]``; and their bounds."""
+
+    def __init__(self, polygons: list[np.ndarray]):
+        self.polygons = polygons
+        self.bounds = _bounds(polygons)
+        lengths = np.array([len(p) for p in polygons], dtype=np.int64)
+        self.vertex_starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+        self.vertices = np.concatenate(polygons) if polygons else np.zeros((0, 2))
+        table = polygon_edges(*polygons)[0] if polygons else np.zeros((0, 4))
+        keep = table[:, 1] != table[:, 2]
+        counts = np.bincount(np.repeat(np.arange(len(polygons)), lengths)[keep], minlength=len(polygons))
+        self.edge_starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        table = table[keep]
+        self.xi, self.yi, self.yj, self.slope = (np.ascontiguousarray(table[:, i]) for i in range(4))
+
+    def __len__(self) -> int:
+        return len(self.polygons)
+
+    def edges(self, n: int) -> tuple[np.ndarray, ...]:
+        s, e = self.edge_starts[n], self.edge_starts[n + 1]
+        return self.xi[s:e], self.yi[s:e], self.yj[s:e], self.slope[s:e]
 
 
-def _containing(points: np.ndarray, tables: list[tuple[np.ndarray, ...]], bounds: np.ndarray) -> np.ndarray:
+def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
     """(P, N) bool: point p lies in polygon n (the crossing-number rule of geometry.polygons)."""
-    out = np.zeros((len(points), len(tables)), dtype=bool)
-    if not len(tables) or not len(points):
+    out = np.zeros((len(points), len(polygons)), dtype=bool)
+    if not len(polygons) or not len(points):
         return out
+    if kernels.wanted():
+        kernels.kernels().containing(np.ascontiguousarray(points, dtype=np.float64), polygons.xi, polygons.yi,
+                                     polygons.yj, polygons.slope, polygons.edge_starts, polygons.bounds, out)
+        return out
+    bounds = polygons.bounds
     x, y = points[:, 0:1], points[:, 1:2]
     near = (x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3])
     with np.errstate(over="ignore"):  # a nearly horizontal edge's slope: see geometry.polygons
         for n in np.flatnonzero(near.any(axis=0)):
             rows = np.flatnonzero(near[:, n])
-            xi, yi, yj, slope = tables[n]
+            xi, yi, yj, slope = polygons.edges(n)
             px, py = points[rows, 0:1], points[rows, 1:2]
             crosses = ((yi <= py) != (yj <= py)) & (px < xi + (py - yi) * slope)
             out[rows, n] = (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
+    return out
+
+
+def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.ndarray, pair_polygon: np.ndarray
+                      ) -> np.ndarray:
+    """(P,) per point, its least distance to the outlines of the polygons paired with it (inf: none)."""
+    out = np.full(len(points), np.inf)
+    if not len(pair_point):
+        return out
+    if kernels.wanted():
+        kernels.kernels().outline_distances(np.ascontiguousarray(points, dtype=np.float64), polygons.vertices,
+                                            polygons.vertex_starts, pair_point.astype(np.int64),
+                                            pair_polygon.astype(np.int64), out)
+        return out
+    order = np.argsort(pair_polygon, kind="stable")
+    pair_point, pair_polygon = pair_point[order], pair_polygon[order]
+    cuts = np.flatnonzero(np.diff(pair_polygon)) + 1
+    for rows, n in zip(np.split(pair_point, cuts), pair_polygon[np.concatenate([[0], cuts])]):
+        out[rows] = np.minimum(out[rows], outline_distance(points[rows], polygons.polygons[n]))
     return out
 
 
@@ -96,12 +139,9 @@ class ScoreMap:
         self.intersections = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.intersections]
         self.speed_limits = np.asarray(self.speed_limits, dtype=np.float64)
         self.connector = np.asarray(self.connector, dtype=bool)
-        self.lane_bounds = _bounds(self.polygons)
-        self.lane_edges = _edge_tables(self.polygons)
-        self.drivable_edges = _edge_tables(self.drivable)
-        self.intersection_edges = _edge_tables(self.intersections)
-        self.drivable_bounds = _bounds(self.drivable)
-        self.intersection_bounds = _bounds(self.intersections)
+        self.lane_set = PolygonSet(self.polygons)
+        self.drivable_set = PolygonSet(self.drivable)
+        self.intersection_set = PolygonSet(self.intersections)
         self.cumulative = [arc_lengths(b) for b in self.baselines]
         self.headings = [np.arctan2(np.diff(b[:, 1]), np.diff(b[:, 0])) for b in self.baselines]
 
@@ -113,42 +153,38 @@ class ScoreMap:
     def has_speed_limits(self) -> bool:
         return bool(np.any(np.isfinite(self.speed_limits) & (self.speed_limits > 0)))
 
+    @cached_property
+    def surface_set(self) -> PolygonSet:
+        """The lane surfaces and the drivable polygons, for distances to any of them."""
+        return PolygonSet(self.polygons + self.drivable)
+
     def lanes_at(self, points: np.ndarray) -> np.ndarray:
         """(P, N) bool: which lane surfaces hold each point."""
-        return _containing(points, self.lane_edges, self.lane_bounds)
+        return _containing(points, self.lane_set)
 
     def in_drivable(self, points: np.ndarray) -> np.ndarray:
         """(P,) bool: in one of the drivable polygons besides the lanes."""
-        return _containing(points, self.drivable_edges, self.drivable_bounds).any(axis=1)
+        return _containing(points, self.drivable_set).any(axis=1)
 
     def in_intersection(self, points: np.ndarray) -> np.ndarray:
-        return _containing(points, self.intersection_edges, self.intersection_bounds).any(axis=1)
+        return _containing(points, self.intersection_set).any(axis=1)
 
     def distance_to_drivable(self, points: np.ndarray, within: float) -> np.ndarray:
         """(P,) distance to the nearest lane surface or drivable polygon, inf beyond ``within`` (m)."""
-        polygons = self.polygons + self.drivable
-        bounds = np.concatenate([self.lane_bounds, self.drivable_bounds]) if polygons else np.zeros((0, 4))
-        return self._distance(points, polygons, bounds, within)
-
-    def distance_to_lanes(self, points: np.ndarray, lanes: list[np.ndarray], within: float) -> np.ndarray:
-        """(P,) distance from point p to the nearest of the lanes ``lanes[p]``, inf beyond ``within``."""
-        out = np.full(len(points), np.inf)
-        for p, chosen in enumerate(lanes):
-            for n in chosen:
-                out[p] = min(out[p], float(outline_distance(points[p:p + 1], self.polygons[n])[0]))
-        return np.where(out < within, out, np.inf)
-
-    @staticmethod
-    def _distance(points, polygons, bounds, within) -> np.ndarray:
-        out = np.full(len(points), np.inf)
-        if not polygons or not len(points):
-            return out
-        x, y = points[:, 0:1], points[:, 1:2]
+        surfaces = self.surface_set
+        if not len(surfaces) or not len(points):
+            return np.full(len(points), np.inf)
+        bounds, x, y = surfaces.bounds, points[:, 0:1], points[:, 1:2]
         near = ((x >= bounds[:, 0] - within) & (x <= bounds[:, 2] + within)
                 & (y >= bounds[:, 1] - within) & (y <= bounds[:, 3] + within))
-        for n in np.flatnonzero(near.any(axis=0)):
-            rows = np.flatnonzero(near[:, n])
-            out[rows] = np.minimum(out[rows], outline_distance(points[rows], polygons[n]))
+        out = _nearest_outlines(points, surfaces, *np.nonzero(near))
+        return np.where(out < within, out, np.inf)
+
+    def distance_to_lanes(self, points: np.ndarray, lanes: list[list[int]], within: float) -> np.ndarray:
+        """(P,) distance from point p to the nearest of the lanes ``lanes[p]``, inf beyond ``within``."""
+        pair_point = np.repeat(np.arange(len(points)), [len(chosen) for chosen in lanes])
+        pair_polygon = np.array([n for chosen in lanes for n in chosen], dtype=np.int64)
+        out = _nearest_outlines(points, self.lane_set, pair_point, pair_polygon)
         return np.where(out < within, out, np.inf)
 
     def direction_at(self, lane: int, points: np.ndarray) -> np.ndarray:

@@ -2,10 +2,12 @@
 aggregator: docs/nuplan_score.md §4-6)."""
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .comfort import ego_is_comfortable
 from .inputs import ScoreInputs
 from .route import centre_route, corners_in_one_lane
@@ -44,6 +46,15 @@ def combine(terms: dict[str, Term]) -> float:
 
 
 def score_scene(inputs: ScoreInputs) -> SceneScore:
+    compiled = kernels.wanted()
+    start = time.perf_counter()
+    score = _score_scene(inputs)
+    if not compiled:
+        kernels.spent_without(time.perf_counter() - start)
+    return score
+
+
+def _score_scene(inputs: ScoreInputs) -> SceneScore:
     corners = ego_corners(inputs)
     heading = inputs.ego.center[:, 2]
     t = inputs.num_frames

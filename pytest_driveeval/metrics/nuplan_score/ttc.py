@@ -12,12 +12,14 @@ import numpy as np
 
 from pytest_driveeval.geometry.boxes import oriented_boxes_overlap
 
+from . import kernels
 from .inputs import ScoreInputs
 from .term import Term
 
 STEP, HORIZON, LEAST_TTC, STOPPED_SPEED = 0.1, 3.0, 0.95, 5e-3
 AHEAD, BEHIND = np.deg2rad(30.0), np.deg2rad(150.0)
 STEPS = np.arange(STEP, HORIZON, STEP)  # 0.1 .. 2.9 s, as nuplan-devkit's arange gives them
+REACH = HORIZON / STEP
 
 
 def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray) -> np.ndarray:
@@ -35,39 +37,69 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
         collided[c.frame:] |= agents.token[c.frame:] == c.token
     rear = ego.rear_axle
     heading = ego.center[:, 2]
-    to_agent = agents.center[..., :2] - rear[:, None, :]
-    bearing = np.arctan2(to_agent[..., 1], to_agent[..., 0]) - heading[:, None]
+    # The bearing of the cells that could count only (most cells are empty or the ego stands still).
+    frames, cols = np.nonzero(agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None])
+    to_agent = agents.center[frames, cols, :2] - rear[frames]
+    bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
-    beside = (~in_one_lane | in_intersection)[:, None] & (angle <= BEHIND)
-    considered = agents.available & ~collided & ((angle < AHEAD) | beside)
-    considered &= (ego.speed > STOPPED_SPEED)[:, None]
-    frames, cols = np.nonzero(considered)
+    beside = (~in_one_lane | in_intersection)[frames] & (angle <= BEHIND)
+    keep = (angle < AHEAD) | beside
+    frames, cols = frames[keep], cols[keep]
     if len(frames):
-        e_step = ego.speed[frames, None] * STEP * np.stack([np.cos(heading[frames]), np.sin(heading[frames])], axis=1)
-        a_center = agents.center[frames, cols]
-        a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*agents.velocity[frames, cols].T))
-        a_step = a_speed[:, None] * STEP * np.stack([np.cos(a_center[:, 2]), np.sin(a_center[:, 2])], axis=1)
-        e_ext = np.array([ego.length, ego.width])
-        a_ext = np.stack([agents.length[frames, cols], agents.width[frames, cols]], axis=1)
-        reach = HORIZON / STEP
-        # The swept boxes: length plus the 3 s of motion, centred half way along it.
-        swept = oriented_boxes_overlap(
-            ego.center[frames, :2] + reach / 2 * e_step, heading[frames],
-            e_ext + np.stack([reach * np.hypot(*e_step.T), np.zeros(len(frames))], axis=1),
-            a_center[:, :2] + reach / 2 * a_step, a_center[:, 2],
-            a_ext + np.stack([reach * np.hypot(*a_step.T), np.zeros(len(frames))], axis=1))
-        p = np.flatnonzero(swept)
-        if len(p):
-            k = np.arange(1, len(STEPS) + 1)[None, :, None]
-            meet = oriented_boxes_overlap(ego.center[frames[p], None, :2] + k * e_step[p, None, :],
-                                          heading[frames[p], None], e_ext,
-                                          a_center[p, None, :2] + k * a_step[p, None, :], a_center[p, None, 2],
-                                          a_ext[p, None, :])
-            hit = meet.any(axis=1)
-            first = STEPS[np.argmax(meet, axis=1)]
-            np.minimum.at(ttc, frames[p[hit]], first[hit])
+        first = (_first_meetings_compiled if kernels.wanted() else _first_meetings)(ego, agents, frames, cols)
+        hit = first >= 0
+        np.minimum.at(ttc, frames[hit], STEPS[first[hit]])
     ttc[at_fault] = 0.0
     return ttc
+
+
+def _first_meetings(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Per pair (frame, agent column), the index into STEPS of the first step at which the ego's box and
+    the agent's, moved on at their speeds, overlap; -1 if none."""
+    heading = ego.center[:, 2]
+    e_step = ego.speed[frames, None] * STEP * np.stack([np.cos(heading[frames]), np.sin(heading[frames])], axis=1)
+    a_center = agents.center[frames, cols]
+    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*agents.velocity[frames, cols].T))
+    a_step = a_speed[:, None] * STEP * np.stack([np.cos(a_center[:, 2]), np.sin(a_center[:, 2])], axis=1)
+    e_ext = np.array([ego.length, ego.width])
+    a_ext = np.stack([agents.length[frames, cols], agents.width[frames, cols]], axis=1)
+    # The swept boxes: length plus the 3 s of motion, centred half way along it.
+    swept = oriented_boxes_overlap(
+        ego.center[frames, :2] + REACH / 2 * e_step, heading[frames],
+        e_ext + np.stack([REACH * np.hypot(*e_step.T), np.zeros(len(frames))], axis=1),
+        a_center[:, :2] + REACH / 2 * a_step, a_center[:, 2],
+        a_ext + np.stack([REACH * np.hypot(*a_step.T), np.zeros(len(frames))], axis=1))
+    first = np.full(len(frames), -1)
+    p = np.flatnonzero(swept)
+    if len(p):
+        k = np.arange(1, len(STEPS) + 1)[None, :, None]
+        meet = oriented_boxes_overlap(ego.center[frames[p], None, :2] + k * e_step[p, None, :],
+                                      heading[frames[p], None], e_ext,
+                                      a_center[p, None, :2] + k * a_step[p, None, :], a_center[p, None, 2],
+                                      a_ext[p, None, :])
+        first[p] = np.where(meet.any(axis=1), np.argmax(meet, axis=1), -1)
+    return first
+
+
+def _first_meetings_compiled(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """:func:`_first_meetings` in one kernel: the cosines, sines and hypotenuses from numpy, computed as
+    there (the ego's per frame, then taken per pair: the same numbers), the rest in the kernel."""
+    heading = ego.center[:, 2]
+    e_cos, e_sin = np.cos(heading), np.sin(heading)
+    e_step = ego.speed[:, None] * STEP * np.stack([e_cos, e_sin], axis=1)
+    e_sweep = REACH * np.hypot(*e_step.T)
+    a_center = agents.center[frames, cols]
+    a_cos, a_sin = np.cos(a_center[:, 2]), np.sin(a_center[:, 2])
+    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*agents.velocity[frames, cols].T))
+    a_step = a_speed[:, None] * STEP * np.stack([a_cos, a_sin], axis=1)
+    a_sweep = REACH * np.hypot(*a_step.T)
+    out = np.empty(len(frames), dtype=np.int64)
+    kernels.kernels().first_meeting(
+        frames.astype(np.int64), np.ascontiguousarray(ego.center[:, :2]), e_cos, e_sin, e_step, e_sweep,
+        float(ego.length), float(ego.width), np.ascontiguousarray(a_center[:, :2]), a_cos, a_sin, a_step, a_sweep,
+        agents.length[frames, cols].astype(np.float64), agents.width[frames, cols].astype(np.float64),
+        REACH / 2, len(STEPS), out)
+    return out
 
 
 def time_to_collision_within_bound(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray

@@ -1,0 +1,133 @@
+"""The score's point-in-lane, distance and time-to-collision loops compiled with numba, where it is
+installed; the numpy paths in :mod:`.lanes` and :mod:`.ttc` stay, and both give the same numbers bit
+for bit: each kernel computes the numpy expressions of its caller in the same order (no fastmath, so
+no fused multiply-adds), and the cosines and sines come in from numpy.
+
+When: importing numba costs a process about half a second, more than scoring a handful of scenes
+saves.  So the compiled paths run once numba is loaded anyway (the closed loop's engine loads it for
+a large unroll), or once the numpy paths have cost the process that much more than the compiled ones
+would have (rent until the rent paid equals the price, then buy; as sim.logreplay.jit decides).
+"""
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+
+import numpy as np
+
+START_SECONDS = 0.5  # importing numba and starting its compiler (sim.logreplay.jit measured it)
+#: what share of the numpy paths' time the compiled ones save (measured on real scenes: about 90 %)
+SAVED_SHARE = 0.9
+
+
+def _installed() -> bool:
+    if "numba" in sys.modules:  # None there means imports of it are blocked
+        return sys.modules["numba"] is not None
+    return importlib.util.find_spec("numba") is not None
+
+
+AVAILABLE = _installed()
+_forgone = 0.0
+_kernels = None
+
+
+def wanted() -> bool:
+    """Whether the next scene takes the compiled paths."""
+    if not AVAILABLE:
+        return False
+    return sys.modules.get("numba") is not None or _forgone >= START_SECONDS
+
+
+def spent_without(seconds: float) -> None:
+    """A scene took ``seconds`` on the numpy paths."""
+    global _forgone
+    _forgone += SAVED_SHARE * seconds
+
+
+def kernels():
+    """The compiled kernels (compiled, or loaded from numba's cache, on first use)."""
+    global _kernels
+    if _kernels is None:
+        _kernels = _compile()
+    return _kernels
+
+
+def _compile():
+    from types import SimpleNamespace
+
+    from numba import njit
+
+    jit = njit(cache=True, nogil=True, boundscheck=False)
+
+    @jit
+    def containing(points, xi, yi, yj, slope, starts, bounds, out):
+        """out[p, n]: point p in polygon n; edges of polygon n: starts[n]:starts[n + 1] (lanes._containing)."""
+        for p in range(points.shape[0]):
+            px, py = points[p, 0], points[p, 1]
+            for n in range(bounds.shape[0]):
+                if px >= bounds[n, 0] and px <= bounds[n, 2] and py >= bounds[n, 1] and py <= bounds[n, 3]:
+                    count = 0
+                    for e in range(starts[n], starts[n + 1]):
+                        if ((yi[e] <= py) != (yj[e] <= py)) and px < xi[e] + (py - yi[e]) * slope[e]:
+                            count += 1
+                    out[p, n] = (count & 1) == 1
+
+    @jit
+    def outline_distances(points, vertices, starts, pair_point, pair_polygon, out):
+        """out[p] = min(out[p], distance of point p to polygon n's outline) for each pair (p, n)
+        (lanes.outline_distance's expressions)."""
+        for k in range(pair_point.shape[0]):
+            p, n = pair_point[k], pair_polygon[k]
+            px, py = points[p, 0], points[p, 1]
+            s, e = starts[n], starts[n + 1]
+            best = np.inf
+            for i in range(s, e):
+                j = i + 1 if i + 1 < e else s
+                ax, ay = vertices[i, 0], vertices[i, 1]
+                abx, aby = vertices[j, 0] - ax, vertices[j, 1] - ay
+                length2 = max(abx * abx + aby * aby, 1e-18)
+                apx, apy = px - ax, py - ay
+                t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
+                gx, gy = apx - t * abx, apy - t * aby
+                d = math.sqrt(gx * gx + gy * gy)
+                if d < best:
+                    best = d
+            if best < out[p]:
+                out[p] = best
+
+    @jit
+    def _overlap(ax, ay, ca, sa, al, aw, bx, by, cb, sb, bl, bw):
+        """geometry.boxes.oriented_boxes_overlap for one pair (half extents given)."""
+        dx, dy = bx - ax, by - ay
+        cos_rel = abs(ca * cb + sa * sb)
+        sin_rel = abs(ca * sb - sa * cb)
+        return (abs(dx * ca + dy * sa) <= al + cos_rel * bl + sin_rel * bw + 0.0
+                and abs(dy * ca - dx * sa) <= aw + sin_rel * bl + cos_rel * bw + 0.0
+                and abs(dx * cb + dy * sb) <= bl + cos_rel * al + sin_rel * aw + 0.0
+                and abs(dy * cb - dx * sb) <= bw + sin_rel * al + cos_rel * aw + 0.0)
+
+    @jit
+    def first_meeting(frame, ego_xy, e_cos, e_sin, e_step, e_sweep, e_length, e_width, a_xy, a_cos, a_sin, a_step,
+                      a_sweep, a_length, a_width, half_reach, steps, out):
+        """out[k]: for pair k (the ego at frame[k], agent k), the first step s - 1 (s in 1..steps) at which
+        their boxes, moved s steps on, overlap; -1 if none, or if the boxes swept over the whole horizon
+        do not overlap (ttc._first_meetings)."""
+        el, ew = 0.5 * e_length, 0.5 * e_width
+        for k in range(frame.shape[0]):
+            f = frame[k]
+            ex, ey, ec, es, sx, sy = ego_xy[f, 0], ego_xy[f, 1], e_cos[f], e_sin[f], e_step[f, 0], e_step[f, 1]
+            ax, ay, ac, as_, tx, ty = a_xy[k, 0], a_xy[k, 1], a_cos[k], a_sin[k], a_step[k, 0], a_step[k, 1]
+            al, aw = 0.5 * a_length[k], 0.5 * a_width[k]
+            out[k] = -1
+            if not _overlap(ex + half_reach * sx, ey + half_reach * sy, ec, es, 0.5 * (e_length + e_sweep[f]),
+                            0.5 * (e_width + 0.0), ax + half_reach * tx, ay + half_reach * ty, ac, as_,
+                            0.5 * (a_length[k] + a_sweep[k]), 0.5 * (a_width[k] + 0.0)):
+                continue
+            for s in range(1, steps + 1):
+                g = float(s)
+                if _overlap(ex + g * sx, ey + g * sy, ec, es, el, ew, ax + g * tx, ay + g * ty, ac, as_, al, aw):
+                    out[k] = s - 1
+                    break
+
+    return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting)
