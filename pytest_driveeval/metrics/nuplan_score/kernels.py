@@ -130,4 +130,25 @@ def _compile():
                     out[k] = s - 1
                     break
 
-    return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting)
+    @jit
+    def project(points, line_of, vertices, starts, cumulative, out):
+        """out[p]: arc length along line line_of[p] (vertices[starts[n]:starts[n + 1]], arc lengths at its
+        vertices cumulative[same]) of point p's nearest point on it (lanes.project)."""
+        for p in range(points.shape[0]):
+            n = line_of[p]
+            px, py = points[p, 0], points[p, 1]
+            best, best_t, best_len2, best_i = np.inf, 0.0, 1.0, starts[n]
+            for i in range(starts[n], starts[n + 1] - 1):
+                ax, ay = vertices[i, 0], vertices[i, 1]
+                abx, aby = vertices[i + 1, 0] - ax, vertices[i + 1, 1] - ay
+                length2 = max(abx * abx + aby * aby, 1e-18)
+                apx, apy = px - ax, py - ay
+                t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
+                gx, gy = apx - t * abx, apy - t * aby
+                d2 = gx * gx + gy * gy
+                if d2 < best:  # the first of equally near segments, as numpy's argmin
+                    best, best_t, best_len2, best_i = d2, t, length2, i
+            out[p] = cumulative[best_i] + best_t * math.sqrt(best_len2)
+
+    return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting,
+                           project=project)

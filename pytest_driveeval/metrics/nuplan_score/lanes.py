@@ -187,6 +187,41 @@ class ScoreMap:
         out = _nearest_outlines(points, self.lane_set, pair_point, pair_polygon)
         return np.where(out < within, out, np.inf)
 
+    @cached_property
+    def _baseline_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lengths = [len(b) for b in self.baselines]
+        starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+        vertices = np.concatenate(self.baselines) if self.baselines else np.zeros((0, 2))
+        cumulative = np.concatenate(self.cumulative) if self.cumulative else np.zeros(0)
+        return vertices, starts, cumulative
+
+    def along(self, points: np.ndarray, lane_of: np.ndarray) -> np.ndarray:
+        """(P,) :func:`project` of point p onto lane ``lane_of[p]``'s baseline."""
+        lane_of = np.asarray(lane_of, dtype=np.int64)
+        out = np.zeros(len(points))
+        if not len(points):
+            return out
+        if kernels.wanted():
+            kernels.kernels().project(np.ascontiguousarray(points, dtype=np.float64), lane_of, *self._baseline_table,
+                                      out)
+            return out
+        for lane in np.unique(lane_of):
+            rows = np.flatnonzero(lane_of == lane)
+            out[rows] = project(points[rows], self.baselines[lane], self.cumulative[lane])
+        return out
+
+    def directions(self, points: np.ndarray, lane_of: np.ndarray) -> np.ndarray:
+        """(P,) heading of lane ``lane_of[p]``'s baseline at point p's projection (:meth:`direction_at`)."""
+        lane_of = np.asarray(lane_of, dtype=np.int64)
+        s = self.along(points, lane_of)
+        out = np.zeros(len(points))
+        for lane in np.unique(lane_of):
+            rows = np.flatnonzero(lane_of == lane)
+            segment = np.clip(np.searchsorted(self.cumulative[lane], s[rows], side="right") - 1, 0,
+                              len(self.headings[lane]) - 1)
+            out[rows] = self.headings[lane][segment]
+        return out
+
     def direction_at(self, lane: int, points: np.ndarray) -> np.ndarray:
         """(P,) heading of lane ``lane``'s baseline at each point's projection."""
         s = project(points, self.baselines[lane], self.cumulative[lane])

@@ -18,7 +18,8 @@ from .lanes import ScoreMap
 def _aligned_first(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
     if len(lanes) < 2:
         return lanes
-    off = [abs(float(wrap_angle(score_map.direction_at(n, point[None])[0] - heading))) for n in lanes]
+    directions = score_map.directions(np.repeat(point[None], len(lanes), axis=0), lanes)
+    off = [abs(float(wrap_angle(d - heading))) for d in directions]
     return [lanes[i] for i in np.argsort(off, kind="stable")]
 
 

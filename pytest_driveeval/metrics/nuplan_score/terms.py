@@ -74,7 +74,7 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_la
                         "max_corner_off_drivable_area": float(depth.max()) if len(depth) else 0.0})
     if len(frames):
         depth = depth.reshape(t, 4)
-        corner = [int(np.argmax(np.where(far[k], depth[k], -1))) for k in frames]
+        corner = np.argmax(np.where(far[frames], depth[frames], -1), axis=1).tolist()
         term.frames = frames.tolist()
         term.places = [tuple(map(float, corners[k, c])) for k, c in zip(frames, corner)]
         k0, c0 = frames[0], corner[0]
@@ -91,9 +91,8 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     xy = inputs.ego.center[:, :2]
     lane_of = np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
     along = np.zeros(len(route))
-    for lane in np.unique(lane_of[lane_of >= 0]):
-        rows = np.flatnonzero(lane_of == lane)
-        along[rows] = project(xy[rows], score_map.baselines[lane], score_map.cumulative[lane])
+    on = np.flatnonzero(lane_of >= 0)
+    along[on] = score_map.along(xy[on], lane_of[on])
     steps = np.zeros(len(route))
     last = int(lane_of[0]) if len(lane_of) and lane_of[0] >= 0 else None
     before = None
