@@ -26,6 +26,7 @@ SMOKED = {
     "bench_closed_loop_search.py": (rf"^ratio: {NUMBER}x \(target", ("torch", "hypothesis")),
     "bench_gnn.py": (rf"^ours, eager: {NUMBER}x the reference;", ("torch",)),
     "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),
+    "bench_nuplan_score.py": (rf"^score vs harness: {NUMBER} % of the unroll's harness time", ("torch",)),
     "bench_obstacle_frame.py": (rf"evaluate_cloud, numpy kernel: median {NUMBER} ms", ()),
     "bench_pointcloud2.py": (rf"^  stream vs naive: {NUMBER}x faster", ("rosbags",)),
     "bench_policy_benchmark_step.py": (rf"ours merging\s+E=\s*2:\s+{NUMBER} live agent-steps/s", ()),

@@ -19,7 +19,9 @@ from . import kernels
 def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
     if not polygons:
         return np.zeros((0, 4))
-    return np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polygons])
+    vertices = np.concatenate(polygons)
+    starts = np.concatenate([[0], np.cumsum([len(p) for p in polygons[:-1]])]).astype(np.int64)
+    return np.concatenate([np.minimum.reduceat(vertices, starts), np.maximum.reduceat(vertices, starts)], axis=1)
 
 
 class PolygonSet:
@@ -33,12 +35,38 @@ class PolygonSet:
         lengths = np.array([len(p) for p in polygons], dtype=np.int64)
         self.vertex_starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
         self.vertices = np.concatenate(polygons) if polygons else np.zeros((0, 2))
+
+    @cached_property
+    def _edge_table(self) -> tuple[np.ndarray, ...]:
+        """Made on the first point-in-polygon query: distances read the vertices only."""
+        polygons = self.polygons
         table = polygon_edges(*polygons)[0] if polygons else np.zeros((0, 4))
         keep = table[:, 1] != table[:, 2]
+        lengths = np.diff(self.vertex_starts)
         counts = np.bincount(np.repeat(np.arange(len(polygons)), lengths)[keep], minlength=len(polygons))
-        self.edge_starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         table = table[keep]
-        self.xi, self.yi, self.yj, self.slope = (np.ascontiguousarray(table[:, i]) for i in range(4))
+        return (np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+                *(np.ascontiguousarray(table[:, i]) for i in range(4)))
+
+    @property
+    def edge_starts(self) -> np.ndarray:
+        return self._edge_table[0]
+
+    @property
+    def xi(self) -> np.ndarray:
+        return self._edge_table[1]
+
+    @property
+    def yi(self) -> np.ndarray:
+        return self._edge_table[2]
+
+    @property
+    def yj(self) -> np.ndarray:
+        return self._edge_table[3]
+
+    @property
+    def slope(self) -> np.ndarray:
+        return self._edge_table[4]
 
     def __len__(self) -> int:
         return len(self.polygons)
