@@ -103,6 +103,10 @@ def test_conditions_score_fails_the_scenes_below_it_and_reports_every_term(pytes
             assert f"at frame {area['frames'][0]}" in finding["message"]
     mean = next(f for f in straight["findings"] if f.get("figure") == "score")
     assert mean["limit"] == 0.5 and mean["keypath"][-1] == "MeanAtLeast"
+    markdown = (pytester.path / "driveeval-results" / "summary.md").read_text()
+    section = markdown.split(f"#### nuPlan score per scene: `{straight['nodeid']}`")[1]
+    assert "| 0 | " in section and "| 4 | " in section and "n/a" in section
+    assert "speed limit: no speed limit in the map (ScenarioNet's nuScenes lanes carry a placeholder" in section
 
 
 def test_a_misspelt_term_is_an_error_at_its_line(pytester, shared_data):
