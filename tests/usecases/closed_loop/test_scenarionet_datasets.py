@@ -152,8 +152,9 @@ SEARCH = """\
 
 
 def test_a_robustness_search_on_a_scenarionet_scene_reports_a_replay_line_that_reproduces_it(pytester):
-    """Scene-0553, a calm street the planning model drives within 0.7 m of the log: started turned
-    0.2 rad to the right (or 0.3 rad to the left) it does not recover, and drives into a car or off the log."""
+    """Scene-0553, where the logged car stands still and the planning model stays within 0.7 m of
+    it: started turned about 0.17 rad to the right, the model rolls backwards into the car behind
+    (an at-fault rear collision); turned 0.3 rad to the left, it drifts off the log."""
     pytester.makefile(".scenario.yaml", search=scenario_text("search", FIXTURE_SCENES, scenes="[1]", steps=40,
                                                              displacement="{Max: 4.0, Duration: 1.0}", tail=SEARCH))
     pytester.runpytest("-p", "no:randomly", "--driveeval-search-profile=ci").assert_outcomes(failed=1)
