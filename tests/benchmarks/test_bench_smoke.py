@@ -34,6 +34,7 @@ SMOKED = {
     "bench_raster.py": (rf"^box_debug .*new arrays\s+1 scene: {NUMBER}/s", ()),
     "bench_raster_closed_loop.py": (rf"^\s+2 scene\(s\):\s+{NUMBER} scene-steps/s", ("torch",)),
     "bench_ray.py": (rf"^  chunks here: .* speed-up over one batch {NUMBER}x; results identical", ("torch",)),
+    "bench_scenarionet.py": (rf"^median read/unroll over \d+ scene\(s\): {NUMBER}x", ("torch",)),
     "bench_semantic_map.py": (rf"read best of 1: {NUMBER} s", ()),
     "bench_unroll.py": (rf"^engine vs issue 14: {NUMBER} scene-steps/s", ("torch",)),
     "bench_unroll_memory.py": (rf"^peak RSS {NUMBER} MB", ("torch",)),
