@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -21,18 +21,17 @@ __all__ = ["animated", "chart_counts", "scene_drawn_map", "scene_gif", "write_ar
 
 
 def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, verdicts: list[SceneVerdict],
-                    figures: dict, dataset: Any = None,
-                    markers: Mapping[int, Sequence[tuple[int, float, float, str]]] | None = None) -> dict[str, Path]:
+                    figures: dict, dataset: Any = None) -> dict[str, Path]:
     """closed_loop.json, the chart of collisions and resets and the scenes' GIFs, as the
     scenario's ``Artefacts`` asks; returns them by artefact name.  A GIF draws its scene's map
-    when ``dataset`` has one (scene_map.drawn_map_of) and ``markers[scene]``: (frame number,
-    x, y, kind) where a score term failed (report.markers.KINDS)."""
+    when ``dataset`` has one (scene_map.drawn_map_of) and marks where a score term failed
+    (each verdict's ``markers``: frame number, x, y, kind of report.markers.KINDS)."""
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
 
     def draw(row: int, verdict: SceneVerdict) -> Path | None:
         return scene_gif(ctx.artefact(f"scene_{verdict.scene}.gif"), unroll, row, verdict.scene,
                          drawn_map=scene_drawn_map(dataset, verdict.scene),
-                         markers=(markers or {}).get(verdict.scene))
+                         markers=verdict.markers)
 
     return write_scene_artefacts(ctx, config, verdicts, events, figures, draw)
 

@@ -81,9 +81,9 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     with tempfile.TemporaryDirectory(prefix="driveeval-chunk-") as folder:
         for row, verdict in enumerate(verdicts):
             if animated(config, verdict):
-                # the scene's map from the dataset the worker opened; markers: none yet on this path
+                # the scene's map from the dataset the worker opened
                 path = scene_gif(Path(folder) / f"scene_{verdict.scene}.gif", unroll, row, verdict.scene,
-                                 drawn_map=scene_drawn_map(dataset, verdict.scene))
+                                 drawn_map=scene_drawn_map(dataset, verdict.scene), markers=verdict.markers)
                 if path is not None:
                     gifs[verdict.scene] = path.read_bytes()
     return SceneResults(verdicts, [collision_events(unroll, row) for row in range(len(ids))],
