@@ -14,7 +14,6 @@ from typing import Callable
 
 import numpy as np
 
-from .canvas import pixel_mapper
 
 LANE = (229, 231, 226)
 ROAD_LINE = (205, 186, 125)
@@ -77,12 +76,14 @@ class MapBackground:
             image = Image.new("RGB", (self.size, self.size), self.background)
             draw = ImageDraw.Draw(image)
             m = self.metres
-            px = pixel_mapper(np.array([(i + 0.5) * m, (j + 0.5) * m]), self.scale, self.size)
+            # The tile's pixels as canvas.pixel_mapper's around the tile's centre, in numpy: a map's
+            # lines run to thousands of points, too many for a point-by-point conversion.
+            corner, flip = np.array([i * m, (j + 1) * m]), np.array([self.scale, -self.scale])
             margin = 2.0 / self.scale  # a line's width past the tile's edge still shows
             box = (i * m - margin, j * m - margin, (i + 1) * m + margin, (j + 1) * m + margin)
             for items, bounds, paint in self.layers:
                 for k in _overlapping(bounds, box):
-                    paint(draw, px(items[k]))
+                    paint(draw, ((items[k] - corner) * flip).ravel().tolist())
             self.tiles[(i, j)] = image
         return self.tiles[(i, j)]
 
@@ -105,7 +106,7 @@ class MapBackground:
 
 def _polygon(fill: tuple[int, int, int], outline: tuple[int, int, int] | None) -> Callable:
     def paint(draw, points) -> None:
-        if len(points) >= 3:
+        if len(points) >= 6:  # three (x, y) pairs
             draw.polygon(points, fill=fill, outline=outline)
 
     return paint

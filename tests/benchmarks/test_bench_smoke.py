@@ -23,6 +23,7 @@ NUMBER = r"([0-9][0-9,]*(?:\.[0-9]+)?)"
 # script: (the line that carries its figure, with the number as group 1; modules it needs beyond the core install)
 SMOKED = {
     "bench_baseline_overhead.py": (rf"^comparison's own cost: {NUMBER} % of the session", ("torch",)),
+    "bench_birdseye_map.py": (rf"^map / no map: {NUMBER}x", ()),
     "bench_closed_loop_search.py": (rf"^ratio: {NUMBER}x \(target", ("torch", "hypothesis")),
     "bench_gnn.py": (rf"^ours, eager: {NUMBER}x the reference;", ("torch",)),
     "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),
