@@ -116,3 +116,15 @@ def test_a_misspelt_term_is_an_error_at_its_line(pytester, shared_data):
     result = pytester.runpytest("-p", "no:randomly")
     result.stdout.fnmatch_lines(["*did you mean drivable_area_compliance*"])
     assert result.ret != 0
+
+
+def test_the_gif_markers_start_each_run_of_failing_frames(nuscenes):
+    from pytest_driveeval.closed_loop import judge_scene
+    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
+
+    unroll = unrolled(nuscenes, "constant_velocity", [0])
+    verdict = judge_scene(unroll, 0, ClosedLoopConditions())
+    area = verdict.score_terms["drivable_area_compliance"]["frames"]
+    marked = [frame for frame, _, _, kind in verdict.markers if kind == "off_drivable_area"]
+    starts = [f for i, f in enumerate(area) if i == 0 or area[i - 1] != f - 1]
+    assert marked == starts and marked[0] == area[0]
