@@ -23,9 +23,15 @@ FAST_HEALTH_CHECKS = {"health_check_period_ms": 500, "health_check_failure_thres
 
 @contextmanager
 def local_cluster():
-    """A head without CPUs and two worker nodes, connected; shut down on exit."""
+    """A head without CPUs and two worker nodes, connected; shut down on exit.  The driver's
+    ``print`` is given back on exit: Ray replaces ``builtins.print`` (tqdm_ray.safe_print) once a
+    worker's log reaches the driver, and a later test that pickles ``print`` would see Ray's."""
+    import builtins
+
     import ray
     from ray.cluster_utils import Cluster
+
+    own_print = builtins.print
 
     cluster = Cluster(initialize_head=True, connect=True,
                       head_node_args={"num_cpus": 0, "_system_config": FAST_HEALTH_CHECKS})
@@ -37,6 +43,7 @@ def local_cluster():
     finally:
         ray.shutdown()       # the driver first: the head cannot be removed under it
         cluster.shutdown()
+        builtins.print = own_print
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ import pytest
 
 from ..outcome import Outcome, format_figure, replaced_model
 from .deltas import comparison_of, figure_deltas, status_text, status_tone
+from .score_table import score_html, score_text
 
 IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}
 TREND_NAME = "trend"
@@ -141,6 +142,9 @@ def html_extras(outcome: Outcome, record: dict[str, Any] | None = None, trend: b
     from pytest_html import extras
 
     out = [extras.html(_figures_table(outcome, record))]
+    scores = score_html(outcome.details)
+    if scores:
+        out.append(extras.html(scores))
     lines = search_lines(outcome)
     if lines:
         out.append(extras.html("<div class='driveeval-search'>" + "".join(f"<p>{escape(line)}</p>" for line in lines)
@@ -196,6 +200,9 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
     for key, value in scalar_figures(outcome).items():
         # Excluded from allure's history id: a figure changing is the news, not a new test.
         allure.dynamic.parameter(key, value, excluded=True)
+    scores = score_text(outcome.details)
+    if scores:
+        allure.attach(scores, name="nuPlan score per scene", attachment_type=AttachmentType.TEXT)
     lines = search_lines(outcome)
     if lines:
         allure.attach("\n".join(lines), name="robustness search", attachment_type=AttachmentType.TEXT)

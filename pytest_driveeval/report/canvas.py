@@ -33,11 +33,28 @@ def pixel_mapper(centre: np.ndarray, scale: float, size: int) -> Pixels:
     return px
 
 
-def save_gif(path: Path, images: Sequence, frame_ms: int, colors: int) -> Path:
-    """The frames as a looping GIF of ``colors`` colours; a killed session leaves no truncated file."""
+def blends(colours: Sequence[tuple[int, int, int]], background: tuple[int, int, int], steps: int = 3
+           ) -> list[tuple[int, int, int]]:
+    """Each colour part-way to ``background``: the shades of a text's anti-aliased edges, for a palette."""
+    return [tuple(int(round(c + (b - c) * k / steps)) for c, b in zip(colour, background))
+            for colour in colours for k in range(1, steps)]
+
+
+def save_gif(path: Path, images: Sequence, frame_ms: int, colors: int,
+             palette: Sequence[tuple[int, int, int]] | None = None) -> Path:
+    """The frames as a looping GIF of ``colors`` colours, or of exactly the colours of ``palette``
+    (each pixel its nearest, undithered: a colour drawn in a few pixels, a legend's, is kept, where
+    each frame's own median cut would merge it into a neighbour); a killed session leaves no
+    truncated file."""
     from PIL import Image
 
-    frames = [image.quantize(colors=colors, method=Image.Quantize.MEDIANCUT) for image in images]
+    if palette is not None:
+        fixed = Image.new("P", (1, 1))
+        # Filled to 256 entries with a colour of its own: unfilled entries would be black, and nearest to dark text.
+        fixed.putpalette([c for colour in list(palette) + [palette[0]] * (256 - len(palette)) for c in colour])
+        frames = [image.quantize(palette=fixed, dither=Image.Dither.NONE) for image in images]
+    else:
+        frames = [image.quantize(colors=colors, method=Image.Quantize.MEDIANCUT) for image in images]
     with atomic_path(path) as tmp:
         frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:], duration=frame_ms, loop=0,
                        optimize=True)

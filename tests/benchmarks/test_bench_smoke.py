@@ -23,6 +23,7 @@ NUMBER = r"([0-9][0-9,]*(?:\.[0-9]+)?)"
 # script: (the line that carries its figure, with the number as group 1; modules it needs beyond the core install)
 SMOKED = {
     "bench_baseline_overhead.py": (rf"^comparison's own cost: {NUMBER} % of the session", ("torch",)),
+    "bench_birdseye_map.py": (rf"^map / no map: {NUMBER}x", ()),
     "bench_closed_loop_search.py": (rf"^ratio: {NUMBER}x \(target", ("torch", "hypothesis")),
     "bench_gnn.py": (rf"^ours, eager: {NUMBER}x the reference;", ("torch",)),
     "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),
@@ -35,9 +36,12 @@ SMOKED = {
     "bench_raster.py": (rf"^box_debug .*new arrays\s+1 scene: {NUMBER}/s", ()),
     "bench_raster_closed_loop.py": (rf"^\s+2 scene\(s\):\s+{NUMBER} scene-steps/s", ("torch",)),
     "bench_ray.py": (rf"^  chunks here: .* speed-up over one batch {NUMBER}x; results identical", ("torch",)),
+    "bench_scenarionet.py": (rf"^median read/unroll over \d+ scene\(s\): {NUMBER}x", ("torch",)),
     "bench_semantic_map.py": (rf"read best of 1: {NUMBER} s", ()),
     "bench_unroll.py": (rf"^engine vs issue 14: {NUMBER} scene-steps/s", ("torch",)),
     "bench_unroll_memory.py": (rf"^peak RSS {NUMBER} MB", ("torch",)),
+    # 0 of 0 where the shared data or the oracle's venv is absent: the script says which and stops there.
+    "nuplan_oracle/compare_scenes.py": (rf"^terms agreeing with nuplan-devkit: {NUMBER} of", ("torch",)),
 }
 # Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs l5kit's where its venv exists,
 # the nuPlan score comparison test nuplan-devkit's.

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.metrics.nuplan_score import score_scene
-from pytest_driveeval.metrics.nuplan_score.case import inputs_from_case
+from pytest_driveeval.metrics.nuplan_score.case import case_from_inputs, inputs_from_case
 from pytest_driveeval.metrics.nuplan_score.comfort import ego_is_comfortable
 from pytest_driveeval.metrics.nuplan_score.terms import driving_direction_compliance
 from pytest_driveeval.metrics.nuplan_score.route import centre_route
@@ -50,6 +50,20 @@ def test_speeding_costs_in_proportion_to_depth_and_time():
     assert result.score == pytest.approx(0.95)
     everywhere = scored(case("speeding", cruising(), speed=np.full(FRAMES, 15.0 + 1.115)))
     assert everywhere.terms["speed_limit_compliance"].value == pytest.approx(1 - 151 * 1.115 * 0.1 / (2.23 * 15))
+
+
+def test_a_lane_exported_as_a_connector_keeps_its_own_speed_limit():
+    """nuPlan gives a connector the highest limit of its edges (and raises on a connector without any);
+    the export makes an edgeless lane its own edge, so the exported case scores as the lane did."""
+    speed = np.full(FRAMES, 10.0)
+    speed[40:70] = 15.0 + 2.23
+    inputs = inputs_from_case(case("speeding", cruising(), speed=speed))
+    exported = case_from_inputs(inputs, "speeding", lanes_as_connectors=True)
+    (lane,) = exported["map"]["lanes"]
+    assert lane["connector"] and lane["incoming"] == lane["outgoing"] == [lane["id"]]
+    again = scored(exported)
+    assert again.terms["speed_limit_compliance"].value == pytest.approx(0.8)
+    assert again.score == pytest.approx(score_scene(inputs).score)
 
 
 def test_no_speed_limit_is_not_available_and_counts_one_as_nuplan_does():

@@ -57,8 +57,10 @@ def test_pytest_html_extras_inline_images_once_per_item(two, workers):
         assert by_name["scene_0_gif"]["content"].startswith("data:image/gif;base64,R0lGOD")
         assert by_name["chart"]["content"].startswith("data:image/png;base64,iVBOR")
         assert by_name["result"]["format_type"] == "json"
-        figures = [e["content"] for e in extras if e["format_type"] == "html"]
-        assert len(figures) == 1 and "<td>front</td><td>0</td>" in figures[0]
+        figures, scores = [e["content"] for e in extras if e["format_type"] == "html"]
+        assert "<td>front</td><td>0</td>" in figures
+        # the scene's nuPlan score, term by term; the generated scene has no map: its map terms n/a
+        assert "nuPlan score per scene" in scores and "<td>n/a</td>" in scores and "the scene has no map" in scores
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
@@ -68,7 +70,8 @@ def test_allure_results_have_typed_attachments_labels_and_figures(two, workers):
     assert sorted(r["name"] for r in results) == ["a [logs]", "b [logs]"]
     for r in results:
         types = sorted((a["name"], a["type"]) for a in r["attachments"])
-        assert types == [("chart", "image/png"), ("result", "application/json"), ("scene_0_gif", "image/gif")]
+        assert types == [("chart", "image/png"), ("nuPlan score per scene", "text/plain"),
+                         ("result", "application/json"), ("scene_0_gif", "image/gif")]
         labels = {(label["name"], label["value"]) for label in r["labels"]}
         assert ("use_case", "closed_loop") in labels and ("feature", "closed_loop") in labels
         params = {p["name"]: p["value"] for p in r["parameters"]}

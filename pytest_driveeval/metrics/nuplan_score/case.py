@@ -124,12 +124,20 @@ def case_from_inputs(inputs: ScoreInputs, name: str, *, lanes_as_connectors: boo
             for m in ahead:
                 incoming[m].append(score_map.lane_ids[n])
         connector = [lanes_as_connectors or bool(c) for c in score_map.connector]
+        outgoing = [[score_map.lane_ids[m] for m in ahead] for ahead in score_map.outgoing]
+        for n, lane in enumerate(score_map.lane_ids):
+            if connector[n] and not incoming[n] and not outgoing[n]:
+                # nuPlan's speed limit on connectors is the max over their edges' limits, and max() of none
+                # raises; its maps have no connector without edges, ScenarioNet's nuScenes lanes have no edges
+                # at all.  Its own edge gives it its own limit, as a lane has, and changes no route: a lane
+                # the ego left is not among the lanes holding it now.
+                incoming[n], outgoing[n] = [lane], [lane]
         spec_map = {"lanes": [{"id": lane, "polygon": score_map.polygons[n].tolist(),
                                "baseline": score_map.baselines[n].tolist(),
                                "speed_limit": None if not np.isfinite(score_map.speed_limits[n])
                                else float(score_map.speed_limits[n]),
                                "roadblock": f"rb-{lane}", "connector": connector[n], "incoming": incoming[n],
-                               "outgoing": [score_map.lane_ids[m] for m in score_map.outgoing[n]]}
+                               "outgoing": outgoing[n]}
                               for n, lane in enumerate(score_map.lane_ids)],
                     "roadblocks": [{"id": f"rb-{lane}", "polygon": score_map.polygons[n].tolist(),
                                     "connector": connector[n]} for n, lane in enumerate(score_map.lane_ids)],

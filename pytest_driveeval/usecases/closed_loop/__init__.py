@@ -142,7 +142,7 @@ class ClosedLoop(UseCase):
                                progress=ctx.progress_of("steps") if perturbation is None else None) if ids else None
         verdicts = [judge_scene(unroll, row, config.Conditions) for row in range(len(ids))]
         outcome = self._outcome(config, ctx, verdicts, problems, dataset,
-                                lambda figures: write_artefacts(ctx, config, unroll, verdicts, figures)
+                                lambda figures: write_artefacts(ctx, config, unroll, verdicts, figures, dataset)
                                 if unroll is not None else {},
                                 [unroll.result.errors[row] for row in range(len(ids))] if unroll is not None else [])
         if perturbation is not None:

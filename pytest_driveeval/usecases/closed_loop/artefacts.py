@@ -1,13 +1,14 @@
 """What a ``closed_loop`` item leaves next to the summary: closed_loop.json
 (every scene's figures, collisions and findings), a bar chart of collision
-frames by kind and drift resets, and bird's-eye GIFs of the scenes.  Plotting
-libraries load only when a chart or an animation is wanted.
+frames by kind and drift resets, and bird's-eye GIFs of the scenes (on the scene's map when
+the dataset has one, with the places where a score term failed marked).  Plotting libraries load
+only when a chart or an animation is wanted.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -16,17 +17,21 @@ from pytest_driveeval.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
 
-__all__ = ["animated", "chart_counts", "scene_gif", "write_artefacts", "write_scene_artefacts"]
+__all__ = ["animated", "chart_counts", "scene_drawn_map", "scene_gif", "write_artefacts", "write_scene_artefacts"]
 
 
 def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, verdicts: list[SceneVerdict],
-                    figures: dict) -> dict[str, Path]:
+                    figures: dict, dataset: Any = None) -> dict[str, Path]:
     """closed_loop.json, the chart of collisions and resets and the scenes' GIFs, as the
-    scenario's ``Artefacts`` asks; returns them by artefact name."""
+    scenario's ``Artefacts`` asks; returns them by artefact name.  A GIF draws its scene's map
+    when ``dataset`` has one (scene_map.drawn_map_of) and marks where a score term failed
+    (each verdict's ``markers``: frame number, x, y, kind of report.markers.KINDS)."""
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
 
     def draw(row: int, verdict: SceneVerdict) -> Path | None:
-        return scene_gif(ctx.artefact(f"scene_{verdict.scene}.gif"), unroll, row, verdict.scene)
+        return scene_gif(ctx.artefact(f"scene_{verdict.scene}.gif"), unroll, row, verdict.scene,
+                         drawn_map=scene_drawn_map(dataset, verdict.scene),
+                         markers=verdict.markers)
 
     return write_scene_artefacts(ctx, config, verdicts, events, figures, draw)
 
@@ -63,8 +68,20 @@ def write_scene_artefacts(ctx: RunContext, config: ClosedLoopConfig, verdicts: l
     return out
 
 
-def scene_gif(path: Path, unroll: Unroll, row: int, scene: int) -> Path | None:
-    """The bird's-eye GIF of scene ``row`` of an unroll, or None when it has no unrolled frame."""
+def scene_drawn_map(dataset: Any, scene: int) -> Any:
+    """Scene ``scene``'s map for its GIF, or None (no dataset, or one without maps: an L5 zarr)."""
+    if dataset is None:
+        return None
+    from pytest_driveeval.usecases.closed_loop.scene_map import drawn_map_of
+
+    return drawn_map_of(dataset, scene)
+
+
+def scene_gif(path: Path, unroll: Unroll, row: int, scene: int, drawn_map: Any = None,
+              markers: Sequence[tuple[int, float, float, str]] | None = None) -> Path | None:
+    """The bird's-eye GIF of scene ``row`` of an unroll, or None when it has no unrolled frame;
+    ``drawn_map`` (report.map_layers.DrawnMap) under the boxes, ``markers`` (frame number, x, y,
+    kind) where a score term failed, the frame as the log numbers it."""
     from pytest_driveeval.report.birdseye import render_unroll_gif
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
@@ -77,7 +94,7 @@ def scene_gif(path: Path, unroll: Unroll, row: int, scene: int) -> Path | None:
                              log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
                              log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {scene}",
                              # the log's frame numbers, as closed_loop.json and the findings name them
-                             frame_numbers=np.flatnonzero(keep))
+                             frame_numbers=np.flatnonzero(keep), drawn_map=drawn_map, markers=markers)
 
 
 def chart_counts(figures: dict) -> dict[str, int]:

@@ -64,7 +64,7 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.usecases.closed_loop.config import replayed_agents
-    from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_gif
+    from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_drawn_map, scene_gif
     from pytest_driveeval.usecases.closed_loop.evaluate import collision_events, judge_scene, unroll_scenes
 
     config, spec = chunk.config, chunk.config.Unroll
@@ -81,7 +81,9 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     with tempfile.TemporaryDirectory(prefix="driveeval-chunk-") as folder:
         for row, verdict in enumerate(verdicts):
             if animated(config, verdict):
-                path = scene_gif(Path(folder) / f"scene_{verdict.scene}.gif", unroll, row, verdict.scene)
+                # the scene's map from the dataset the worker opened
+                path = scene_gif(Path(folder) / f"scene_{verdict.scene}.gif", unroll, row, verdict.scene,
+                                 drawn_map=scene_drawn_map(dataset, verdict.scene), markers=verdict.markers)
                 if path is not None:
                     gifs[verdict.scene] = path.read_bytes()
     return SceneResults(verdicts, [collision_events(unroll, row) for row in range(len(ids))],

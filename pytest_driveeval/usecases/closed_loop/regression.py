@@ -1,6 +1,6 @@
 """What counts as worse than a baseline in closed loop: more at-fault collision frames or drift
-resets, a larger displacement, and any scene that passed and fails now (named with the condition
-and frame that failed it).  Unrolls are deterministic, so figures compare with tolerances only
+resets, a larger displacement, a lower nuPlan score (the item's mean), and any scene that passed
+and fails now (named with the condition and frame that failed it).  Unrolls are deterministic, so figures compare with tolerances only
 for float noise."""
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ FIGURES = {
     "drift_resets": FigureRule("lower"),
     "max_displacement": FigureRule("lower", atol=0.01, rtol=0.01, unit="m"),
     "scenes_passed": FigureRule("higher"),
+    "score": FigureRule("higher", atol=0.005),
 }
 
 

@@ -165,6 +165,8 @@ def markers(score: SceneScore, frame_numbers: np.ndarray) -> list[tuple[int, flo
     out = []
     for name, kind in kinds.items():
         term = score.terms[name]
+        failing = set(term.frames)
         for k, (x, y) in zip(term.frames, term.places):
-            out.append((int(frame_numbers[k]), float(x), float(y), kind))
+            if k - 1 not in failing:  # where each run of failing frames starts: one mark per episode
+                out.append((int(frame_numbers[k]), float(x), float(y), kind))
     return out

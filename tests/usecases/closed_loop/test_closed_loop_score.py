@@ -103,6 +103,10 @@ def test_conditions_score_fails_the_scenes_below_it_and_reports_every_term(pytes
             assert f"at frame {area['frames'][0]}" in finding["message"]
     mean = next(f for f in straight["findings"] if f.get("figure") == "score")
     assert mean["limit"] == 0.5 and mean["keypath"][-1] == "MeanAtLeast"
+    markdown = (pytester.path / "driveeval-results" / "summary.md").read_text()
+    section = markdown.split(f"#### nuPlan score per scene: `{straight['nodeid']}`")[1]
+    assert "| 0 | " in section and "| 4 | " in section and "n/a" in section
+    assert "speed limit: no speed limit in the map (ScenarioNet's nuScenes lanes carry a placeholder" in section
 
 
 def test_a_misspelt_term_is_an_error_at_its_line(pytester, shared_data):
@@ -112,3 +116,15 @@ def test_a_misspelt_term_is_an_error_at_its_line(pytester, shared_data):
     result = pytester.runpytest("-p", "no:randomly")
     result.stdout.fnmatch_lines(["*did you mean drivable_area_compliance*"])
     assert result.ret != 0
+
+
+def test_the_gif_markers_start_each_run_of_failing_frames(nuscenes):
+    from pytest_driveeval.closed_loop import judge_scene
+    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
+
+    unroll = unrolled(nuscenes, "constant_velocity", [0])
+    verdict = judge_scene(unroll, 0, ClosedLoopConditions())
+    area = verdict.score_terms["drivable_area_compliance"]["frames"]
+    marked = [frame for frame, _, _, kind in verdict.markers if kind == "off_drivable_area"]
+    starts = [f for i, f in enumerate(area) if i == 0 or area[i - 1] != f - 1]
+    assert marked == starts and marked[0] == area[0]

@@ -1,13 +1,20 @@
 """ScenarioNet scenario folders as closed-loop datasets in a scenario file: recognised from their
-files or declared with Format, the real nuScenes-mini scenes driven by the shipped planning model."""
+files or declared with Format, the real nuScenes-mini scenes driven by the shipped planning model,
+with reactive agents, a robustness search and the Ray executor as on L5 scenes.  The repository's
+three Boston scenes (fixtures/scenarionet/nuscenes) need no shared data; the six in it are used
+where they are present."""
 import json
 
 import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
+from ray_items import assert_same_items, cluster, executor_section, results  # noqa: F401  (cluster: a fixture)
 from pytest_driveeval.errors import DataError
 from pytest_driveeval.usecases.closed_loop.datasets import format_of, open_dataset
+
+#: three real nuScenes-mini scenes, all boston-seaport (fixtures/SOURCES.md): scene-0103, -0553, -0757
+FIXTURE_SCENES = REPO_ROOT / "fixtures" / "scenarionet" / "nuscenes"
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0
@@ -24,16 +31,24 @@ Evaluation:
     Steps: {steps}
   Conditions:
     Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
-    Displacement: {{Max: 30.0}}
-"""
+    Displacement: {displacement}
+{tail}"""
 
 
-def scenario_text(name, data, model="planning_model.pt2", declared=False, scenes=None, raster=False, steps=60):
+def scenario_text(name, data, model="planning_model.pt2", declared=False, scenes=None, raster=False, steps=60,
+                  agents=None, displacement="{Max: 30.0}", tail=""):
     unroll = (f"    Scenes: {scenes}\n" if scenes else "") + (
         "    Inputs: {Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5], "
-        "EgoCenter: [0.25, 0.5]}\n" if raster else "")
+        "EgoCenter: [0.25, 0.5]}\n" if raster else "") + (f"    Agents: {agents}\n" if agents else "")
     return SCENARIO.format(name=name, data=data, format="        Format: scenarionet\n" if declared else "",
-                           model=REPO_ROOT / "fixtures" / "models" / model, unroll=unroll, steps=steps)
+                           model=REPO_ROOT / "fixtures" / "models" / model, unroll=unroll, steps=steps,
+                           displacement=displacement, tail=tail)
+
+
+def summary(pytester, output="driveeval-results") -> dict:
+    """The run's records by scenario name."""
+    return {r["scenario"]: r for r in
+            json.loads((pytester.path / output / "summary.json").read_text())["results"]}
 
 def test_the_files_tell_the_format(shared_data, tmp_path):
     assert format_of(shared_data / "scenarionet" / "nuscenes") == "scenarionet"
@@ -92,3 +107,93 @@ def test_the_raster_model_sees_the_scenarios_own_map_and_scenes_of_two_cities_ar
     assert records["boston"]["figures"]["scenes"] == 2 and records["boston"]["figures"]["steps"] == 60
     assert records["mixed"]["status"] == "failed"
     assert "lie on 2 maps (boston-seaport, singapore-onenorth)" in records["mixed"]["message"]
+
+
+# --------------------------------------------------------------------------- the repository's scenes
+
+def test_the_repositorys_scenes_are_a_closed_loop_dataset_without_the_shared_data(pytester):
+    assert format_of(FIXTURE_SCENES) == "scenarionet"
+    assert [p.name[-8:] for p in open_dataset(FIXTURE_SCENES).files] == ["0103.pkl", "0553.pkl", "0757.pkl"]
+    pytester.makefile(".scenario.yaml", fixtures=scenario_text("fixtures", FIXTURE_SCENES, declared=True))
+    pytester.runpytest("-p", "no:randomly").assert_outcomes(passed=1)
+    record = summary(pytester)["fixtures"]
+    assert record["figures"]["scenes"] == 3 and record["figures"]["steps"] == 3 * 60
+    assert [s["scene"] for s in record["details"]["scenes"]] == [0, 1, 2]
+    assert all(s["error"] is None and np.isfinite(s["max_displacement"]) for s in record["details"]["scenes"])
+
+
+def test_reactive_agents_on_scenarionet_scenes_brake_for_the_car_the_log_drives_into(pytester):
+    """Scene-0103 from frame 10: the planning model drifts off the log and logged vehicles drive
+    into it from ahead and the side (not its fault); reactive, they brake by IDM, and none does."""
+    def scenario(name, agents):
+        return scenario_text(name, FIXTURE_SCENES, scenes="[0]", agents=agents,
+                             tail="  Artefacts: {Animations: all}\n")
+
+    pytester.makefile(".scenario.yaml", replayed=scenario("replayed", "log"),
+                      reactive=scenario("reactive", "reactive"))
+    pytester.runpytest("-p", "no:randomly").assert_outcomes(passed=2)
+    records = summary(pytester)
+    replayed, reactive = records["replayed"]["figures"], records["reactive"]["figures"]
+    assert replayed["front"] + replayed["side"] > 0 and replayed["at_fault"] == 0
+    assert reactive["front"] + reactive["side"] + reactive["rear"] == 0
+    # The model sees the agents where they are: with some braking, what it drives changes too.
+    assert records["reactive"]["details"]["scenes"][0]["mean_displacement"] != \
+        records["replayed"]["details"]["scenes"][0]["mean_displacement"]
+    assert "scene_0_gif" in records["reactive"]["artefacts"]  # drawn from the scenario's own tracks
+
+
+SEARCH = """\
+  Perturbation:
+    Heading: [-0.3, 0.3]
+    Examples: 32
+    Batch: 16
+    Tolerance: 0.05
+"""
+
+
+def test_a_robustness_search_on_a_scenarionet_scene_reports_a_replay_line_that_reproduces_it(pytester):
+    """Scene-0553, where the logged car stands still and the planning model stays within 0.7 m of
+    it: started turned about 0.17 rad to the right, the model rolls backwards into the car behind
+    (an at-fault rear collision); turned 0.3 rad to the left, it drifts off the log."""
+    pytester.makefile(".scenario.yaml", search=scenario_text("search", FIXTURE_SCENES, scenes="[1]", steps=40,
+                                                             displacement="{Max: 4.0, Duration: 1.0}", tail=SEARCH))
+    pytester.runpytest("-p", "no:randomly", "--driveeval-search-profile=ci").assert_outcomes(failed=1)
+    search = summary(pytester)["search"]["details"]["search"]
+    minimal, edge = search["minimal"]["perturbation"]["heading"], search["edge"]["heading"]
+    assert search["where"]["scene"] == 1 and 0.1 < abs(minimal) <= 0.3 and abs(edge) < abs(minimal)
+    line = search["replay"]
+    assert line.startswith("pytest ") and f"--driveeval-replay scene=1,heading={minimal!r}" in line
+    node, value = line.split(" ")[1].strip("'"), line.split("--driveeval-replay ", 1)[1]
+    pytester.runpytest(node, "--driveeval-replay", value, "--driveeval-output", "replayed").assert_outcomes(failed=1)
+    replayed = summary(pytester, "replayed")["search"]
+    assert replayed["details"]["replay"] == value and replayed["details"]["perturbation"]["heading"] == minimal
+    assert replayed["verdict"] == "failed" and search["reason"] in [f["message"] for f in replayed["findings"]]
+    # The edge reported beside it, replayed, passes: the search located the boundary, not any failure.
+    pytester.runpytest(node, "--driveeval-replay", f"scene=1,heading={edge!r}", "--driveeval-output", "edge"
+                       ).assert_outcomes(passed=1)
+
+
+@pytest.mark.ray
+def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester):
+    """The fixtures' folder in chunks on two worker nodes, reactive agents included: each worker
+    opens the folder by its path and reads the format from its files.  The same chunks run here
+    give the same record; the one-batch run the same verdicts.  Its figures differ slightly: the
+    model's float32 sums round with the batch size (~1e-6 m), and agents that brake for the ego
+    amplify that (scene-0103: 2e-4 m after 40 steps; with constant velocity, bit for bit)."""
+    def run(output, executor):
+        pytester.makefile(".scenario.yaml", scenes=scenario_text("scenes", FIXTURE_SCENES, steps=40,
+                                                                 agents="reactive", tail=executor))
+        return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
+
+    here = run("local", executor_section(Kind="local", ChunkSize=2))
+    there = run("remote", executor_section(Kind="ray", ChunkSize=2, MaxInFlight=2))
+    batch = run("batch", "")
+    assert here.ret == there.ret == batch.ret
+    record, = assert_same_items(pytester.path / "local", pytester.path / "remote", plain_local=False).values()
+    assert [c["work"] for c in record["details"]["executor"]["chunks"]] == ["scenes 0..1 of nuscenes",
+                                                                            "scenes 2..2 of nuscenes"]
+    one_batch, = results(pytester.path / "batch").values()
+    assert record["figures"]["scenes"] == one_batch["figures"]["scenes"] == 3
+    for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
+        assert (chunked["scene"], chunked["passed"]) == (whole["scene"], whole["passed"])
+        assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-3)
