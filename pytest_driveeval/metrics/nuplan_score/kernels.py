@@ -74,27 +74,65 @@ def _compile():
                     out[p, n] = (count & 1) == 1
 
     @jit
+    def _outline_distance(px, py, vertices, s, e):
+        """Distance of (px, py) to the closed outline vertices[s:e] (lanes.outline_distance's expressions)."""
+        best = np.inf
+        for i in range(s, e):
+            j = i + 1 if i + 1 < e else s
+            ax, ay = vertices[i, 0], vertices[i, 1]
+            abx, aby = vertices[j, 0] - ax, vertices[j, 1] - ay
+            length2 = max(abx * abx + aby * aby, 1e-18)
+            apx, apy = px - ax, py - ay
+            t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
+            gx, gy = apx - t * abx, apy - t * aby
+            d = math.sqrt(gx * gx + gy * gy)
+            if d < best:
+                best = d
+        return best
+
+    @jit
     def outline_distances(points, vertices, starts, pair_point, pair_polygon, out):
-        """out[p] = min(out[p], distance of point p to polygon n's outline) for each pair (p, n)
-        (lanes.outline_distance's expressions)."""
+        """out[p] = min(out[p], distance of point p to polygon n's outline) for each pair (p, n)."""
         for k in range(pair_point.shape[0]):
             p, n = pair_point[k], pair_polygon[k]
-            px, py = points[p, 0], points[p, 1]
-            s, e = starts[n], starts[n + 1]
-            best = np.inf
-            for i in range(s, e):
-                j = i + 1 if i + 1 < e else s
-                ax, ay = vertices[i, 0], vertices[i, 1]
-                abx, aby = vertices[j, 0] - ax, vertices[j, 1] - ay
-                length2 = max(abx * abx + aby * aby, 1e-18)
-                apx, apy = px - ax, py - ay
-                t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
-                gx, gy = apx - t * abx, apy - t * aby
-                d = math.sqrt(gx * gx + gy * gy)
-                if d < best:
-                    best = d
+            best = _outline_distance(points[p, 0], points[p, 1], vertices, starts[n], starts[n + 1])
             if best < out[p]:
                 out[p] = best
+
+    @jit
+    def nearest_outlines_within(points, vertices, starts, bounds, within, out):
+        """out[p]: the least distance of point p to the outlines of the polygons whose bounds, widened by
+        ``within``, hold it (inf: none); the pairs lanes.ScoreMap.distance_to_drivable's numpy test admits."""
+        for p in range(points.shape[0]):
+            px, py = points[p, 0], points[p, 1]
+            best = np.inf
+            for n in range(bounds.shape[0]):
+                if (px >= bounds[n, 0] - within and px <= bounds[n, 2] + within and py >= bounds[n, 1] - within
+                        and py <= bounds[n, 3] + within):
+                    d = _outline_distance(px, py, vertices, starts[n], starts[n + 1])
+                    if d < best:
+                        best = d
+            out[p] = best
+
+    @jit
+    def containing_in_grid(points, xi, yi, yj, slope, starts, bounds, origin, size, nx, ny, cell_starts, cell_polygons,
+                           out):
+        """:func:`containing`, testing only the polygons listed in the point's grid cell (every polygon whose
+        bounds meet the cell: the bounds test admits no other)."""
+        for p in range(points.shape[0]):
+            px, py = points[p, 0], points[p, 1]
+            fx, fy = np.floor((px - origin[0]) / size), np.floor((py - origin[1]) / size)
+            if not (fx >= 0.0 and fx < nx and fy >= 0.0 and fy < ny):
+                continue
+            cell = int(fx) * int(ny) + int(fy)
+            for k in range(cell_starts[cell], cell_starts[cell + 1]):
+                n = cell_polygons[k]
+                if px >= bounds[n, 0] and px <= bounds[n, 2] and py >= bounds[n, 1] and py <= bounds[n, 3]:
+                    count = 0
+                    for e in range(starts[n], starts[n + 1]):
+                        if ((yi[e] <= py) != (yj[e] <= py)) and px < xi[e] + (py - yi[e]) * slope[e]:
+                            count += 1
+                    out[p, n] = (count & 1) == 1
 
     @jit
     def _overlap(ax, ay, ca, sa, al, aw, bx, by, cb, sb, bl, bw):
@@ -131,6 +169,32 @@ def _compile():
                     break
 
     @jit
+    def reachable_cells(usable, ego_xy, ego_reach, a_xy, a_velocity, a_static, a_length, a_width, horizon,
+                        margin):
+        """(frames, cols) of the ``usable`` cells whose agent the ego could meet within ``horizon`` seconds:
+        centres no further apart than the ego's ``ego_reach`` (its half diagonal and its travel), the
+        agent's half diagonal and its travel at its speed, and ``margin``.  Farther apart, their swept
+        boxes cannot overlap: every cell dropped here, :func:`first_meeting` would find no meeting for."""
+        t, a = usable.shape
+        frames = np.empty(t * a, dtype=np.int64)
+        cols = np.empty(t * a, dtype=np.int64)
+        m = 0
+        for f in range(t):
+            ex, ey, er = ego_xy[f, 0], ego_xy[f, 1], ego_reach[f]
+            for c in range(a):
+                if not usable[f, c]:
+                    continue
+                dx, dy = a_xy[f, c, 0] - ex, a_xy[f, c, 1] - ey
+                vx, vy, al, aw = a_velocity[f, c, 0], a_velocity[f, c, 1], a_length[f, c], a_width[f, c]
+                speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)  # as ttc takes it
+                reach = er + 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
+                if dx * dx + dy * dy <= reach * reach:
+                    frames[m] = f
+                    cols[m] = c
+                    m += 1
+        return frames[:m], cols[:m]
+
+    @jit
     def project(points, line_of, vertices, starts, cumulative, out):
         """out[p]: arc length along line line_of[p] (vertices[starts[n]:starts[n + 1]], arc lengths at its
         vertices cumulative[same]) of point p's nearest point on it (lanes.project)."""
@@ -151,4 +215,5 @@ def _compile():
             out[p] = cumulative[best_i] + best_t * math.sqrt(best_len2)
 
     return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting,
-                           project=project)
+                           project=project, reachable_cells=reachable_cells,
+                           nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid)

@@ -7,7 +7,6 @@ exact crossing-number test only for the polygons some point's box test admitted.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 
@@ -24,49 +23,58 @@ def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([np.minimum.reduceat(vertices, starts), np.maximum.reduceat(vertices, starts)], axis=1)
 
 
+#: metres: the side of a :func:`_grid` cell, at least (a lane is a few metres wide, tens long)
+GRID_CELL = 10.0
+#: cells along the grid's longer side, at most
+GRID_SIDE = 512
+
+
+def _grid(bounds: np.ndarray) -> tuple:
+    """Which polygons' bounds meet each cell of a square grid over them: (origin, cell side, cells along x,
+    cells along y, cell_starts, polygons), cell (i, j) = i * ny + j listing ``polygons[cell_starts[c]:
+    cell_starts[c + 1]]``.  A point's cell, found as the polygons' are, lists every polygon whose bounds
+    hold the point (floor and the float operations before it keep the order of their arguments)."""
+    if not len(bounds):
+        return np.zeros(2), GRID_CELL, 0, 0, np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    origin = bounds[:, :2].min(axis=0)
+    size = max(GRID_CELL, float((bounds[:, 2:] - origin).max()) / GRID_SIDE)
+    first = np.floor((bounds[:, :2] - origin) / size).astype(np.int64)
+    last = np.floor((bounds[:, 2:] - origin) / size).astype(np.int64)
+    nx, ny = int(last[:, 0].max()) + 1, int(last[:, 1].max()) + 1
+    spans = (last - first + 1)
+    count = spans[:, 0] * spans[:, 1]
+    polygon = np.repeat(np.arange(len(bounds)), count)
+    k = np.arange(len(polygon)) - np.repeat(np.cumsum(count) - count, count)  # each entry's place in its box
+    cell = (first[polygon, 0] + k // spans[polygon, 1]) * ny + first[polygon, 1] + k % spans[polygon, 1]
+    order = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[order], np.arange(nx * ny + 1)).astype(np.int64)
+    return origin, size, float(nx), float(ny), starts, polygon[order].astype(np.int64)
+
+
 class PolygonSet:
     """Polygons as flat tables: the (xi, yi, yj, slope) columns of their non-horizontal edges
     (geometry.polygons.polygon_edges' table), polygon n's edges at ``edge_starts[n]:edge_starts[n + 1]``;
-    their vertices, polygon n's at ``vertex_starts[n]:vertex_starts[n + 1]``; and their bounds."""
+    their vertices, polygon n's at ``vertex_starts[n]:vertex_starts[n + 1]``; and their bounds.
+    ``edges=False``: no edge table (a set only measured distances to, which read the vertices)."""
 
-    def __init__(self, polygons: list[np.ndarray]):
+    def __init__(self, polygons: list[np.ndarray], edges: bool = True):
         self.polygons = polygons
         self.bounds = _bounds(polygons)
         lengths = np.array([len(p) for p in polygons], dtype=np.int64)
         self.vertex_starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
         self.vertices = np.concatenate(polygons) if polygons else np.zeros((0, 2))
+        if edges:
+            self.edge_starts, self.xi, self.yi, self.yj, self.slope = self._edge_table(lengths)
+            self.grid = _grid(self.bounds)
 
-    @cached_property
-    def _edge_table(self) -> tuple[np.ndarray, ...]:
-        """Made on the first point-in-polygon query: distances read the vertices only."""
+    def _edge_table(self, lengths: np.ndarray) -> tuple[np.ndarray, ...]:
         polygons = self.polygons
         table = polygon_edges(*polygons)[0] if polygons else np.zeros((0, 4))
         keep = table[:, 1] != table[:, 2]
-        lengths = np.diff(self.vertex_starts)
         counts = np.bincount(np.repeat(np.arange(len(polygons)), lengths)[keep], minlength=len(polygons))
         table = table[keep]
         return (np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                 *(np.ascontiguousarray(table[:, i]) for i in range(4)))
-
-    @property
-    def edge_starts(self) -> np.ndarray:
-        return self._edge_table[0]
-
-    @property
-    def xi(self) -> np.ndarray:
-        return self._edge_table[1]
-
-    @property
-    def yi(self) -> np.ndarray:
-        return self._edge_table[2]
-
-    @property
-    def yj(self) -> np.ndarray:
-        return self._edge_table[3]
-
-    @property
-    def slope(self) -> np.ndarray:
-        return self._edge_table[4]
 
     def __len__(self) -> int:
         return len(self.polygons)
@@ -82,8 +90,9 @@ def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
     if not len(polygons) or not len(points):
         return out
     if kernels.wanted():
-        kernels.kernels().containing(np.ascontiguousarray(points, dtype=np.float64), polygons.xi, polygons.yi,
-                                     polygons.yj, polygons.slope, polygons.edge_starts, polygons.bounds, out)
+        kernels.kernels().containing_in_grid(np.ascontiguousarray(points, dtype=np.float64), polygons.xi, polygons.yi,
+                                             polygons.yj, polygons.slope, polygons.edge_starts, polygons.bounds,
+                                             *polygons.grid, out)
         return out
     bounds = polygons.bounds
     x, y = points[:, 0:1], points[:, 1:2]
@@ -172,6 +181,11 @@ class ScoreMap:
         self.intersection_set = PolygonSet(self.intersections)
         self.cumulative = [arc_lengths(b) for b in self.baselines]
         self.headings = [np.arctan2(np.diff(b[:, 1]), np.diff(b[:, 0])) for b in self.baselines]
+        # Every table the queries read is made here, with the map (its loading), rather than on a first
+        # query (inside the first scene's score): the lane surfaces and the drivable polygons for
+        # distances to any of them (vertices only), the baselines as one flat table.
+        self.surface_set = PolygonSet(self.polygons + self.drivable, edges=False)
+        self.baseline_table = self._baseline_table()
 
     @property
     def num_lanes(self) -> int:
@@ -180,11 +194,6 @@ class ScoreMap:
     @property
     def has_speed_limits(self) -> bool:
         return bool(np.any(np.isfinite(self.speed_limits) & (self.speed_limits > 0)))
-
-    @cached_property
-    def surface_set(self) -> PolygonSet:
-        """The lane surfaces and the drivable polygons, for distances to any of them."""
-        return PolygonSet(self.polygons + self.drivable)
 
     def lanes_at(self, points: np.ndarray) -> np.ndarray:
         """(P, N) bool: which lane surfaces hold each point."""
@@ -202,6 +211,11 @@ class ScoreMap:
         surfaces = self.surface_set
         if not len(surfaces) or not len(points):
             return np.full(len(points), np.inf)
+        if kernels.wanted():
+            out = np.empty(len(points))
+            kernels.kernels().nearest_outlines_within(np.ascontiguousarray(points, dtype=np.float64), surfaces.vertices,
+                                                      surfaces.vertex_starts, surfaces.bounds, float(within), out)
+            return np.where(out < within, out, np.inf)
         bounds, x, y = surfaces.bounds, points[:, 0:1], points[:, 1:2]
         near = ((x >= bounds[:, 0] - within) & (x <= bounds[:, 2] + within)
                 & (y >= bounds[:, 1] - within) & (y <= bounds[:, 3] + within))
@@ -215,7 +229,6 @@ class ScoreMap:
         out = _nearest_outlines(points, self.lane_set, pair_point, pair_polygon)
         return np.where(out < within, out, np.inf)
 
-    @cached_property
     def _baseline_table(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         lengths = [len(b) for b in self.baselines]
         starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
@@ -230,7 +243,7 @@ class ScoreMap:
         if not len(points):
             return out
         if kernels.wanted():
-            kernels.kernels().project(np.ascontiguousarray(points, dtype=np.float64), lane_of, *self._baseline_table,
+            kernels.kernels().project(np.ascontiguousarray(points, dtype=np.float64), lane_of, *self.baseline_table,
                                       out)
             return out
         for lane in np.unique(lane_of):

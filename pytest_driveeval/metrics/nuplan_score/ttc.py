@@ -38,7 +38,8 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     rear = ego.rear_axle
     heading = ego.center[:, 2]
     # The bearing of the cells that could count only (most cells are empty or the ego stands still).
-    frames, cols = np.nonzero(agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None])
+    usable = agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None]
+    frames, cols = _reachable(ego, agents, usable) if kernels.wanted() else np.nonzero(usable)
     to_agent = agents.center[frames, cols, :2] - rear[frames]
     bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
@@ -51,6 +52,20 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
         np.minimum.at(ttc, frames[hit], STEPS[first[hit]])
     ttc[at_fault] = 0.0
     return ttc
+
+
+#: metres of slack in :func:`_reachable`'s bound, far more than its rounding
+REACH_MARGIN = 1.0
+
+
+def _reachable(ego, agents, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The usable cells (as np.nonzero gives them) less those too far apart to meet within the horizon
+    (kernels' ``reachable_cells``): most of a real scene's agents, so the bearings and the swept boxes
+    are computed for few cells."""
+    ego_reach = 0.5 * np.hypot(ego.length, ego.width) + HORIZON * ego.speed
+    return kernels.kernels().reachable_cells(
+        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, agents.center, agents.velocity, agents.static,
+        agents.length, agents.width, HORIZON, REACH_MARGIN)
 
 
 def _first_meetings(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
