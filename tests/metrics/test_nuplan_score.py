@@ -189,3 +189,13 @@ def test_without_a_map_the_map_terms_are_left_out_of_the_score():
     assert all("no map" in why for why in missing.values())
     assert all(result.terms[name].used is None for name in missing)
     assert result.score == pytest.approx((5 + 5 + 0) / 12)  # uncomfortable: 2 of the 12 remaining weights lost
+
+
+@pytest.mark.parametrize("off_from", [0, 40])
+def test_driving_off_every_lane_counts_no_step_against_one(off_from):
+    y = np.where(np.arange(FRAMES) >= off_from, 500.0, 0.0)  # far beside the lane: from the start, or from frame 40
+    inputs = inputs_from_case(case("off", 200.0 - 5.0 * T, y=y, speed=np.full(FRAMES, 5.0)))
+    route = centre_route(inputs.map, inputs.ego.center[:, :2], inputs.ego.center[:, 2])
+    direction = driving_direction_compliance(inputs, route)
+    assert sum(bool(lanes) for lanes in route) == off_from
+    assert direction.detail["max_backward_motion"] == pytest.approx(0.5 * min(off_from - 1, 11) if off_from else 0.0)

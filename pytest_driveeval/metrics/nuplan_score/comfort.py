@@ -22,8 +22,8 @@ def _smooth(signal: np.ndarray) -> np.ndarray:
     return np.round(savgol(signal, min(8, len(signal)), 2), 8)
 
 
-def _derivative(signal: np.ndarray, times: np.ndarray, window: int, order: int, deriv: int) -> np.ndarray:
-    return np.round(savgol(signal, min(window, len(signal)), order, deriv, float(np.mean(np.diff(times)))), 8)
+def _derivative(signal: np.ndarray, spacing: float, window: int, order: int, deriv: int) -> np.ndarray:
+    return np.round(savgol(signal, min(window, len(signal)), order, deriv, spacing), 8)
 
 
 def unwrap_phase(headings: np.ndarray) -> np.ndarray:
@@ -39,12 +39,13 @@ def comfort_signals(inputs: ScoreInputs) -> dict[str, np.ndarray]:
     lon = ego.acceleration[:, 0] + ego.rear_axle_to_center * (ego.angular_velocity ** 2 + ego.angular_acceleration)
     lon_smooth = _smooth(lon)
     heading = unwrap_phase(ego.center[:, 2])
+    spacing = float(np.mean(np.diff(times)))
     return {"ego_lon_acceleration": lon_smooth,
             "ego_lat_acceleration": _smooth(ego.acceleration[:, 1]),
-            "ego_lon_jerk": _derivative(lon_smooth, times, 15, 2, 1),
-            "ego_jerk": _derivative(_smooth(np.hypot(ego.acceleration[:, 0], ego.acceleration[:, 1])), times, 15, 2, 1),
-            "ego_yaw_rate": _derivative(heading, times, 5, 2, 1),
-            "ego_yaw_acceleration": _derivative(heading, times, 5, 3, 2)}
+            "ego_lon_jerk": _derivative(lon_smooth, spacing, 15, 2, 1),
+            "ego_jerk": _derivative(_smooth(np.hypot(ego.acceleration[:, 0], ego.acceleration[:, 1])), spacing, 15, 2, 1),
+            "ego_yaw_rate": _derivative(heading, spacing, 5, 2, 1),
+            "ego_yaw_acceleration": _derivative(heading, spacing, 5, 3, 2)}
 
 
 def ego_is_comfortable(inputs: ScoreInputs) -> Term:

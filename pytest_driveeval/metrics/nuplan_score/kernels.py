@@ -195,6 +195,50 @@ def _compile():
         return frames[:m], cols[:m]
 
     @jit
+    def follow_lanes(holding, connector, out_starts, out_lanes, k, previous, route_starts, route_lanes, m):
+        """route.centre_route's loop from frame ``k`` on, ``previous`` the lanes of frame k - 1, writing frame
+        j's lanes to route_lanes[route_starts[j]:route_starts[j + 1]] (from position ``m``); stops at the
+        first frame that must look again among two or more lanes (the heading decides: numpy's part) and
+        returns (that frame or the frame count, m)."""
+        t, n = holding.shape
+        kept = np.empty(n, dtype=np.int64)
+        while k < t:
+            size = 0
+            for i in range(previous.shape[0]):
+                if holding[k, previous[i]]:
+                    kept[size] = previous[i]
+                    size += 1
+            if size == 0 and previous.shape[0] == 1:
+                p = previous[0]
+                for i in range(out_starts[p], out_starts[p + 1]):
+                    if holding[k, out_lanes[i]]:
+                        kept[size] = out_lanes[i]
+                        size += 1
+            if size == 0:
+                lanes, plain, last, last_plain = 0, 0, -1, -1
+                for c in range(n):
+                    if holding[k, c]:
+                        lanes += 1
+                        last = c
+                        if not connector[c]:
+                            plain += 1
+                            last_plain = c
+                if plain >= 2 or (plain == 0 and lanes >= 2):
+                    return k, m
+                if plain == 1:
+                    kept[0], size = last_plain, 1
+                elif lanes == 1:
+                    kept[0], size = last, 1
+            route_starts[k] = m
+            for i in range(size):
+                route_lanes[m + i] = kept[i]
+            m += size
+            route_starts[k + 1] = m
+            previous = kept[:size].copy()
+            k += 1
+        return k, m
+
+    @jit
     def project(points, line_of, vertices, starts, cumulative, out):
         """out[p]: arc length along line line_of[p] (vertices[starts[n]:starts[n + 1]], arc lengths at its
         vertices cumulative[same]) of point p's nearest point on it (lanes.project)."""
@@ -216,4 +260,5 @@ def _compile():
 
     return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting,
                            project=project, reachable_cells=reachable_cells,
-                           nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid)
+                           nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid,
+                           follow_lanes=follow_lanes)

@@ -12,6 +12,7 @@ import numpy as np
 
 from pytest_driveeval.geometry.planar import wrap_angle
 
+from . import kernels
 from .lanes import ScoreMap
 
 
@@ -28,6 +29,8 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
     """Per frame, the lanes assigned to the point (first: the one the terms use).
     ``holding``: ``score_map.lanes_at(points)`` when the caller has it."""
     holding = score_map.lanes_at(points) if holding is None else holding
+    if kernels.wanted():
+        return _centre_route_compiled(score_map, points, headings, holding)
     rows, cols = np.nonzero(holding)
     here: list[list[int]] = [[] for _ in range(len(points))]
     for r, c in zip(rows.tolist(), cols.tolist()):
@@ -40,14 +43,44 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
         if not kept and len(previous) == 1:
             kept = [n for n in outgoing[previous[0]] if n in lanes]
         if not kept and lanes:
-            plain = [n for n in lanes if not connector[n]]
-            if plain:
-                kept = _aligned_first(score_map, plain, points[k], headings[k])[:1]
-            else:
-                kept = _aligned_first(score_map, lanes, points[k], headings[k])
+            kept = _look_again(score_map, lanes, points[k], headings[k])
         route.append(kept)
         previous = kept
     return route
+
+
+def _look_again(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
+    plain = [n for n in lanes if not score_map.connector[n]]
+    if plain:
+        return _aligned_first(score_map, plain, point, heading)[:1]
+    return _aligned_first(score_map, lanes, point, heading)
+
+
+def _centre_route_compiled(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray, holding: np.ndarray
+                           ) -> list[list[int]]:
+    """:func:`centre_route`'s loop in a kernel (kernels' ``follow_lanes``), but for the frames that look
+    again among several lanes, which :func:`_look_again` decides here as there."""
+    t = len(points)
+    out_starts, out_lanes = score_map.outgoing_table
+    widest = max(1, int(holding.sum(axis=1).max()) if t else 1, int(np.diff(out_starts).max()) if len(out_starts) > 1 else 1)
+    starts = np.zeros(t + 1, dtype=np.int64)
+    lanes = np.empty(t * widest, dtype=np.int64)
+    follow = kernels.kernels().follow_lanes
+    holding = np.ascontiguousarray(holding)
+    k, m, previous = 0, 0, np.zeros(0, dtype=np.int64)
+    while True:
+        k, m = follow(holding, score_map.connector, out_starts, out_lanes, k, previous, starts, lanes, m)
+        if k >= t:
+            break
+        kept = _look_again(score_map, np.flatnonzero(holding[k]).tolist(), points[k], headings[k])
+        starts[k] = m
+        lanes[m:m + len(kept)] = kept
+        m += len(kept)
+        starts[k + 1] = m
+        previous = np.array(kept, dtype=np.int64)
+        k += 1
+    flat, bounds = lanes[:m].tolist(), starts.tolist()
+    return [flat[bounds[j]:bounds[j + 1]] for j in range(t)]
 
 
 def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None) -> np.ndarray:

@@ -36,7 +36,7 @@ def _weights(window: int, polyorder: int, deriv: int, delta: float) -> tuple[np.
 
 
 def savgol(signal: np.ndarray, window: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
-    x = np.asarray(signal, dtype=np.float64)
+    x = np.ascontiguousarray(signal, dtype=np.float64)
     n = len(x)
     if not polyorder < window <= n:
         raise ValueError(f"a Savitzky-Golay filter needs polyorder < window <= samples, got {polyorder}, {window}, {n}")
@@ -44,7 +44,10 @@ def savgol(signal: np.ndarray, window: int, polyorder: int, deriv: int = 0, delt
     half = window // 2
     first = half - 1 if window % 2 == 0 else half  # the window of sample i starts at i - first
     out = np.empty(n)
-    out[first:first + n - window + 1] = np.lib.stride_tricks.sliding_window_view(x, window) @ inner
+    # Sample i's window as row i of a view over x (sliding_window_view's, built directly: it costs several
+    # times the product here); numpy multiplies such a view row by row, in order, as it did before.
+    windows = np.ndarray((n - window + 1, window), dtype=np.float64, buffer=x, strides=(x.itemsize, x.itemsize))
+    out[first:first + n - window + 1] = windows @ inner
     out[:half] = edge[:half] @ x[:window]
     out[n - half:] = edge[window - half:] @ x[n - window:]
     return out

@@ -94,17 +94,15 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     on = np.flatnonzero(lane_of >= 0)
     along[on] = score_map.along(xy[on], lane_of[on])
     steps = np.zeros(len(route))
-    last = int(lane_of[0]) if len(lane_of) and lane_of[0] >= 0 else None
-    before = None
-    for k, lane in enumerate(lane_of.tolist()):
-        if lane < 0:
-            continue
-        if lane != last:
-            before, last = None, lane
-            continue
-        s = float(along[k])
-        steps[k] = s - before if before is not None and s else 0.0
-        before = s
+    # Over the frames on a lane: a step is the change of position along it since the last such frame, on the
+    # same lane, unless that frame changed lanes (or was the first, if off every lane at the start: it starts
+    # nowhere), or the position is 0 (nuplan-devkit counts no step there).
+    lanes, s = lane_of[on], along[on]
+    changed = np.empty(len(on), dtype=bool)
+    changed[:1] = bool(lane_of[0] < 0)  # (a scalar: no frame on a lane leaves nothing to set)
+    changed[1:] = lanes[1:] != lanes[:-1]
+    stepped = np.flatnonzero(~changed[1:] & ~changed[:-1] & (s[1:] != 0)) + 1
+    steps[on[stepped]] = s[stepped] - s[stepped - 1]
     spacing = float(np.mean(np.diff(inputs.times))) if len(inputs.times) > 1 else 0.1
     n = int(DIRECTION_HORIZON / spacing) if spacing > 0 else 0
     window = np.convolve(steps, np.ones(n + 1))[:len(steps)]  # each frame's last n + 1 steps
