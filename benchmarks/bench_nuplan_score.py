@@ -17,8 +17,7 @@ Issue 23's targets:
 (b) per scene, the score is at least 50x faster than nuplan-devkit's metric code on the same
     trajectory, run in the oracle venv (benchmarks/nuplan_oracle/, README.md there): the real scenes'
     exact score inputs exported as cases (``case_from_inputs``, lanes as connectors: nuPlan's lanes may
-    not overlap, ScenarioNet's do; with a feeder lane that changes no
-    term: see ``with_feeder``), and the 28 synthetic cases of nuplan_oracle/cases.py.  nuPlan's
+    not overlap, ScenarioNet's do; an edgeless connector is exported as its own edge), and the 28 synthetic cases of nuplan_oracle/cases.py.  nuPlan's
     figure is its ``seconds`` (``compute_metric_results`` alone, median of ``--oracle-repeats``; its
     objects are built outside that time); ours is ``score_scene`` on inputs built afresh from the case
     each repeat (``inputs_from_case`` outside the time, as nuPlan's build is; the ScoreMap is new each
@@ -132,29 +131,6 @@ def part_a(dataset, ids, model, repeats: int, steps: int | None, has_map: bool) 
     return unrolled, share
 
 
-def with_feeder(case: dict) -> dict:
-    """The case with one more lane, far off, leading into every edgeless connector: nuplan-devkit's
-    speed_limit_compliance takes the max of an on-connector frame's neighbours' limits and fails on a
-    connector with none (max() of an empty list), which is every lane of ScenarioNet's nuScenes maps
-    (no exit lanes).  The feeder has no limit, holds no point and is no frame's lane, so neither side's
-    terms change: ours reads it only as a connector's neighbour without a limit, as nuPlan does."""
-    spec = case.get("map")
-    if not spec:
-        return case
-    edgeless = [lane for lane in spec["lanes"] if lane["connector"] and not lane["incoming"] and not lane["outgoing"]]
-    if not edgeless:
-        return case
-    far = 1e5
-    square = [[far, far], [far + 1, far], [far + 1, far + 1], [far, far + 1]]
-    for lane in edgeless:
-        lane["incoming"] = ["feeder"]
-    spec["lanes"].append({"id": "feeder", "polygon": square, "baseline": [[far, far + 0.5], [far + 1, far + 0.5]],
-                          "speed_limit": None, "roadblock": "rb-feeder", "connector": False, "incoming": [],
-                          "outgoing": [lane["id"] for lane in edgeless]})
-    spec["roadblocks"].append({"id": "rb-feeder", "polygon": square, "connector": False})
-    return case
-
-
 def our_seconds(case: dict, repeats: int) -> float:
     times = []
     for _ in range(repeats + 1):
@@ -176,7 +152,7 @@ def part_b(unrolled, ids, distinct: int, repeats: int, oracle_repeats: int) -> N
     if unrolled is not None and unrolled.maps:
         for row in range(distinct):
             inputs = score_inputs(unrolled, row, unrolled.maps[int(unrolled.result.scene_ids[row])])
-            cases.append(with_feeder(case_from_inputs(inputs, f"real-{ids[row]}", lanes_as_connectors=True)))
+            cases.append(case_from_inputs(inputs, f"real-{ids[row]}", lanes_as_connectors=True))
     real = len(cases)
     cases += _module("cases").all_cases()
     tic = time.perf_counter()

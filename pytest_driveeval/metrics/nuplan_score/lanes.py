@@ -186,6 +186,11 @@ class ScoreMap:
         # distances to any of them (vertices only), the baselines as one flat table.
         self.surface_set = PolygonSet(self.polygons + self.drivable, edges=False)
         self.baseline_table = self._baseline_table()
+        #: incoming[n]: the lanes leading into lane n, ascending
+        self.incoming: list[list[int]] = [[] for _ in self.lane_ids]
+        for m, ahead in enumerate(self.outgoing):
+            for n in dict.fromkeys(ahead):
+                self.incoming[n].append(m)
         counts = np.array([len(ahead) for ahead in self.outgoing], dtype=np.int64)
         self.outgoing_table = (np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                                np.array([m for ahead in self.outgoing for m in ahead], dtype=np.int64))

@@ -169,7 +169,7 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     limits = np.where(first >= 0, usable[first], np.nan)
     for k in np.flatnonzero((first >= 0) & score_map.connector[first]):
         # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have one
-        around = [m for n in route[k] for m in (*score_map.outgoing[n], *_incoming(score_map, n))]
+        around = [m for n in route[k] for m in (*score_map.outgoing[n], *score_map.incoming[n])]
         values = usable[around] if around else np.array([np.nan])
         limits[k] = values.max() if np.all(np.isfinite(values)) else np.nan
     known = np.isfinite(limits)
@@ -196,6 +196,3 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
                         f"{int(inputs.frame_numbers[worst])}")
     return term
 
-
-def _incoming(score_map: ScoreMap, lane: int) -> list[int]:
-    return [n for n, ahead in enumerate(score_map.outgoing) if lane in ahead]

@@ -7,6 +7,7 @@ at its first contact as nuPlan does; the engine records one partner per frame (l
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, Sequence
 
 import numpy as np
@@ -21,6 +22,7 @@ _VEHICLES = {"CAR", "VAN", "TRAM", "BUS", "TRUCK", "EMERGENCY_VEHICLE", "OTHER_V
 _VULNERABLE = {"BICYCLE", "MOTORCYCLE", "CYCLIST", "MOTORCYCLIST", "PEDESTRIAN"}
 
 
+@lru_cache(maxsize=1)
 def _label_groups() -> np.ndarray:
     from pytest_driveeval.io.l5kit_zarr import PERCEPTION_LABELS
 
@@ -66,10 +68,12 @@ def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInpu
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
     r, log = unroll.result, unroll.log
-    keep = r.valid[row]
-    frames = np.flatnonzero(keep)
+    frames = np.flatnonzero(r.valid[row])
     if not len(frames):
         return None
+    # The unrolled frames are the first ones (an unroll stops, it does not skip): a slice, whose arrays are
+    # views of the unroll's rather than copies; a mask where they are not.
+    keep = slice(0, len(frames)) if frames[-1] == len(frames) - 1 else r.valid[row]
     times = frames * unroll.step_time
     ego = ego_from_poses(r.driven_xy[row][keep], r.driven_yaw[row][keep], times, EGO_EXTENT[0], EGO_EXTENT[1])
     expert = np.concatenate([r.logged_xy[row][keep], r.logged_yaw[row][keep][:, None]], axis=1)
