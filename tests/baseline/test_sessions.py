@@ -73,7 +73,7 @@ def test_update_writes_one_sorted_indented_file_per_item_and_the_next_session_fi
     drive, mine = read_baseline(project, DRIVE), read_baseline(project, MINE)
     assert drive["fingerprint"]["settings"]["Unroll"] == {"Scenes": [0, 1, 2, 3], "Steps": 40}
     assert drive["fingerprint"]["dataset"]["name"] == "logs" and len(drive["fingerprint"]["dataset"]["sha256"]) == 16
-    assert set(drive["figures"]) == {"at_fault", "drift_resets", "max_displacement", "scenes_passed"}
+    assert set(drive["figures"]) == {"at_fault", "drift_resets", "max_displacement", "scenes_passed", "score"}
     assert drive["units"]["kind"] == "scene" and drive["units"]["columns"] == {"scene": ["pppp"]}
     assert mine["fingerprint"]["settings"]["Episodes"] == 6 and "Policies" not in mine["fingerprint"]["settings"]
     assert set(mine["figures"]) == {"goal_rate", "collision_rate", "off_road_rate"}
