@@ -40,13 +40,14 @@ def agents_from_case(specs: list[dict], frames: int) -> AgentCells:
     if not specs:
         return AgentCells.empty(frames)
     a = len(specs)
-    cells = AgentCells(center=np.zeros((frames, a, 3)), length=np.zeros((frames, a)), width=np.zeros((frames, a)),
+    cells = AgentCells(xy=np.zeros((frames, a, 2)), yaw=np.zeros((frames, a)), length=np.zeros((frames, a)), width=np.zeros((frames, a)),
                        velocity=np.zeros((frames, a, 2)), available=np.zeros((frames, a), bool),
                        token=np.full((frames, a), -1, np.int64), group=np.zeros((frames, a), np.int8),
                        static=np.zeros((frames, a), bool))
     for column, spec in enumerate(specs):
         rows = np.asarray(spec["frames"], dtype=np.int64)
-        cells.center[rows, column] = _array(spec["center"], 3)
+        center = _array(spec["center"], 3)
+        cells.xy[rows, column], cells.yaw[rows, column] = center[:, :2], center[:, 2]
         cells.velocity[rows, column] = _array(spec.get("velocity", np.zeros((len(rows), 2))), 2)
         cells.length[rows, column], cells.width[rows, column] = spec["length"], spec["width"]
         cells.available[rows, column] = True
@@ -69,9 +70,9 @@ def inputs_from_case(case: dict) -> ScoreInputs:
     world_velocity = np.stack([np.cos(h) * ego.velocity[:, 0] - np.sin(h) * ego.velocity[:, 1],
                                np.sin(h) * ego.velocity[:, 0] + np.cos(h) * ego.velocity[:, 1]], axis=1)
     records = []
-    for column in range(agents.center.shape[1]):
+    for column in range(agents.token.shape[1]):
         found = detect_collisions(center[:, :2], h, np.array([ego.length, ego.width]),
-                                  agents.center[:, column:column + 1, :2], agents.center[:, column:column + 1, 2],
+                                  agents.xy[:, column:column + 1], agents.yaw[:, column:column + 1],
                                   np.stack([agents.length[:, column:column + 1], agents.width[:, column:column + 1]], -1),
                                   agents.available[:, column:column + 1],
                                   np.where(agents.static[:, column:column + 1, None], 0.0,

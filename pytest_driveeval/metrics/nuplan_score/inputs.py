@@ -51,10 +51,11 @@ def ego_from_poses(center_xy: np.ndarray, heading: np.ndarray, times: np.ndarray
     rear = center_xy - d * np.stack([np.cos(heading), np.sin(heading)], axis=1)
     unwrapped = np.unwrap(heading)
     if len(times) >= 2:
-        world_v = np.gradient(rear, times, axis=0)
-        world_a = np.gradient(world_v, times, axis=0)
-        yaw_rate = np.gradient(unwrapped, times)
-        yaw_accel = np.gradient(yaw_rate, times)
+        # the position's and the heading's derivatives in one call each (a gradient is column by column)
+        rate = np.gradient(np.concatenate([rear, unwrapped[:, None]], axis=1), times, axis=0)
+        accel = np.gradient(rate, times, axis=0)
+        world_v, world_a = rate[:, :2], accel[:, :2]
+        yaw_rate, yaw_accel = rate[:, 2], accel[:, 2]
     else:
         world_v = world_a = np.zeros((len(times), 2))
         yaw_rate = yaw_accel = np.zeros(len(times))
@@ -70,11 +71,15 @@ def ego_from_poses(center_xy: np.ndarray, heading: np.ndarray, times: np.ndarray
 @dataclass
 class AgentCells:
     """The other agents, (T, A) cells: A columns, a column may hold different agents over time (``token``
-    says whose state a cell holds, -1 where empty).  ``center`` (T, A, 3); ``length``/``width`` (T, A);
-    ``velocity`` (T, A, 2) world frame; ``group`` (T, A) index into :data:`GROUPS`; ``static`` (T, A):
-    a static object (nuPlan builds no velocity for it)."""
+    says whose state a cell holds, -1 where empty).  ``xy`` (T, A, 2) and ``yaw`` (T, A) the box centre's
+    pose; ``length``/``width`` (T, A); ``velocity`` (T, A, 2) world frame; ``group`` (T, A) index into
+    :data:`GROUPS`; ``static`` (T, A): a static object (nuPlan builds no velocity for it).
 
-    center: np.ndarray
+    The float arrays may be float32 (a log's own, as views: no copy per scene): the score widens to
+    float64 what it reads, before any arithmetic of its own, so its numbers are those of float64 inputs."""
+
+    xy: np.ndarray
+    yaw: np.ndarray
     length: np.ndarray
     width: np.ndarray
     velocity: np.ndarray
@@ -83,10 +88,15 @@ class AgentCells:
     group: np.ndarray
     static: np.ndarray
 
+    @property
+    def center(self) -> np.ndarray:
+        """(T, A, 3) x, y, heading in float64 (a copy)."""
+        return np.concatenate([self.xy, self.yaw[..., None]], axis=-1, dtype=np.float64)
+
     @classmethod
     def empty(cls, frames: int) -> "AgentCells":
         z = np.zeros((frames, 0))
-        return cls(np.zeros((frames, 0, 3)), z, z, np.zeros((frames, 0, 2)), z.astype(bool), z.astype(np.int64),
+        return cls(np.zeros((frames, 0, 2)), z, z, z, np.zeros((frames, 0, 2)), z.astype(bool), z.astype(np.int64),
                    z.astype(np.int8), z.astype(bool))
 
 

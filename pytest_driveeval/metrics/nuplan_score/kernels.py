@@ -184,8 +184,10 @@ def _compile():
             for c in range(a):
                 if not usable[f, c]:
                     continue
-                dx, dy = a_xy[f, c, 0] - ex, a_xy[f, c, 1] - ey
-                vx, vy, al, aw = a_velocity[f, c, 0], a_velocity[f, c, 1], a_length[f, c], a_width[f, c]
+                # float64 of float32 cells (a log's), exactly, before any arithmetic: as ttc computes
+                dx, dy = np.float64(a_xy[f, c, 0]) - ex, np.float64(a_xy[f, c, 1]) - ey
+                vx, vy = np.float64(a_velocity[f, c, 0]), np.float64(a_velocity[f, c, 1])
+                al, aw = np.float64(a_length[f, c]), np.float64(a_width[f, c])
                 speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)  # as ttc takes it
                 reach = er + 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
                 if dx * dx + dy * dy <= reach * reach:

@@ -28,7 +28,7 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     t = inputs.num_frames
     ttc = np.full(t, np.inf)
     at_fault = sorted({c.frame for c in inputs.collisions if c.at_fault})
-    if agents.center.shape[1] == 0:
+    if agents.token.shape[1] == 0:
         ttc[at_fault] = 0.0
         return ttc
     # Agents already hit (at fault or not) are out of the projection from their first contact on.
@@ -40,7 +40,7 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     # The bearing of the cells that could count only (most cells are empty or the ego stands still).
     usable = agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None]
     frames, cols = _reachable(ego, agents, usable) if kernels.wanted() else np.nonzero(usable)
-    to_agent = agents.center[frames, cols, :2] - rear[frames]
+    to_agent = agents.xy[frames, cols] - rear[frames]
     bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
     beside = (~in_one_lane | in_intersection)[frames] & (angle <= BEHIND)
@@ -64,8 +64,18 @@ def _reachable(ego, agents, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     are computed for few cells."""
     ego_reach = 0.5 * np.hypot(ego.length, ego.width) + HORIZON * ego.speed
     return kernels.kernels().reachable_cells(
-        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, agents.center, agents.velocity, agents.static,
+        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, agents.xy, agents.velocity, agents.static,
         agents.length, agents.width, HORIZON, REACH_MARGIN)
+
+
+def _wide(values: np.ndarray) -> np.ndarray:
+    """float64 of a selection of cells (a log's float32 widens exactly: the numbers of float64 inputs)."""
+    return values.astype(np.float64, copy=False)
+
+
+def _cell_poses(agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(P, 3) x, y, heading of the cells (frames, cols), float64."""
+    return np.concatenate([agents.xy[frames, cols], agents.yaw[frames, cols][:, None]], axis=1, dtype=np.float64)
 
 
 def _first_meetings(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -73,11 +83,11 @@ def _first_meetings(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.nda
     the agent's, moved on at their speeds, overlap; -1 if none."""
     heading = ego.center[:, 2]
     e_step = ego.speed[frames, None] * STEP * np.stack([np.cos(heading[frames]), np.sin(heading[frames])], axis=1)
-    a_center = agents.center[frames, cols]
-    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*agents.velocity[frames, cols].T))
+    a_center = _cell_poses(agents, frames, cols)
+    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*_wide(agents.velocity[frames, cols]).T))
     a_step = a_speed[:, None] * STEP * np.stack([np.cos(a_center[:, 2]), np.sin(a_center[:, 2])], axis=1)
     e_ext = np.array([ego.length, ego.width])
-    a_ext = np.stack([agents.length[frames, cols], agents.width[frames, cols]], axis=1)
+    a_ext = np.stack([_wide(agents.length[frames, cols]), _wide(agents.width[frames, cols])], axis=1)
     # The swept boxes: length plus the 3 s of motion, centred half way along it.
     swept = oriented_boxes_overlap(
         ego.center[frames, :2] + REACH / 2 * e_step, heading[frames],
@@ -103,15 +113,16 @@ def _first_meetings_compiled(ego, agents, frames: np.ndarray, cols: np.ndarray) 
     e_cos, e_sin = np.cos(heading), np.sin(heading)
     e_step = ego.speed[:, None] * STEP * np.stack([e_cos, e_sin], axis=1)
     e_sweep = REACH * np.hypot(*e_step.T)
-    a_center = agents.center[frames, cols]
-    a_cos, a_sin = np.cos(a_center[:, 2]), np.sin(a_center[:, 2])
-    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*agents.velocity[frames, cols].T))
+    a_xy = _wide(agents.xy[frames, cols])
+    a_yaw = _wide(agents.yaw[frames, cols])
+    a_cos, a_sin = np.cos(a_yaw), np.sin(a_yaw)
+    a_speed = np.where(agents.static[frames, cols], 0.0, np.hypot(*_wide(agents.velocity[frames, cols]).T))
     a_step = a_speed[:, None] * STEP * np.stack([a_cos, a_sin], axis=1)
     a_sweep = REACH * np.hypot(*a_step.T)
     out = np.empty(len(frames), dtype=np.int64)
     kernels.kernels().first_meeting(
         frames.astype(np.int64), np.ascontiguousarray(ego.center[:, :2]), e_cos, e_sin, e_step, e_sweep,
-        float(ego.length), float(ego.width), np.ascontiguousarray(a_center[:, :2]), a_cos, a_sin, a_step, a_sweep,
+        float(ego.length), float(ego.width), a_xy, a_cos, a_sin, a_step, a_sweep,
         agents.length[frames, cols].astype(np.float64), agents.width[frames, cols].astype(np.float64),
         REACH / 2, len(STEPS), out)
     return out

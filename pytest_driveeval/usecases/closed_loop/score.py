@@ -80,16 +80,17 @@ def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInpu
     groups = _label_groups()[log.label[row][keep]]
     tokens = log.track_id[row][keep]
     available = log.available[row][keep]
-    agents = AgentCells(
-        center=np.concatenate([log.agent_xy[row][keep], log.agent_yaw[row][keep][..., None]], axis=-1),
-        length=log.agent_extent[row][keep][..., 0].astype(np.float64),
-        width=log.agent_extent[row][keep][..., 1].astype(np.float64),
-        velocity=log.agent_velocity[row][keep].astype(np.float64), available=available, token=tokens,
-        group=groups, static=groups == 2)
+    # The log's own arrays, as views (float32 among them: the score widens what it reads)
+    agents = AgentCells(xy=log.agent_xy[row][keep], yaw=log.agent_yaw[row][keep],
+                        length=log.agent_extent[row][keep][..., 0], width=log.agent_extent[row][keep][..., 1],
+                        velocity=log.agent_velocity[row][keep], available=available, token=tokens,
+                        group=groups, static=groups == 2)
     hit = np.flatnonzero(r.collision_kind[row][keep] > 0)
     hit_tokens = r.collision_track_id[row][keep][hit]
+    # Each agent's group at its first contact (the only frame first_collisions keeps of it)
     group_of = {}
-    for k, token in zip(hit.tolist(), hit_tokens.tolist()):
+    firsts, at = np.unique(hit_tokens, return_index=True)
+    for token, k in zip(firsts.tolist(), hit[at].tolist()):
         cell = np.flatnonzero(tokens[k] == token)
         group_of[token] = GROUPS[int(groups[k, cell[0]])] if len(cell) else "object"
     collisions = first_collisions(hit, hit_tokens, r.collision_at_fault[row][keep][hit], group_of)
