@@ -93,7 +93,10 @@ def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.nd
     front = holding[:, 0] & holding[:, 1]
     rear = holding[:, 2] & holding[:, 3]
     out = (front & rear).any(axis=1)
-    for k in np.flatnonzero(~out & front.any(axis=1) & rear.any(axis=1)):
-        ahead = set(np.flatnonzero(front[k]).tolist())
-        out[k] = any(ahead.intersection(score_map.outgoing[n]) for n in np.flatnonzero(rear[k]))
+    straddling = np.flatnonzero(~out & front.any(axis=1) & rear.any(axis=1))
+    if len(straddling):
+        # over the map's links n -> m at once: a rear corners' lane n leading into a front corners' lane m
+        starts, ahead = score_map.outgoing_table
+        behind = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
+        out[straddling] = (rear[straddling][:, behind] & front[straddling][:, ahead]).any(axis=1)
     return out

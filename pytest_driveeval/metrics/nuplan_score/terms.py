@@ -76,7 +76,7 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_la
         depth = depth.reshape(t, 4)
         corner = np.argmax(np.where(far[frames], depth[frames], -1), axis=1).tolist()
         term.frames = frames.tolist()
-        term.places = [tuple(map(float, corners[k, c])) for k, c in zip(frames, corner)]
+        term.places = [tuple(p) for p in corners[frames, corner].tolist()]
         k0, c0 = frames[0], corner[0]
         term.message = (f"a corner {depth[k0, c0]:.2f} m off the drivable area at frame "
                         f"{int(inputs.frame_numbers[k0])} ({len(frames)} frame(s)); {DRIVABLE_MARGIN:g} m tolerated")
@@ -112,7 +112,7 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     if value < 1.0:
         bad = np.flatnonzero(-window >= DIRECTION_COMPLIANCE)
         term.frames = bad.tolist()
-        term.places = [tuple(map(float, xy[k])) for k in bad]
+        term.places = [tuple(p) for p in xy[bad].tolist()]
         term.message = (f"{worst:.2f} m against the lane's direction within {(n + 1) * spacing:.1f} s, worst "
                         f"at frame {int(inputs.frame_numbers[int(np.argmin(window))])} "
                         f"(under {DIRECTION_COMPLIANCE:g} m complies, from {DIRECTION_VIOLATION:g} m scores 0)")
@@ -190,7 +190,7 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     if value < 1.0:
         bad = np.flatnonzero(over > 0)
         term.frames = bad.tolist()
-        term.places = [tuple(map(float, inputs.ego.center[k, :2])) for k in bad]
+        term.places = [tuple(p) for p in inputs.ego.center[bad, :2].tolist()]
         worst = int(np.argmax(over))
         term.message = (f"over the speed limit on {len(bad)} frame(s), by up to {over[worst]:.2f} m/s at frame "
                         f"{int(inputs.frame_numbers[worst])}")

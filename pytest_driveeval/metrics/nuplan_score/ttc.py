@@ -137,7 +137,7 @@ def time_to_collision_within_bound(inputs: ScoreInputs, in_one_lane: np.ndarray,
                         "frames_below_time_to_collision_bound": int(len(bad))}, series={"time_to_collision": ttc})
     if len(bad):
         term.frames = bad.tolist()
-        term.places = [tuple(map(float, inputs.ego.center[k, :2])) for k in bad]
+        term.places = [tuple(p) for p in inputs.ego.center[bad, :2].tolist()]
         worst = int(bad[np.argmin(ttc[bad])])
         term.message = (f"time to collision {ttc[worst]:.1f} s at frame {int(inputs.frame_numbers[worst])} "
                         f"({len(bad)} frame(s) at or below {LEAST_TTC:g} s)")
