@@ -3,6 +3,7 @@ agents, the collisions already classified, and the map (None: the scene has none
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -30,13 +31,14 @@ class EgoStates:
     angular_velocity: np.ndarray
     angular_acceleration: np.ndarray
 
-    @property
+    # Computed once a scene (several terms read them); the states are not changed once built.
+    @cached_property
     def rear_axle(self) -> np.ndarray:
         h = self.center[:, 2]
         back = self.rear_axle_to_center * np.stack([np.cos(h), np.sin(h)], axis=1)
         return self.center[:, :2] - back
 
-    @property
+    @cached_property
     def speed(self) -> np.ndarray:
         return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
 
