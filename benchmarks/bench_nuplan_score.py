@@ -30,16 +30,16 @@ start (``jit.start()``), warm-ups before timing.  Nothing is asserted: the figur
     python benchmarks/bench_nuplan_score.py [--scenes 64] [--repeats 5] [--oracle-repeats 3] [--smoke]
 
 Measured (2 cores shared with other jobs, load average 3-5: single figures vary by up to 2x between runs;
-defaults, the command above):
+defaults, the command above; "i23-speed" the views of the log's agent arrays and the per-frame loops made
+array operations, same results):
 
-    figure                                   before (85b8156)   now
-    (a) score, ms/scene (64 scenes)          8.9                5.0 - 7.0
-    (a) score / harness time                 94 %               57 - 61 %   target <= 25 %: not met
-    (a) score maps, s (not in the score)     0.72               0.84 - 1.22 (now also the grid, edge, surface,
-                                                                 baseline and incoming tables)
-    (b) real scenes, x nuplan-devkit         75 - 293x          113 - 622x  met
+    figure                                   before (85b8156)   before i23-speed    now
+    (a) score, ms/scene (64 scenes)          8.9                5.0 - 7.0           4.4 - 4.7 (quickest repeat 3.6)
+    (a) score / harness time                 94 %               44 - 61 %           44 %   target <= 25 %: not met
+    (a) score maps, s (not in the score)     0.72               0.84 - 1.22         1.29 - 1.34 (load)
+    (b) real scenes, x nuplan-devkit         75 - 293x          113 - 622x          (not rerun)  met
     (b) synthetic cases, x nuplan-devkit     34 - 147x          26 - 160x, median 64x (ours 0.6 - 1.0 ms a case,
-                                                                 2.2 ms when a load spike hits): not met
+                                                                2.2 ms when a load spike hits): not met
 """
 from __future__ import annotations
 

@@ -40,7 +40,8 @@ def agents_from_case(specs: list[dict], frames: int) -> AgentCells:
     if not specs:
         return AgentCells.empty(frames)
     a = len(specs)
-    cells = AgentCells(xy=np.zeros((frames, a, 2)), yaw=np.zeros((frames, a)), length=np.zeros((frames, a)), width=np.zeros((frames, a)),
+    cells = AgentCells(xy=np.zeros((frames, a, 2)), yaw=np.zeros((frames, a)), length=np.zeros((frames, a)),
+                       width=np.zeros((frames, a)),
                        velocity=np.zeros((frames, a, 2)), available=np.zeros((frames, a), bool),
                        token=np.full((frames, a), -1, np.int64), group=np.zeros((frames, a), np.int8),
                        static=np.zeros((frames, a), bool))
