@@ -25,9 +25,10 @@ def _outline(feature: Any) -> np.ndarray | None:
     return None if points is None else np.asarray(points, float)[:, :2]
 
 
-def drawn_map(scene: ScenarioNetScene) -> DrawnMap:
-    """The scenario's map as the GIF draws it, in the scenario's world frame (the unroll's)."""
-    surfaces = scenario_map(scene).surfaces
+def drawn_map(scene: ScenarioNetScene, made: Any = None) -> DrawnMap:
+    """The scenario's map as the GIF draws it, in the scenario's world frame (the unroll's);
+    ``made``: its io.scenarionet_map.ScenarioMap when the caller has one (measuring lanes costs)."""
+    surfaces = (made if made is not None else scenario_map(scene)).surfaces
 
     def group(name: str) -> list[np.ndarray]:
         # A road line or edge is a line: its polyline, else the outline it was given as.
@@ -46,4 +47,4 @@ def drawn_map_of(dataset: Any, scene: int) -> DrawnMap | None:
     """Scene ``scene``'s map to draw, or None when the dataset has none to give (an L5 zarr)."""
     if not isinstance(dataset, ScenarioNetDataset):
         return None
-    return drawn_map(dataset.source(scene))
+    return drawn_map(dataset.source(scene), dataset.scenario_map(scene))
