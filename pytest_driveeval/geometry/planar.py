@@ -26,6 +26,11 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
     return (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def arc_lengths(line: np.ndarray) -> np.ndarray:
+    """(K,) distance along a polyline (K, 2) from its first point to each of its points."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
+
+
 def yaw_as_rotation33(yaw: np.ndarray) -> np.ndarray:
     """(...) yaw -> (..., 3, 3) homogeneous rotation."""
     yaw = np.asarray(yaw, dtype=np.float64)

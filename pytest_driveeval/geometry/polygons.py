@@ -92,7 +92,25 @@ def _crossings(x: np.ndarray, y: np.ndarray, vertices: np.ndarray, chunk: int) -
     for s in range(0, len(x), chunk):
         px = np.asarray(x[s:s + chunk], dtype=np.float64)[:, None]
         py = np.asarray(y[s:s + chunk], dtype=np.float64)[:, None]
-        straddles = (yi <= py) != (yj <= py)
-        crosses = straddles & (px < xi + (py - yi) * slope)
-        out[s:s + chunk] = (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
+        out[s:s + chunk] = odd_crossings(px, py, xi, yi, yj, slope)
     return out
+
+
+def odd_crossings(px: np.ndarray, py: np.ndarray, xi: np.ndarray, yi: np.ndarray, yj: np.ndarray,
+                  slope: np.ndarray) -> np.ndarray:
+    """(P,) whether a ray from each point (``px``, ``py``: (P, 1)) crosses the edges (columns of
+    :func:`polygon_edges`' table, (E,)) an odd number of times: the point is inside.  The caller
+    silences overflow (see :func:`points_in_polygon`)."""
+    crosses = ((yi <= py) != (yj <= py)) & (px < xi + (py - yi) * slope)
+    return (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
+
+
+def outline_distance(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
+    """(P,) distance from each point (P, 2) to the edges of a closed outline (K, 2)."""
+    a = outline
+    ab = np.roll(outline, -1, axis=0) - a
+    length2 = np.maximum((ab ** 2).sum(1), 1e-18)
+    ap = points[:, None, :] - a[None]
+    t = np.clip((ap * ab[None]).sum(2) / length2, 0.0, 1.0)
+    gap = ap - t[..., None] * ab[None]
+    return np.sqrt((gap ** 2).sum(2)).min(1)

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError, display_path
+from ..geometry import yaw_as_rotation33
 from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
 from .scenarionet_map import ScenarioMap, active_faces, merged, scenario_map
@@ -27,13 +28,6 @@ STEP_TIME = 0.1
 LABELS = {"VEHICLE": "CAR", "PEDESTRIAN": "PEDESTRIAN", "CYCLIST": "CYCLIST", "OTHER": "UNKNOWN", "UNSET": "UNKNOWN",
           "TRAFFIC_CONE": "UNKNOWN", "TRAFFIC_BARRIER": "UNKNOWN", "TRAFFIC_OBJECT": "UNKNOWN",
           "TRAFFIC_LIGHT": "UNKNOWN"}
-
-
-def _rotation(yaw: np.ndarray) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = np.zeros((len(yaw), 3, 3))
-    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1], out[:, 2, 2] = c, -s, s, c, 1.0
-    return out
 
 
 def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
@@ -55,7 +49,7 @@ def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
     frames["agent_index_interval"][:, 0] = ends - counts
     frames["agent_index_interval"][:, 1] = ends
     frames["ego_translation"] = tracks.position[ego, :steps]
-    frames["ego_rotation"] = _rotation(tracks.heading[ego, :steps])
+    frames["ego_rotation"] = yaw_as_rotation33(tracks.heading[ego, :steps])
     step_of, row_of = np.nonzero(live.T)  # frame-major: each frame's agents together, in track order
     rows = others[row_of]
     agents = np.zeros(len(rows), AGENT_DTYPE)

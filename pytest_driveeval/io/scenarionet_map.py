@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.planar import arc_lengths
+from ..geometry.polygons import outline_distance
 from .l5_semantic_map import GREEN, RED, YELLOW, Polylines, SemanticMap
 from .scenarionet import ScenarioNetScene
 
@@ -39,18 +41,6 @@ class ScenarioMap:
     surfaces: Polylines
 
 
-def _point_to_outline(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
-    """Distance from each point (P, 2) to the closed outline (K, 2)."""
-    a = outline
-    b = np.roll(outline, -1, axis=0)
-    ab = b - a
-    length2 = np.maximum((ab ** 2).sum(1), 1e-12)
-    ap = points[:, None, :] - a[None]
-    t = np.clip((ap * ab[None]).sum(2) / length2, 0.0, 1.0)
-    nearest = a[None] + t[..., None] * ab[None]
-    return np.sqrt(((points[:, None, :] - nearest) ** 2).sum(2)).min(1)
-
-
 def _normals(line: np.ndarray) -> np.ndarray:
     """Unit left normals at each point of a polyline (from the neighbouring segments)."""
     d = np.gradient(line, axis=0)
@@ -62,10 +52,10 @@ def _normals(line: np.ndarray) -> np.ndarray:
 def lane_width(centre: np.ndarray, polygon: np.ndarray | None) -> tuple[float, str]:
     if polygon is not None and len(polygon) >= 3:
         # Measured along the lane's inside: its ends touch the polygon's end caps, at distance 0.
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(centre, axis=0), axis=1))])
+        along = arc_lengths(centre)
         at = np.linspace(0.0, along[-1], 21)[1:-1]
         inside = np.stack([np.interp(at, along, centre[:, 0]), np.interp(at, along, centre[:, 1])], axis=1)
-        width = 2.0 * float(np.median(_point_to_outline(inside, polygon[:, :2])))
+        width = 2.0 * float(np.median(outline_distance(inside, polygon[:, :2])))
         if WIDTH_RANGE[0] <= width <= WIDTH_RANGE[1]:
             return width, "polygon"
     return DEFAULT_LANE_WIDTH, "default"

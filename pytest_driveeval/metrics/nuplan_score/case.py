@@ -7,14 +7,13 @@ import numpy as np
 
 from pytest_driveeval.metrics.collisions import detect_collisions
 
-from .inputs import AgentCells, EgoStates, ScoreInputs, first_collisions
+from .inputs import GROUPS, AgentCells, EgoStates, ScoreInputs, first_collisions
 from .lanes import ScoreMap
 
 #: CASE_FORMAT's agent types -> the score's collision groups
 GROUP_OF_TYPE = {"vehicle": 0, "pedestrian": 1, "bicycle": 1, "traffic_cone": 2, "barrier": 2, "czone_sign": 2,
                  "generic_object": 2}
 STATIC_TYPES = {"traffic_cone", "barrier", "czone_sign", "generic_object"}
-GROUP_NAMES = ("vehicle", "vru", "object")
 
 
 def _array(rows, width: int) -> np.ndarray:
@@ -82,7 +81,7 @@ def inputs_from_case(case: dict) -> ScoreInputs:
         for k in np.flatnonzero(found.kind > 0):
             records.append((int(k), column, bool(found.at_fault[k])))
     records.sort()
-    groups = {c: GROUP_NAMES[GROUP_OF_TYPE[s["type"]]] for c, s in enumerate(case.get("agents", []))}
+    groups = {c: GROUPS[GROUP_OF_TYPE[s["type"]]] for c, s in enumerate(case.get("agents", []))}
     collisions = first_collisions([r[0] for r in records], [r[1] for r in records], [r[2] for r in records], groups)
     return ScoreInputs(times, ego, _array(case["expert"]["center"], 3), agents, collisions,
                        map_from_case(case.get("map")))

@@ -61,21 +61,8 @@ def _compile():
     jit = njit(cache=True, nogil=True, boundscheck=False)
 
     @jit
-    def containing(points, xi, yi, yj, slope, starts, bounds, out):
-        """out[p, n]: point p in polygon n; edges of polygon n: starts[n]:starts[n + 1] (lanes._containing)."""
-        for p in range(points.shape[0]):
-            px, py = points[p, 0], points[p, 1]
-            for n in range(bounds.shape[0]):
-                if px >= bounds[n, 0] and px <= bounds[n, 2] and py >= bounds[n, 1] and py <= bounds[n, 3]:
-                    count = 0
-                    for e in range(starts[n], starts[n + 1]):
-                        if ((yi[e] <= py) != (yj[e] <= py)) and px < xi[e] + (py - yi[e]) * slope[e]:
-                            count += 1
-                    out[p, n] = (count & 1) == 1
-
-    @jit
     def _outline_distance(px, py, vertices, s, e):
-        """Distance of (px, py) to the closed outline vertices[s:e] (lanes.outline_distance's expressions)."""
+        """Distance of (px, py) to the closed outline vertices[s:e] (geometry.polygons.outline_distance's expressions)."""
         best = np.inf
         for i in range(s, e):
             j = i + 1 if i + 1 < e else s
@@ -117,8 +104,9 @@ def _compile():
     @jit
     def containing_in_grid(points, xi, yi, yj, slope, starts, bounds, origin, size, nx, ny, cell_starts, cell_polygons,
                            out):
-        """:func:`containing`, testing only the polygons listed in the point's grid cell (every polygon whose
-        bounds meet the cell: the bounds test admits no other)."""
+        """out[p, n]: point p in polygon n (lanes._containing's crossing-number rule), testing only the
+        polygons listed in the point's grid cell (every polygon whose bounds meet the cell: the bounds
+        test admits no other)."""
         for p in range(points.shape[0]):
             px, py = points[p, 0], points[p, 1]
             fx, fy = np.floor((px - origin[0]) / size), np.floor((py - origin[1]) / size)
@@ -260,7 +248,7 @@ def _compile():
                     best, best_t, best_len2, best_i = d2, t, length2, i
             out[p] = cumulative[best_i] + best_t * math.sqrt(best_len2)
 
-    return SimpleNamespace(containing=containing, outline_distances=outline_distances, first_meeting=first_meeting,
+    return SimpleNamespace(outline_distances=outline_distances, first_meeting=first_meeting,
                            project=project, reachable_cells=reachable_cells,
                            nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid,
                            follow_lanes=follow_lanes)

@@ -2,7 +2,8 @@
 successors), extra drivable polygons and intersections, with the point queries the terms ask.
 
 Lookups are vectorised over points: a bounding-box test of every point against every polygon, then the
-exact crossing-number test only for the polygons some point's box test admitted.
+exact crossing-number test only for the polygons some point's box test admitted; the compiled paths
+(:mod:`.kernels`) find a point's candidate polygons through a grid of cells instead.
 """
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pytest_driveeval.geometry.polygons import polygon_edges
+from pytest_driveeval.geometry.planar import arc_lengths
+from pytest_driveeval.geometry.polygons import odd_crossings, outline_distance, polygon_edges
 
 from . import kernels
 
@@ -100,10 +102,7 @@ def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
     with np.errstate(over="ignore"):  # a nearly horizontal edge's slope: see geometry.polygons
         for n in np.flatnonzero(near.any(axis=0)):
             rows = np.flatnonzero(near[:, n])
-            xi, yi, yj, slope = polygons.edges(n)
-            px, py = points[rows, 0:1], points[rows, 1:2]
-            crosses = ((yi <= py) != (yj <= py)) & (px < xi + (py - yi) * slope)
-            out[rows, n] = (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
+            out[rows, n] = odd_crossings(points[rows, 0:1], points[rows, 1:2], *polygons.edges(n))
     return out
 
 
@@ -126,17 +125,6 @@ def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.n
     return out
 
 
-def outline_distance(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
-    """(P,) distance from each point to a closed outline's edges."""
-    a = outline
-    ab = np.roll(outline, -1, axis=0) - a
-    length2 = np.maximum((ab ** 2).sum(1), 1e-18)
-    ap = points[:, None, :] - a[None]
-    t = np.clip((ap * ab[None]).sum(2) / length2, 0.0, 1.0)
-    gap = ap - t[..., None] * ab[None]
-    return np.sqrt((gap ** 2).sum(2)).min(1)
-
-
 def project(points: np.ndarray, line: np.ndarray, cumulative: np.ndarray) -> np.ndarray:
     """(P,) arc length along ``line`` of each point's nearest point on it (shapely's ``project``)."""
     a, ab = line[:-1], np.diff(line, axis=0)
@@ -147,10 +135,6 @@ def project(points: np.ndarray, line: np.ndarray, cumulative: np.ndarray) -> np.
     nearest = np.argmin((gap ** 2).sum(2), axis=1)  # the first of equally near segments, as shapely
     rows = np.arange(len(points))
     return cumulative[nearest] + t[rows, nearest] * np.sqrt(length2[nearest])
-
-
-def arc_lengths(line: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
 
 
 @dataclass
@@ -260,7 +244,7 @@ class ScoreMap:
         return out
 
     def directions(self, points: np.ndarray, lane_of: np.ndarray) -> np.ndarray:
-        """(P,) heading of lane ``lane_of[p]``'s baseline at point p's projection (:meth:`direction_at`)."""
+        """(P,) heading of lane ``lane_of[p]``'s baseline at point p's projection."""
         lane_of = np.asarray(lane_of, dtype=np.int64)
         s = self.along(points, lane_of)
         out = np.zeros(len(points))
@@ -270,10 +254,3 @@ class ScoreMap:
                               len(self.headings[lane]) - 1)
             out[rows] = self.headings[lane][segment]
         return out
-
-    def direction_at(self, lane: int, points: np.ndarray) -> np.ndarray:
-        """(P,) heading of lane ``lane``'s baseline at each point's projection."""
-        s = project(points, self.baselines[lane], self.cumulative[lane])
-        segment = np.clip(np.searchsorted(self.cumulative[lane], s, side="right") - 1, 0,
-                          len(self.headings[lane]) - 1)
-        return self.headings[lane][segment]

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pytest_driveeval.geometry.planar import arc_lengths
+
 from .inputs import ScoreInputs
-from .lanes import ScoreMap, arc_lengths, project
+from .lanes import ScoreMap, project
 from .term import Term
 
 #: nuplan-devkit's thresholds (its simulation_metric configs)

@@ -36,8 +36,9 @@ class Unroll:
     log: Any             # sim.logreplay.LogArrays: the agents where they were (the log, or the reactive agents' moves)
     drift_threshold: float | None
     step_time: float
-    #: scene id -> the score's map (metrics.nuplan_score.ScoreMap) of the scenes whose dataset has one
-    maps: dict = field(default_factory=dict)
+    #: scene id -> the score's map (metrics.nuplan_score.ScoreMap) of the scenes whose dataset has one:
+    #: anything with ``get(scene)`` (usecases.closed_loop.score.SceneMaps makes them when asked)
+    maps: Any = field(default_factory=dict)
 
     @property
     def scene_ids(self) -> list[int]:
@@ -102,10 +103,10 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    from pytest_driveeval.usecases.closed_loop.score import dataset_score_maps
+    from pytest_driveeval.usecases.closed_loop.score import SceneMaps
 
     unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
-    unrolled.maps = dataset_score_maps(dataset, ids)
+    unrolled.maps = SceneMaps(dataset)
     return unrolled
 
 
@@ -231,8 +232,9 @@ def scene_figures(unroll: Unroll, row: int, reference: str = "polyline", *,
     return figures
 
 
-def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
-    """Per-scene verdict against ``ClosedLoopConditions`` (see usecases.closed_loop.config)."""
+def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True) -> SceneVerdict:
+    """Per-scene verdict against ``ClosedLoopConditions`` (see usecases.closed_loop.config);
+    ``score=False`` leaves nuPlan's score out (a search's example, whose conditions do not ask for it)."""
     r = unroll.result
     scene = int(r.scene_ids[row])
     to_reference = conditions.DistanceToReference
@@ -270,7 +272,7 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any) -> SceneVerdict:
                                    figure="drift_resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
     from pytest_driveeval.usecases.closed_loop.score import markers, scene_score, score_findings, terms_json
 
-    score = scene_score(unroll, row)
+    score = scene_score(unroll, row) if score else None
     terms, marks = {}, []
     if score is not None:
         frame_numbers = np.flatnonzero(r.valid[row])

@@ -21,7 +21,7 @@ from pytest_driveeval.search.engine import Example, Verdict
 from pytest_driveeval.search.item import Searchable
 from pytest_driveeval.strategies import StartPerturbation, start_perturbations
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
-from pytest_driveeval.usecases.closed_loop.score import dataset_score_maps
+from pytest_driveeval.usecases.closed_loop.score import SceneMaps
 from pytest_driveeval.usecases.closed_loop.evaluate import SceneVerdict, judge_scene, stack_log, unroll_config, unroll_log
 
 __all__ = ["closed_loop_searchable", "example_verdict"]
@@ -63,7 +63,9 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
     # Packed once: every generation's rows are copies of these scenes.
     cells = LogCells(log)
     columns, columns_ok = window_columns(log, spec.HistoryFrames)
-    maps = dataset_score_maps(dataset, ids)
+    maps = SceneMaps(dataset)
+    # An example's verdict needs the score only where the conditions bound it (about 4 ms a scene)
+    scored = config.Conditions.Score is not None
 
     @lru_cache(maxsize=8)
     def copies(rows: tuple[int, ...]) -> Any:
@@ -83,6 +85,7 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
         unrolled = unroll_log(copies(tuple(rows.tolist())), model, settings, [e.perturbation for e in examples],
                               cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
         unrolled.maps = maps
-        return [example_verdict(judge_scene(unrolled, i, config.Conditions)) for i in range(len(examples))]
+        return [example_verdict(judge_scene(unrolled, i, config.Conditions, score=scored))
+                for i in range(len(examples))]
 
     return evaluate_many

@@ -8,6 +8,7 @@ at its first contact as nuPlan does; the engine records one partner per frame (l
 from __future__ import annotations
 
 from functools import lru_cache
+import weakref
 from typing import Any, Sequence
 
 import numpy as np
@@ -57,10 +58,29 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
 
 
 def dataset_score_maps(dataset: Any, ids: Sequence[int]) -> dict[int, ScoreMap]:
-    """The score's map of each scene that has one (a ScenarioNet dataset's scenes)."""
+    """The score's map of each scene that has one (a ScenarioNet dataset's scenes), made afresh."""
     if not hasattr(dataset, "scenario_map"):
         return {}
     return {int(i): score_map_of(dataset.source(int(i)), dataset.scenario_map(int(i))) for i in ids}
+
+
+class SceneMaps:
+    """A dataset's score maps by scene, each made when a scene is first scored and kept with the
+    dataset: an unroll that is never scored (a Python test checking collisions only) costs no map,
+    and one scored again (a search's replays, a second item on the same dataset) reuses them."""
+
+    _made: "weakref.WeakKeyDictionary[Any, dict[int, ScoreMap]]" = weakref.WeakKeyDictionary()
+
+    def __init__(self, dataset: Any):
+        self._dataset = dataset if hasattr(dataset, "scenario_map") else None
+
+    def get(self, scene: int, default: Any = None) -> ScoreMap | None:
+        if self._dataset is None:
+            return default
+        made = self._made.setdefault(self._dataset, {})
+        if scene not in made:
+            made[scene] = dataset_score_maps(self._dataset, [scene])[scene]
+        return made[scene]
 
 
 def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInputs | None:
@@ -101,8 +121,8 @@ def scene_score(unroll: Any, row: int) -> SceneScore | None:
     """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by."""
     if unroll.log is None:
         return None
-    maps = getattr(unroll, "maps", None) or {}
-    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])))
+    maps = getattr(unroll, "maps", None)
+    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])) if maps is not None else None)
     return score_scene(inputs) if inputs is not None else None
 
 
