@@ -54,7 +54,6 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy and torch start their thread pools
 
-import numpy as np
 import torch
 
 from pytest_driveeval.metrics.nuplan_score import score_scene

@@ -30,6 +30,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Callable
 
 from .atomic import create_exclusive, write_json_atomic
+from .report.trends import history_entries
 
 RUNS_FOLDER = "runs"
 RUN_FILE = "run.json"
@@ -192,23 +193,9 @@ def _append_line(path: Path, line: str) -> None:
 
 
 def history_runs(output_dir: Path) -> list[tuple[dict[str, Any], Path]]:
-    """(run identity, its summary.json) of each line of the history, newest first.  A torn or
-    hand-edited line is skipped, and so is a summary path that leads out of the output folder."""
-    history = output_dir / HISTORY_NAME
-    try:
-        lines = history.read_text(encoding="utf-8", errors="replace").splitlines() if history.is_file() else []
-    except OSError:
-        return []
-    out = []
-    for raw in reversed(lines):
-        try:
-            entry = json.loads(raw)
-            run, where = entry["run"], PurePosixPath(entry["summary"])
-        except (ValueError, KeyError, TypeError):
-            continue
-        if isinstance(run, dict) and not where.is_absolute() and ".." not in where.parts:
-            out.append((run, output_dir / where))
-    return out
+    """(run identity, its summary.json) of each line of the output folder's history, newest first
+    (report.trends.history_entries: a torn line, or a summary path leading out of the folder, skipped)."""
+    return list(history_entries(output_dir / HISTORY_NAME))
 
 
 def read_run(folder: Path) -> dict[str, Any] | None:

@@ -11,11 +11,13 @@ print what they did.
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
+from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "l5kit"
 RASTERIZE = Path(__file__).with_name("rasterize.py")
@@ -44,50 +46,10 @@ CHECK = ("import l5kit, l5kit.data, l5kit.dataset, l5kit.rasterization, numpy, t
          "print(__import__('json').dumps({n: m.version(n) for n in %r}))")
 
 
-def requirement(name: str, version: str | None) -> str:
-    return name if version is None else f"{name}=={version}"
-
-
-def pip_install(python: Path, args: list[str]) -> None:
-    # pip's output is kept for a failure only: the extra local indexes make it warn for every package.
-    done = subprocess.run([str(python), "-m", "pip", "install", "-q", *args], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"pip install {' '.join(args)} failed in {python}:\n{done.stdout}{done.stderr}")
-
-
-def installed(python: Path, names: list[str]) -> dict[str, str | None]:
-    script = ("import importlib.metadata as m, json, sys\n"
-              "out = {}\n"
-              "for n in sys.argv[1:]:\n"
-              "    try: out[n] = m.version(n)\n"
-              "    except m.PackageNotFoundError: out[n] = None\n"
-              "print(json.dumps(out))")
-    done = subprocess.run([str(python), "-c", script, *names], check=True, capture_output=True, text=True)
-    return json.loads(done.stdout)
-
-
-def base_interpreter() -> str:
-    found = shutil.which("python3.11")
-    if found is None:
-        raise RuntimeError("python3.11 is not on PATH: the l5kit oracle venv needs Python 3.11")
-    return found
-
-
-def mismatched(have: dict[str, str | None], wanted: dict[str, str | None]) -> list[str]:
-    # A local-version tag (torch's "+cpu") still satisfies its pin.
-    return [n for n, v in wanted.items()
-            if have.get(n) is None or (v is not None and have[n].split("+")[0] != v)]
-
-
 def oracle_python(venv: Path = VENV, quiet: bool = False) -> Path:
     """The venv's python, after creating the venv and installing what is missing or differs."""
-    say = (lambda *_: None) if quiet else (lambda msg: print(f"[l5kit venv] {msg}", flush=True))
-    python = venv / "bin" / "python"
-    if not python.exists():
-        say(f"creating {venv} with {base_interpreter()}")
-        subprocess.run([base_interpreter(), "-m", "venv", str(venv)], check=True)
-    else:
-        say(f"{venv} exists")
+    say = say_to("l5kit", quiet)
+    python = venv_python(venv, "l5kit oracle", say)
     deps = PINS  # l5kit's imports need nothing beyond them (checked by CHECK below)
     wrong = mismatched(installed(python, list(deps)), deps)
     if wrong:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -32,21 +31,14 @@ PINS = {"commonroad-crime": "0.4.5"}  # brings commonroad-io, the drivability ch
 
 def make_venv(venv: Path = VENV) -> Path:
     """The crime venv's python, after creating it and installing commonroad-crime if missing (idempotent)."""
-    python = venv / "bin" / "python"
-    if not python.exists():
-        base = shutil.which("python3.11")
-        if base is None:
-            raise RuntimeError("python3.11 is not on PATH")
-        print(f"[crime venv] creating {venv} with {base}", flush=True)
-        subprocess.run([base, "-m", "venv", str(venv)], check=True)
-    check = "import importlib.metadata as m; print(m.version('commonroad-crime'))"
-    have = subprocess.run([str(python), "-c", check], capture_output=True, text=True).stdout.strip()
-    if have != PINS["commonroad-crime"]:
-        print(f"[crime venv] installing commonroad-crime=={PINS['commonroad-crime']}", flush=True)
-        done = subprocess.run([str(python), "-m", "pip", "install", "-q",
-                               *(f"{n}=={v}" for n, v in PINS.items())], capture_output=True, text=True)
-        if done.returncode != 0:
-            raise RuntimeError(f"pip install failed:\n{done.stdout}{done.stderr}")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
+    from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python
+
+    say = say_to("crime", False)
+    python = venv_python(venv, "commonroad-crime", say)
+    if mismatched(installed(python, list(PINS)), PINS):
+        say("installing " + " ".join(requirement(n, v) for n, v in PINS.items()))
+        pip_install(python, [requirement(n, v) for n, v in PINS.items()])
     versions = ("import importlib.metadata as m, json;"
                 "print(json.dumps({n: m.version(n) for n in ['commonroad-crime', 'commonroad-io', "
                 "'commonroad-drivability-checker', 'commonroad-clcs', 'numpy', 'shapely']}))")

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import subprocess
 import sys
 import tarfile
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
+from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "nuplan"
 DEFAULT_DEVKIT = Path("/work/.mirror/motional+nuplan-devkit/repo")
@@ -57,43 +59,6 @@ CHECK = ("import importlib.util, json, sys, importlib.metadata as m;"
          "[mod._instantiate(c, **{p: None for p in c.get('required_metrics', {})}) for _, c in configs];"
          "print(json.dumps({'devkit': str(mod.DEVKIT_ROOT), 'metrics': len(configs),"
          " 'versions': {n: m.version(n) for n in sys.argv[2:]}}))")
-
-
-def say_to(quiet: bool):
-    return (lambda *_: None) if quiet else (lambda msg: print(f"[nuplan venv] {msg}", flush=True))
-
-
-def requirement(name: str, version: str | None) -> str:
-    return name if version is None else f"{name}=={version}"
-
-
-def pip_install(python: Path, args: list[str]) -> None:
-    # pip's output is kept for a failure only: the extra local indexes make it warn for every package.
-    done = subprocess.run([str(python), "-m", "pip", "install", "-q", *args], capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"pip install {' '.join(args)} failed in {python}:\n{done.stdout}{done.stderr}")
-
-
-def installed(python: Path, names: list[str]) -> dict[str, str | None]:
-    script = ("import importlib.metadata as m, json, sys\n"
-              "out = {}\n"
-              "for n in sys.argv[1:]:\n"
-              "    try: out[n] = m.version(n)\n"
-              "    except m.PackageNotFoundError: out[n] = None\n"
-              "print(json.dumps(out))")
-    done = subprocess.run([str(python), "-c", script, *names], check=True, capture_output=True, text=True)
-    return json.loads(done.stdout)
-
-
-def base_interpreter() -> str:
-    found = shutil.which("python3.11")
-    if found is None:
-        raise RuntimeError("python3.11 is not on PATH: the nuplan oracle venv needs Python 3.11")
-    return found
-
-
-def mismatched(have: dict[str, str | None], wanted: dict[str, str | None]) -> list[str]:
-    return [n for n, v in wanted.items() if have.get(n) is None or (v is not None and have[n] != v)]
 
 
 def site_packages(python: Path) -> Path:
@@ -142,13 +107,8 @@ def devkit_source(devkit: Path, venv: Path, say) -> Path:
 
 def oracle_python(venv: Path = VENV, devkit: Path = DEFAULT_DEVKIT, quiet: bool = False) -> Path:
     """The venv's python, after creating the venv, extracting the devkit and installing what is missing or differs."""
-    say = say_to(quiet)
-    python = venv / "bin" / "python"
-    if not python.exists():
-        say(f"creating {venv} with {base_interpreter()}")
-        subprocess.run([base_interpreter(), "-m", "venv", str(venv)], check=True)
-    else:
-        say(f"{venv} exists")
+    say = say_to("nuplan", quiet)
+    python = venv_python(venv, "nuplan oracle", say)
     wrong = mismatched(installed(python, list(PINS)), PINS)
     if wrong:
         say("installing " + " ".join(requirement(n, PINS[n]) for n in wrong))

@@ -198,7 +198,6 @@ class Row:
         return [c.text for c in self.comparison.changes if c.worse is not None]
 
 
-
 def _figure_names(*payloads: dict[str, Any] | None) -> list[str]:
     names: list[str] = []
     for payload in payloads:

@@ -117,7 +117,6 @@ def compare(reference: dict[str, Any], current: dict[str, Any], against: str = "
     return Comparison(status, against, source, changes, reference_figures=dict(reference.get("figures") or {}))
 
 
-
 def _units(payload: dict[str, Any]) -> Units | None:
     data = payload.get("units")
     return Units.from_json(data) if data else None

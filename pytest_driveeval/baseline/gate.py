@@ -242,5 +242,5 @@ def prune(paths: list[Path], folder: Path) -> list[str]:
     return problems
 
 
-__all__ = ["BaselineError", "BaselineOptions", "BaselineRequired", "ItemBaseline", "Gate", "RegressionFailed", "check_item", "prune",
-           "relative_path", "unused_baselines", "update_baselines"]
+__all__ = ["BaselineError", "BaselineOptions", "BaselineRequired", "Gate", "ItemBaseline", "RegressionFailed",
+           "check_item", "prune", "relative_path", "unused_baselines", "update_baselines"]

@@ -47,7 +47,6 @@ class Delta:
         return f"{self.name}={format_figure(self.now)} ({before}{self.change})"
 
 
-
 def comparison_of(record: dict[str, Any]) -> dict[str, Any] | None:
     comparison = record.get("comparison")
     return comparison if isinstance(comparison, dict) and comparison.get("status") else None

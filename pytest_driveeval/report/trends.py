@@ -11,7 +11,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, Iterator
 
 from ..outcome import is_number
 
@@ -48,33 +48,37 @@ def read_history(history: Path, limit: int = DEFAULT_RUNS) -> list[RunFigures]:
     return known[1]
 
 
-def _read(history: Path, limit: int) -> list[RunFigures]:
+def history_entries(history: Path) -> Iterator[tuple[dict[str, Any], Path]]:
+    """(run identity, its summary.json) of each line of ``history`` (a history.jsonl), newest first.  A
+    torn or hand-edited line is skipped, and so is a summary path that leads out of the history's folder."""
     try:
-        text = history.read_text(encoding="utf-8", errors="replace")
+        lines = history.read_text(encoding="utf-8", errors="replace").splitlines() if history.is_file() else []
     except OSError:
-        return []
+        return
+    for raw in reversed(lines):
+        try:
+            entry = json.loads(raw)
+            run, where = entry["run"], PurePosixPath(entry["summary"])
+        except (ValueError, KeyError, TypeError):
+            continue
+        if isinstance(run, dict) and not where.is_absolute() and ".." not in where.parts:
+            yield run, history.parent / where
+
+
+def _read(history: Path, limit: int) -> list[RunFigures]:
     runs: list[RunFigures] = []
-    for raw in reversed(text.splitlines()):
+    for run, summary in history_entries(history):
         if len(runs) >= limit:
             break
-        found = _run_of(raw, history.parent)
+        found = _run_of(run, summary)
         if found is not None:
             runs.append(found)
     return runs[::-1]
 
 
-def _run_of(raw: str, folder: Path) -> RunFigures | None:
+def _run_of(run: dict[str, Any], path: Path) -> RunFigures | None:
     try:
-        line = json.loads(raw)
-    except ValueError:
-        return None
-    if not isinstance(line, dict) or not isinstance(line.get("run"), dict) or not isinstance(line.get("summary"), str):
-        return None
-    where = PurePosixPath(line["summary"])
-    if where.is_absolute() or ".." in where.parts:
-        return None  # the history names files of its own folder only
-    try:
-        summary = json.loads((folder / where).read_text(encoding="utf-8"))
+        summary = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     results = summary.get("results") if isinstance(summary, dict) else None
@@ -86,7 +90,6 @@ def _run_of(raw: str, folder: Path) -> RunFigures | None:
             numbers = record_figures(record)
             if numbers:
                 figures[record["nodeid"]] = numbers
-    run = line["run"]
     return RunFigures(str(run.get("id", "")), str(run.get("started", "")), figures)
 
 
@@ -97,7 +100,6 @@ def record_figures(record: dict[str, Any]) -> dict[str, float]:
     if not isinstance(figures, dict):
         figures = record.get("figures") if isinstance(record.get("figures"), dict) else {}
     return {k: float(v) for k, v in figures.items() if is_number(v)}
-
 
 
 def series(runs: list[RunFigures], nodeid: str, current: dict[str, Any], current_id: str = "") \

@@ -70,7 +70,7 @@ def test_a_missing_baseline_is_reported_and_fails_only_when_strict(cl):
     cl.makefile(".scenario.yaml", drive=short())
     result = run(cl)
     result.assert_outcomes(passed=1)
-    result.stdout.fnmatch_lines([f"driveeval baselines (baselines): 1 missing; missing ones: run with "
+    result.stdout.fnmatch_lines(["driveeval baselines (baselines): 1 missing; missing ones: run with "
                                  "--driveeval-baseline-update"])
     assert records(cl)[DRIVE]["comparison"]["message"] == NO_BASELINE
     assert not (cl.path / BASELINES).exists()  # comparing writes nothing

@@ -53,6 +53,7 @@ NOT_SMOKED = {
     "nuplan_oracle/crime_ttc.py": "imports commonroad-crime: runs inside its own venv only",
     "nuplan_oracle/nuplan_metrics.py": "imports nuplan-devkit: runs inside its venv only",
     "nuplan_oracle/oracle_venv.py": "creates nuplan-devkit's venv: pip installs, minutes",
+    "reference_venvs.py": "helpers the oracle venv scripts share: no script of its own",
 }
 
 

@@ -35,7 +35,7 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
     here: list[list[int]] = [[] for _ in range(len(points))]
     for r, c in zip(rows.tolist(), cols.tolist()):
         here[r].append(c)
-    connector, outgoing = score_map.connector, score_map.outgoing
+    outgoing = score_map.outgoing
     route: list[list[int]] = []
     previous: list[int] = []
     for k, lanes in enumerate(here):
