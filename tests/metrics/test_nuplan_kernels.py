@@ -103,14 +103,14 @@ def test_the_process_takes_the_compiled_paths_once_the_numpy_paths_cost_numbas_s
     assert kernels.wanted()
 
 
-def test_the_cells_dropped_as_out_of_reach_could_not_have_met():
+def test_the_cells_dropped_as_unable_to_meet_could_not_have_met():
     from pytest_driveeval.metrics.nuplan_score import ttc
 
     inputs = inputs_from_case(random_case(3))
     ego, agents = inputs.ego, inputs.agents
     usable = agents.available & (ego.speed > ttc.STOPPED_SPEED)[:, None]
     kept = np.zeros_like(usable)
-    kept[ttc._reachable(ego, agents, usable)] = True
+    kept[ttc._candidates(ego, agents, usable)] = True
     dropped = np.nonzero(usable & ~kept)
     assert len(dropped[0]) and kept.sum() < usable.sum()
     assert (ttc._first_meetings(ego, agents, *dropped) == -1).all()

@@ -55,16 +55,19 @@ def ego_is_comfortable(inputs: ScoreInputs) -> Term:
     if np.any(np.diff(inputs.times) <= 0):
         return Term.not_available(name, "the frames' times do not increase")
     signals = comfort_signals(inputs)
+    names = list(signals)
+    values = np.stack([signals[n] for n in names])  # (6, T): each test once over all six
+    lows, highs = np.array([[BOUNDS[n][0]] for n in names]), np.array([[BOUNDS[n][1]] for n in names])
+    lowest, highest = values.min(axis=1).tolist(), values.max(axis=1).tolist()
+    outside = ~((values > lows) & (values < highs))
     detail, failing = {}, []
-    bad = np.zeros(inputs.num_frames, dtype=bool)
-    for signal, values in signals.items():
-        lo, hi = BOUNDS[signal]
-        detail[f"{signal}_min"], detail[f"{signal}_max"] = float(values.min()), float(values.max())
-        outside = ~((values > lo) & (values < hi))
-        if outside.any():
-            k = int(np.flatnonzero(outside)[0])
-            failing.append(f"{signal} {values[k]:.2f} at frame {int(inputs.frame_numbers[k])} (bounds {lo:g}, {hi:g})")
-            bad |= outside
+    for i, signal in enumerate(names):
+        detail[f"{signal}_min"], detail[f"{signal}_max"] = lowest[i], highest[i]
+    for i in np.flatnonzero(outside.any(axis=1)).tolist():
+        k = int(np.argmax(outside[i]))
+        lo, hi = BOUNDS[names[i]]
+        failing.append(f"{names[i]} {values[i, k]:.2f} at frame {int(inputs.frame_numbers[k])} (bounds {lo:g}, {hi:g})")
+    bad = outside.any(axis=0)
     term = Term(name, 0.0 if failing else 1.0, detail=detail, series=signals)
     if failing:
         term.frames = np.flatnonzero(bad).tolist()

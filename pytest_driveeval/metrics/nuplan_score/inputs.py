@@ -42,31 +42,38 @@ class EgoStates:
     def speed(self) -> np.ndarray:
         return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
 
+    def scene(self, i: int) -> "EgoStates":
+        """Scene ``i`` of states made for several scenes at once (views of their arrays)."""
+        return EgoStates(self.center[i], self.length, self.width, self.rear_axle_to_center, self.velocity[i],
+                         self.acceleration[i], self.angular_velocity[i], self.angular_acceleration[i])
+
 
 def ego_from_poses(center_xy: np.ndarray, heading: np.ndarray, times: np.ndarray, length: float, width: float,
                    rear_axle_to_center: float | None = None) -> EgoStates:
     """Ego states from driven poses alone: the rear axle's velocity and acceleration by central
     differences over the frames' times (a simulator's controller would report them; a log replay has
-    only poses), rotated into the ego's frame."""
+    only poses), rotated into the ego's frame.  ``center_xy`` (..., T, 2) and ``heading`` (..., T):
+    leading axes (scenes driven at the same times) stay leading axes of every state
+    (:meth:`EgoStates.scene` takes one); each scene's numbers are those it gets alone."""
     d = REAR_AXLE_SHARE * length if rear_axle_to_center is None else rear_axle_to_center
     heading = np.asarray(heading, dtype=np.float64)
-    rear = center_xy - d * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    rear = center_xy - d * np.concatenate([c, s], axis=-1)
     unwrapped = np.unwrap(heading)
     if len(times) >= 2:
         # the position's and the heading's derivatives in one call each (a gradient is column by column)
-        rate = np.gradient(np.concatenate([rear, unwrapped[:, None]], axis=1), times, axis=0)
-        accel = np.gradient(rate, times, axis=0)
-        world_v, world_a = rate[:, :2], accel[:, :2]
-        yaw_rate, yaw_accel = rate[:, 2], accel[:, 2]
+        rate = np.gradient(np.concatenate([rear, unwrapped[..., None]], axis=-1), times, axis=-2)
+        accel = np.gradient(rate, times, axis=-2)
+        world_v, world_a = rate[..., :2], accel[..., :2]
+        yaw_rate, yaw_accel = rate[..., 2], accel[..., 2]
     else:
-        world_v = world_a = np.zeros((len(times), 2))
-        yaw_rate = yaw_accel = np.zeros(len(times))
-    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+        world_v = world_a = np.zeros((*heading.shape, 2))
+        yaw_rate = yaw_accel = np.zeros(heading.shape)
 
     def body(v):
-        return np.concatenate([c * v[:, :1] + s * v[:, 1:], -s * v[:, :1] + c * v[:, 1:]], axis=1)
+        return np.concatenate([c * v[..., :1] + s * v[..., 1:], -s * v[..., :1] + c * v[..., 1:]], axis=-1)
 
-    center = np.concatenate([center_xy, wrap_angle(heading)[:, None]], axis=1)
+    center = np.concatenate([center_xy, wrap_angle(heading)[..., None]], axis=-1)
     return EgoStates(center, float(length), float(width), float(d), body(world_v), body(world_a), yaw_rate, yaw_accel)
 
 

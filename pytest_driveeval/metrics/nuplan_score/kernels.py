@@ -87,26 +87,43 @@ def _compile():
                 out[p] = best
 
     @jit
-    def nearest_outlines_within(points, vertices, starts, bounds, within, out):
+    def nearest_outlines_within(points, vertices, starts, bounds, within, origin, size, nx, ny, cell_starts,
+                                cell_polygons, out):
         """out[p]: the least distance of point p to the outlines of the polygons whose bounds, widened by
-        ``within``, hold it (inf: none); the pairs lanes.ScoreMap.distance_to_drivable's numpy test admits."""
+        ``within``, hold it (inf: none); the pairs lanes.ScoreMap.distance_to_drivable's numpy test admits.
+        The candidates are those listed in the grid cells around the point's square of side 2 ``within``,
+        one cell more on each side than the square's own (rounding cannot hide a polygon), each measured
+        once however many of those cells list it."""
+        seen = np.full(bounds.shape[0], -1, dtype=np.int64)
         for p in range(points.shape[0]):
             px, py = points[p, 0], points[p, 1]
             best = np.inf
-            for n in range(bounds.shape[0]):
-                if (px >= bounds[n, 0] - within and px <= bounds[n, 2] + within and py >= bounds[n, 1] - within
-                        and py <= bounds[n, 3] + within):
-                    d = _outline_distance(px, py, vertices, starts[n], starts[n + 1])
-                    if d < best:
-                        best = d
+            i0 = max(np.floor((px - within - origin[0]) / size) - 1.0, 0.0)
+            i1 = min(np.floor((px + within - origin[0]) / size) + 1.0, nx - 1.0)
+            j0 = max(np.floor((py - within - origin[1]) / size) - 1.0, 0.0)
+            j1 = min(np.floor((py + within - origin[1]) / size) + 1.0, ny - 1.0)
+            for i in range(int(i0), int(i1) + 1):
+                for j in range(int(j0), int(j1) + 1):
+                    cell = i * int(ny) + j
+                    for k in range(cell_starts[cell], cell_starts[cell + 1]):
+                        n = cell_polygons[k]
+                        if seen[n] == p:
+                            continue
+                        seen[n] = p
+                        if (px >= bounds[n, 0] - within and px <= bounds[n, 2] + within
+                                and py >= bounds[n, 1] - within and py <= bounds[n, 3] + within):
+                            d = _outline_distance(px, py, vertices, starts[n], starts[n + 1])
+                            if d < best:
+                                best = d
             out[p] = best
 
     @jit
-    def containing_in_grid(points, xi, yi, yj, slope, starts, bounds, origin, size, nx, ny, cell_starts, cell_polygons,
-                           out):
+    def containing_in_grid(points, xi, yi, yj, slope, band_first, band_count, band_height, band_starts, band_edges,
+                           bounds, origin, size, nx, ny, cell_starts, cell_polygons, out):
         """out[p, n]: point p in polygon n (lanes._containing's crossing-number rule), testing only the
         polygons listed in the point's grid cell (every polygon whose bounds meet the cell: the bounds
-        test admits no other)."""
+        test admits no other), and of each only the edges of the point's band (lanes._bands: the others
+        cross no horizontal line through it)."""
         for p in range(points.shape[0]):
             px, py = points[p, 0], points[p, 1]
             fx, fy = np.floor((px - origin[0]) / size), np.floor((py - origin[1]) / size)
@@ -116,8 +133,13 @@ def _compile():
             for k in range(cell_starts[cell], cell_starts[cell + 1]):
                 n = cell_polygons[k]
                 if px >= bounds[n, 0] and px <= bounds[n, 2] and py >= bounds[n, 1] and py <= bounds[n, 3]:
+                    band = 0.0
+                    if band_height[n] > 0:
+                        band = min(max(np.floor((py - bounds[n, 1]) / band_height[n]), 0.0), band_count[n] - 1.0)
+                    slot = band_first[n] + int(band)
                     count = 0
-                    for e in range(starts[n], starts[n + 1]):
+                    for i in range(band_starts[slot], band_starts[slot + 1]):
+                        e = band_edges[i]
                         if ((yi[e] <= py) != (yj[e] <= py)) and px < xi[e] + (py - yi[e]) * slope[e]:
                             count += 1
                     out[p, n] = (count & 1) == 1
@@ -157,12 +179,15 @@ def _compile():
                     break
 
     @jit
-    def reachable_cells(usable, ego_xy, ego_reach, a_xy, a_velocity, a_static, a_length, a_width, horizon,
-                        margin):
-        """(frames, cols) of the ``usable`` cells whose agent the ego could meet within ``horizon`` seconds:
-        centres no further apart than the ego's ``ego_reach`` (its half diagonal and its travel), the
-        agent's half diagonal and its travel at its speed, and ``margin``.  Farther apart, their swept
-        boxes cannot overlap: every cell dropped here, :func:`first_meeting` would find no meeting for."""
+    def meeting_candidates(usable, ego_xy, ego_reach, e_cos, e_sin, e_step, e_sweep, e_length, e_width, a_xy, a_yaw,
+                           a_velocity, a_static, a_length, a_width, horizon, step, half_reach, margin, slack):
+        """(frames, cols) of the ``usable`` cells whose agent the ego could meet within ``horizon`` seconds,
+        a superset of those :func:`first_meeting` finds a meeting for, kept by two tests no meeting fails:
+        the centres no further apart than the ego's ``ego_reach`` (its half diagonal and its travel), the
+        agent's half diagonal and its travel, and ``margin`` (metres); and the boxes swept over the horizon
+        overlapping when every half extent is ``slack`` metres longer.  The agent's cosine and sine are
+        this kernel's own, not numpy's as first_meeting takes them: they may differ in the last bit, which
+        moves a box by far less than ``slack``."""
         t, a = usable.shape
         frames = np.empty(t * a, dtype=np.int64)
         cols = np.empty(t * a, dtype=np.int64)
@@ -173,12 +198,22 @@ def _compile():
                 if not usable[f, c]:
                     continue
                 # float64 of float32 cells (a log's), exactly, before any arithmetic: as ttc computes
-                dx, dy = np.float64(a_xy[f, c, 0]) - ex, np.float64(a_xy[f, c, 1]) - ey
+                ax, ay = np.float64(a_xy[f, c, 0]), np.float64(a_xy[f, c, 1])
+                dx, dy = ax - ex, ay - ey
                 vx, vy = np.float64(a_velocity[f, c, 0]), np.float64(a_velocity[f, c, 1])
                 al, aw = np.float64(a_length[f, c]), np.float64(a_width[f, c])
-                speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)  # as ttc takes it
+                speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)
                 reach = er + 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
-                if dx * dx + dy * dy <= reach * reach:
+                if dx * dx + dy * dy > reach * reach:
+                    continue
+                yaw = np.float64(a_yaw[f, c])
+                ac, as_ = math.cos(yaw), math.sin(yaw)
+                tx, ty = speed * step * ac, speed * step * as_
+                sweep = 2.0 * half_reach * math.sqrt(tx * tx + ty * ty)
+                if _overlap(ex + half_reach * e_step[f, 0], ey + half_reach * e_step[f, 1], e_cos[f], e_sin[f],
+                            0.5 * (e_length + e_sweep[f]) + slack, 0.5 * e_width + slack,
+                            ax + half_reach * tx, ay + half_reach * ty, ac, as_, 0.5 * (al + sweep) + slack,
+                            0.5 * aw + slack):
                     frames[m] = f
                     cols[m] = c
                     m += 1
@@ -249,6 +284,6 @@ def _compile():
             out[p] = cumulative[best_i] + best_t * math.sqrt(best_len2)
 
     return SimpleNamespace(outline_distances=outline_distances, first_meeting=first_meeting,
-                           project=project, reachable_cells=reachable_cells,
+                           project=project, meeting_candidates=meeting_candidates,
                            nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid,
                            follow_lanes=follow_lanes)

@@ -53,6 +53,42 @@ def _grid(bounds: np.ndarray) -> tuple:
     return origin, size, float(nx), float(ny), starts, polygon[order].astype(np.int64)
 
 
+#: edges per horizontal band of a polygon, about (a lane's outline has a few dozen edges)
+EDGES_PER_BAND = 4
+#: bands of one polygon, at most
+MOST_BANDS = 64
+
+
+def _bands(table: np.ndarray, starts: np.ndarray, bounds: np.ndarray) -> tuple:
+    """Each polygon's edges by horizontal band, for the compiled crossing test: polygon n's y range cut into
+    ``count[n]`` bands of height ``height[n]``, band b listing ``edges[band_starts[first[n] + b]:
+    band_starts[first[n] + b + 1]]``, every edge whose y range meets it.  An edge counts a crossing at y
+    only if y lies in its y range, so a point need only test its band's edges; floor and the float
+    operations before it are monotonic, so the point's band is one its crossing edges list.
+    Returns (first, count, height, band_starts, edges)."""
+    n = len(starts) - 1
+    count = np.clip(np.diff(starts) // EDGES_PER_BAND, 1, MOST_BANDS).astype(np.int64)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64) if n else np.zeros(0, np.int64)
+    height = (bounds[:, 3] - bounds[:, 1]) / count if n else np.zeros(0)
+    owner = np.repeat(np.arange(n), np.diff(starts))
+    low, high = np.minimum(table[:, 1], table[:, 2]), np.maximum(table[:, 1], table[:, 2])
+    band_of = [_band(y, bounds[owner, 1], height[owner], count[owner]) for y in (low, high)]
+    spans = band_of[1] - band_of[0] + 1
+    edge = np.repeat(np.arange(len(table)), spans)
+    band = np.repeat(band_of[0], spans) + np.arange(len(edge)) - np.repeat(np.cumsum(spans) - spans, spans)
+    slot = first[owner[edge]] + band
+    order = np.argsort(slot, kind="stable")
+    band_starts = np.searchsorted(slot[order], np.arange(int(count.sum()) + 1)).astype(np.int64)
+    return first, count, height, band_starts, edge[order].astype(np.int64)
+
+
+def _band(y: np.ndarray, y0: np.ndarray, height: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The band holding y (the kernel's expression; a polygon of no height has one band)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        band = np.where(height > 0, np.floor((y - y0) / np.where(height > 0, height, 1.0)), 0.0)
+    return np.clip(band, 0, count - 1).astype(np.int64)
+
+
 class PolygonSet:
     """Polygons as flat tables: the (xi, yi, yj, slope) columns of their non-horizontal edges
     (geometry.polygons.polygon_edges' table), polygon n's edges at ``edge_starts[n]:edge_starts[n + 1]``;
@@ -65,9 +101,9 @@ class PolygonSet:
         lengths = np.array([len(p) for p in polygons], dtype=np.int64)
         self.vertex_starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
         self.vertices = np.concatenate(polygons) if polygons else np.zeros((0, 2))
+        self.grid = _grid(self.bounds)
         if edges:
             self.edge_starts, self.xi, self.yi, self.yj, self.slope = self._edge_table(lengths)
-            self.grid = _grid(self.bounds)
 
     def _edge_table(self, lengths: np.ndarray) -> tuple[np.ndarray, ...]:
         polygons = self.polygons
@@ -75,8 +111,9 @@ class PolygonSet:
         keep = table[:, 1] != table[:, 2]
         counts = np.bincount(np.repeat(np.arange(len(polygons)), lengths)[keep], minlength=len(polygons))
         table = table[keep]
-        return (np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-                *(np.ascontiguousarray(table[:, i]) for i in range(4)))
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.bands = _bands(table, starts, self.bounds)
+        return (starts, *(np.ascontiguousarray(table[:, i]) for i in range(4)))
 
     def __len__(self) -> int:
         return len(self.polygons)
@@ -93,7 +130,7 @@ def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
         return out
     if kernels.wanted():
         kernels.kernels().containing_in_grid(np.ascontiguousarray(points, dtype=np.float64), polygons.xi, polygons.yi,
-                                             polygons.yj, polygons.slope, polygons.edge_starts, polygons.bounds,
+                                             polygons.yj, polygons.slope, *polygons.bands, polygons.bounds,
                                              *polygons.grid, out)
         return out
     bounds = polygons.bounds
@@ -161,14 +198,19 @@ class ScoreMap:
         self.speed_limits = np.asarray(self.speed_limits, dtype=np.float64)
         self.connector = np.asarray(self.connector, dtype=bool)
         self.lane_set = PolygonSet(self.polygons)
-        self.drivable_set = PolygonSet(self.drivable)
+        # A drivable polygon that is also a lane surface (ScenarioNet's maps list every lane among the drivable
+        # area) is left out of the drivable queries: they ask of points off every lane, and a nearest outline
+        # found twice is found once as well.  Half the polygons tested, the same answers.
+        surfaces = {(p.shape, p.tobytes()) for p in self.polygons}
+        extra = [p for p in self.drivable if (p.shape, p.tobytes()) not in surfaces]
+        self.drivable_set = PolygonSet(extra)
         self.intersection_set = PolygonSet(self.intersections)
         self.cumulative = [arc_lengths(b) for b in self.baselines]
         self.headings = [np.arctan2(np.diff(b[:, 1]), np.diff(b[:, 0])) for b in self.baselines]
         # Every table the queries read is made here, with the map (its loading), rather than on a first
         # query (inside the first scene's score): the lane surfaces and the drivable polygons for
         # distances to any of them (vertices only), the baselines as one flat table.
-        self.surface_set = PolygonSet(self.polygons + self.drivable, edges=False)
+        self.surface_set = PolygonSet(self.polygons + extra, edges=False)
         self.baseline_table = self._baseline_table()
         #: incoming[n]: the lanes leading into lane n, ascending
         self.incoming: list[list[int]] = [[] for _ in self.lane_ids]
@@ -192,7 +234,7 @@ class ScoreMap:
         return _containing(points, self.lane_set)
 
     def in_drivable(self, points: np.ndarray) -> np.ndarray:
-        """(P,) bool: in one of the drivable polygons besides the lanes."""
+        """(P,) bool: in one of the drivable polygons besides the lane surfaces (asked of points off every lane)."""
         return _containing(points, self.drivable_set).any(axis=1)
 
     def in_intersection(self, points: np.ndarray) -> np.ndarray:
@@ -206,7 +248,8 @@ class ScoreMap:
         if kernels.wanted():
             out = np.empty(len(points))
             kernels.kernels().nearest_outlines_within(np.ascontiguousarray(points, dtype=np.float64), surfaces.vertices,
-                                                      surfaces.vertex_starts, surfaces.bounds, float(within), out)
+                                                      surfaces.vertex_starts, surfaces.bounds, float(within),
+                                                      *surfaces.grid, out)
             return np.where(out < within, out, np.inf)
         bounds, x, y = surfaces.bounds, points[:, 0:1], points[:, 1:2]
         near = ((x >= bounds[:, 0] - within) & (x <= bounds[:, 2] + within)

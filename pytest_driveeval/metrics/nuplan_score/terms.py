@@ -62,13 +62,15 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_la
     depth = np.zeros(len(points))
     rows = np.flatnonzero(outside)
     if len(rows):
-        to_drivable = score_map.distance_to_drivable(points[rows], DRIVABLE_MARGIN)
+        # One query up to DEPTH_REPORTED serves both: a distance under the margin is the least over the
+        # polygons within the margin as well (any nearer than that lies within it).  How far out a corner
+        # is is measured up to DEPTH_REPORTED; beyond, only that it is at least that.
+        reported = score_map.distance_to_drivable(points[rows], DEPTH_REPORTED)
+        to_drivable = np.where(reported < DRIVABLE_MARGIN, reported, np.inf)
         to_route = score_map.distance_to_lanes(points[rows], [route[r // 4] for r in rows], DRIVABLE_MARGIN)
         far[rows] = ~((to_drivable < DRIVABLE_MARGIN) | (to_route < DRIVABLE_MARGIN))
-        depth[rows] = np.where(np.isfinite(to_drivable), to_drivable, 0.0)
-        out_far = rows[far[rows]]
-        # how far out is measured up to DEPTH_REPORTED; beyond, only that it is at least that
-        depth[out_far] = np.minimum(score_map.distance_to_drivable(points[out_far], DEPTH_REPORTED), DEPTH_REPORTED)
+        depth[rows] = np.where(far[rows], np.minimum(reported, DEPTH_REPORTED),
+                               np.where(np.isfinite(to_drivable), to_drivable, 0.0))
     far = far.reshape(t, 4)
     frames = np.flatnonzero(far.any(axis=1))
     term = Term(name, 0.0 if len(frames) else 1.0,

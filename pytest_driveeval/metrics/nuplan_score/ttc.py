@@ -39,7 +39,9 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     heading = ego.center[:, 2]
     # The bearing of the cells that could count only (most cells are empty or the ego stands still).
     usable = agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None]
-    frames, cols = _reachable(ego, agents, usable) if kernels.wanted() else np.nonzero(usable)
+    compiled = kernels.wanted()
+    motion = _ego_motion(ego) if compiled else None
+    frames, cols = _candidates(ego, agents, usable, motion) if compiled else np.nonzero(usable)
     to_agent = agents.xy[frames, cols] - rear[frames]
     bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
@@ -47,25 +49,40 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     keep = (angle < AHEAD) | beside
     frames, cols = frames[keep], cols[keep]
     if len(frames):
-        first = (_first_meetings_compiled if kernels.wanted() else _first_meetings)(ego, agents, frames, cols)
+        first = (_first_meetings_compiled(ego, agents, frames, cols, motion) if compiled
+                 else _first_meetings(ego, agents, frames, cols))
         hit = first >= 0
         np.minimum.at(ttc, frames[hit], STEPS[first[hit]])
     ttc[at_fault] = 0.0
     return ttc
 
 
-#: metres of slack in :func:`_reachable`'s bound, far more than its rounding
+#: metres of slack in :func:`_candidates`' distance bound, far more than its rounding
 REACH_MARGIN = 1.0
+#: metres added to each half extent in :func:`_candidates`' swept-box test: its own cosines may differ from
+#: numpy's in the last bit, which moves a box by about 1e-14 m
+SWEPT_SLACK = 1e-6
 
 
-def _reachable(ego, agents, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The usable cells (as np.nonzero gives them) less those too far apart to meet within the horizon
-    (kernels' ``reachable_cells``): most of a real scene's agents, so the bearings and the swept boxes
-    are computed for few cells."""
+def _ego_motion(ego) -> tuple[np.ndarray, ...]:
+    """Per frame: the cosine and sine of the ego's heading, its step in STEP seconds, and its travel over
+    the horizon (the numbers :func:`_first_meetings` computes per pair, taken per frame)."""
+    heading = ego.center[:, 2]
+    e_cos, e_sin = np.cos(heading), np.sin(heading)
+    e_step = ego.speed[:, None] * STEP * np.stack([e_cos, e_sin], axis=1)
+    return e_cos, e_sin, e_step, REACH * np.hypot(*e_step.T)
+
+
+def _candidates(ego, agents, usable: np.ndarray, motion: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The usable cells (as np.nonzero gives them) less those that cannot meet the ego within the horizon
+    (kernels' ``meeting_candidates``: too far apart, or swept boxes apart): all but a few percent of a real
+    scene's cells, so the bearings and the exact sweeps are computed for few."""
     ego_reach = 0.5 * np.hypot(ego.length, ego.width) + HORIZON * ego.speed
-    return kernels.kernels().reachable_cells(
-        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, agents.xy, agents.velocity, agents.static,
-        agents.length, agents.width, HORIZON, REACH_MARGIN)
+    e_cos, e_sin, e_step, e_sweep = _ego_motion(ego) if motion is None else motion
+    return kernels.kernels().meeting_candidates(
+        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, e_cos, e_sin, e_step, e_sweep, float(ego.length),
+        float(ego.width), agents.xy, agents.yaw, agents.velocity, agents.static, agents.length, agents.width, HORIZON,
+        STEP, REACH / 2, REACH_MARGIN, SWEPT_SLACK)
 
 
 def _wide(values: np.ndarray) -> np.ndarray:
@@ -106,13 +123,11 @@ def _first_meetings(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.nda
     return first
 
 
-def _first_meetings_compiled(ego, agents, frames: np.ndarray, cols: np.ndarray) -> np.ndarray:
+def _first_meetings_compiled(ego, agents, frames: np.ndarray, cols: np.ndarray, motion: tuple | None = None
+                             ) -> np.ndarray:
     """:func:`_first_meetings` in one kernel: the cosines, sines and hypotenuses from numpy, computed as
     there (the ego's per frame, then taken per pair: the same numbers), the rest in the kernel."""
-    heading = ego.center[:, 2]
-    e_cos, e_sin = np.cos(heading), np.sin(heading)
-    e_step = ego.speed[:, None] * STEP * np.stack([e_cos, e_sin], axis=1)
-    e_sweep = REACH * np.hypot(*e_step.T)
+    e_cos, e_sin, e_step, e_sweep = _ego_motion(ego) if motion is None else motion
     a_xy = _wide(agents.xy[frames, cols])
     a_yaw = _wide(agents.yaw[frames, cols])
     a_cos, a_sin = np.cos(a_yaw), np.sin(a_yaw)

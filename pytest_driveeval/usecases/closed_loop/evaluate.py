@@ -39,6 +39,8 @@ class Unroll:
     #: scene id -> the score's map (metrics.nuplan_score.ScoreMap) of the scenes whose dataset has one:
     #: anything with ``get(scene)`` (usecases.closed_loop.score.SceneMaps makes them when asked)
     maps: Any = field(default_factory=dict)
+    #: row -> the score's ego states (metrics.nuplan_score.EgoStates), made for every row when first scored
+    ego_states: Any = field(default=None, repr=False)
 
     @property
     def scene_ids(self) -> list[int]:

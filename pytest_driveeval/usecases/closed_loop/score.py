@@ -83,6 +83,30 @@ class SceneMaps:
         return made[scene]
 
 
+def _ego_states(unroll: Any) -> dict[int, Any]:
+    """The ego states of every scene of the unroll whose frames are the first n, by row: made once for all
+    of them, a call per frame count rather than per scene, when the unroll is first scored, and kept with
+    it (an object that cannot keep them makes them again)."""
+    made = getattr(unroll, "ego_states", None)
+    if made is not None:
+        return made
+    from pytest_driveeval.sim.logreplay import EGO_EXTENT
+
+    r = unroll.result
+    counts = r.valid.sum(axis=1)
+    lead = np.where(r.valid.all(axis=1), r.valid.shape[1], np.argmin(r.valid, axis=1))  # valid frames before the first invalid
+    prefix = (lead == counts) & (counts > 0)
+    made = {}
+    for n in np.unique(counts[prefix]).tolist():
+        rows = np.flatnonzero(prefix & (counts == n))
+        states = ego_from_poses(r.driven_xy[rows, :n], r.driven_yaw[rows, :n], np.arange(n) * unroll.step_time,
+                                EGO_EXTENT[0], EGO_EXTENT[1])
+        made.update({int(row): states.scene(i) for i, row in enumerate(rows)})
+    if hasattr(unroll, "ego_states"):
+        unroll.ego_states = made
+    return made
+
+
 def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInputs | None:
     """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled)."""
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
@@ -95,9 +119,11 @@ def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInpu
     # views of the unroll's rather than copies; a mask where they are not.
     keep = slice(0, len(frames)) if frames[-1] == len(frames) - 1 else r.valid[row]
     times = frames * unroll.step_time
-    ego = ego_from_poses(r.driven_xy[row][keep], r.driven_yaw[row][keep], times, EGO_EXTENT[0], EGO_EXTENT[1])
+    ego = _ego_states(unroll).get(row)
+    if ego is None:
+        ego = ego_from_poses(r.driven_xy[row][keep], r.driven_yaw[row][keep], times, EGO_EXTENT[0], EGO_EXTENT[1])
     expert = np.concatenate([r.logged_xy[row][keep], r.logged_yaw[row][keep][:, None]], axis=1)
-    groups = _label_groups()[log.label[row][keep]]
+    groups = np.take(_label_groups(), log.label[row][keep])  # take: a third of indexing's time on (T, A)
     tokens = log.track_id[row][keep]
     available = log.available[row][keep]
     # The log's own arrays, as views (float32 among them: the score widens what it reads)
