@@ -108,9 +108,10 @@ def test_the_cells_dropped_as_unable_to_meet_could_not_have_met():
 
     inputs = inputs_from_case(random_case(3))
     ego, agents = inputs.ego, inputs.agents
-    usable = agents.available & (ego.speed > ttc.STOPPED_SPEED)[:, None]
+    moving = ego.speed > ttc.STOPPED_SPEED
+    usable = agents.available & moving[:, None]
     kept = np.zeros_like(usable)
-    kept[ttc._candidates(ego, agents, usable)] = True
+    kept[ttc._candidates(ego, agents, moving, [])] = True
     dropped = np.nonzero(usable & ~kept)
     assert len(dropped[0]) and kept.sum() < usable.sum()
     assert (ttc._first_meetings(ego, agents, *dropped) == -1).all()

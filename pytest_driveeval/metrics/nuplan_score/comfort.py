@@ -19,33 +19,42 @@ MIN_FRAMES = 4
 
 
 def _smooth(signal: np.ndarray) -> np.ndarray:
-    return np.round(savgol(signal, min(8, len(signal)), 2), 8)
+    return np.round(savgol(signal, min(8, signal.shape[-1]), 2), 8)
 
 
 def _derivative(signal: np.ndarray, spacing: float, window: int, order: int, deriv: int) -> np.ndarray:
-    return np.round(savgol(signal, min(window, len(signal)), order, deriv, spacing), 8)
+    return np.round(savgol(signal, min(window, signal.shape[-1]), order, deriv, spacing), 8)
 
 
 def unwrap_phase(headings: np.ndarray) -> np.ndarray:
-    """nuplan-devkit's unwrapping: whole turns removed by the rounded step over 2 pi."""
+    """nuplan-devkit's unwrapping: whole turns removed by the rounded step over 2 pi (along the last axis)."""
     turns = np.zeros_like(headings)
-    turns[1:] = np.cumsum(np.round(np.diff(headings) / (2 * np.pi)))
+    turns[..., 1:] = np.cumsum(np.round(np.diff(headings, axis=-1) / (2 * np.pi)), axis=-1)
     return headings - 2 * np.pi * turns
 
 
-def comfort_signals(inputs: ScoreInputs) -> dict[str, np.ndarray]:
-    ego, times = inputs.ego, inputs.times
+def signals_of(ego, times: np.ndarray) -> dict[str, np.ndarray]:
+    """The six signals of ego states (metrics.nuplan_score.EgoStates) at ``times`` (T,), states of one scene
+    or of several made at once ((S, T) signals, each scene's row its numbers alone)."""
     # nuplan-devkit's centre acceleration: the rear axle's plus d (w^2 + dw/dt) on the x component only
-    lon = ego.acceleration[:, 0] + ego.rear_axle_to_center * (ego.angular_velocity ** 2 + ego.angular_acceleration)
+    accel = ego.acceleration
+    lon = accel[..., 0] + ego.rear_axle_to_center * (ego.angular_velocity ** 2 + ego.angular_acceleration)
     lon_smooth = _smooth(lon)
-    heading = unwrap_phase(ego.center[:, 2])
+    heading = unwrap_phase(ego.center[..., 2])
     spacing = float(np.mean(np.diff(times)))
     return {"ego_lon_acceleration": lon_smooth,
-            "ego_lat_acceleration": _smooth(ego.acceleration[:, 1]),
+            "ego_lat_acceleration": _smooth(accel[..., 1]),
             "ego_lon_jerk": _derivative(lon_smooth, spacing, 15, 2, 1),
-            "ego_jerk": _derivative(_smooth(np.hypot(ego.acceleration[:, 0], ego.acceleration[:, 1])), spacing, 15, 2, 1),
+            "ego_jerk": _derivative(_smooth(np.hypot(accel[..., 0], accel[..., 1])), spacing, 15, 2, 1),
             "ego_yaw_rate": _derivative(heading, spacing, 5, 2, 1),
             "ego_yaw_acceleration": _derivative(heading, spacing, 5, 3, 2)}
+
+
+def comfort_signals(inputs: ScoreInputs) -> dict[str, np.ndarray]:
+    """The scene's six signals, as made with its ego states where they were made for several scenes."""
+    if inputs.ego.comfort is not None:
+        return inputs.ego.comfort
+    return signals_of(inputs.ego, inputs.times)
 
 
 def ego_is_comfortable(inputs: ScoreInputs) -> Term:

@@ -30,22 +30,38 @@ class EgoStates:
     acceleration: np.ndarray
     angular_velocity: np.ndarray
     angular_acceleration: np.ndarray
+    #: the comfort signals (comfort.signals_of), where made with the states for several scenes at once
+    comfort: dict | None = None
 
-    # Computed once a scene (several terms read them); the states are not changed once built.
+    # Computed once a scene (several terms read them); the states are not changed once built.  States made
+    # for several scenes at once compute them for all, and each scene's share takes its rows.
     @cached_property
     def rear_axle(self) -> np.ndarray:
-        h = self.center[:, 2]
-        back = self.rear_axle_to_center * np.stack([np.cos(h), np.sin(h)], axis=1)
-        return self.center[:, :2] - back
+        h = self.center[..., 2]
+        back = self.rear_axle_to_center * np.stack([np.cos(h), np.sin(h)], axis=-1)
+        return self.center[..., :2] - back
 
     @cached_property
     def speed(self) -> np.ndarray:
-        return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+        return np.hypot(self.velocity[..., 0], self.velocity[..., 1])
+
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """(T, 4, 2) corners FL, FR, RR, RL of the ego's box."""
+        from pytest_driveeval.geometry.boxes import box_corners
+
+        return box_corners(self.center[..., :2], self.center[..., 2], np.array([self.length, self.width]))
 
     def scene(self, i: int) -> "EgoStates":
-        """Scene ``i`` of states made for several scenes at once (views of their arrays)."""
-        return EgoStates(self.center[i], self.length, self.width, self.rear_axle_to_center, self.velocity[i],
-                         self.acceleration[i], self.angular_velocity[i], self.angular_acceleration[i])
+        """Scene ``i`` of states made for several scenes at once (views of their arrays, and of what was
+        computed from them for all)."""
+        one = EgoStates(self.center[i], self.length, self.width, self.rear_axle_to_center, self.velocity[i],
+                        self.acceleration[i], self.angular_velocity[i], self.angular_acceleration[i],
+                        None if self.comfort is None else {k: v[i] for k, v in self.comfort.items()})
+        for name in ("rear_axle", "speed", "corners"):
+            if name in self.__dict__:
+                one.__dict__[name] = self.__dict__[name][i]
+        return one
 
 
 def ego_from_poses(center_xy: np.ndarray, heading: np.ndarray, times: np.ndarray, length: float, width: float,

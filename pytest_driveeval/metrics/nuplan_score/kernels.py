@@ -179,41 +179,53 @@ def _compile():
                     break
 
     @jit
-    def meeting_candidates(usable, ego_xy, ego_reach, e_cos, e_sin, e_step, e_sweep, e_length, e_width, a_xy, a_yaw,
-                           a_velocity, a_static, a_length, a_width, horizon, step, half_reach, margin, slack):
-        """(frames, cols) of the ``usable`` cells whose agent the ego could meet within ``horizon`` seconds,
-        a superset of those :func:`first_meeting` finds a meeting for, kept by two tests no meeting fails:
-        the centres no further apart than the ego's ``ego_reach`` (its half diagonal and its travel), the
-        agent's half diagonal and its travel, and ``margin`` (metres); and the boxes swept over the horizon
-        overlapping when every half extent is ``slack`` metres longer.  The agent's cosine and sine are
-        this kernel's own, not numpy's as first_meeting takes them: they may differ in the last bit, which
-        moves a box by far less than ``slack``."""
-        t, a = usable.shape
+    def meeting_candidates(available, moving, token, hit_frame, hit_token, ego_xy, e_cos, e_sin, e_step, e_sweep,
+                           e_length, e_width, a_xy, a_yaw, a_velocity, a_static, a_length, a_width, horizon, step,
+                           half_reach, margin, slack):
+        """(frames, cols) of the cells the ego could meet within ``horizon`` seconds: available, the ego
+        ``moving`` at that frame, the agent not hit before (``hit_token[j]`` from frame ``hit_frame[j]`` on),
+        and a superset of those :func:`first_meeting` finds a meeting for, kept by two tests no meeting
+        fails.  First, the ego's box swept over the horizon (each half extent ``slack`` metres longer)
+        comes within the agent's reach of its centre: its half diagonal, its travel and ``margin``
+        metres, a circle holding its own swept box.  Then the two swept boxes overlap, ``slack`` longer,
+        with this kernel's cosine and sine of the agent's heading, not numpy's as first_meeting takes
+        them: they may differ in the last bit, which moves a box by far less than ``slack``."""
+        t, a = available.shape
         frames = np.empty(t * a, dtype=np.int64)
         cols = np.empty(t * a, dtype=np.int64)
         m = 0
         for f in range(t):
-            ex, ey, er = ego_xy[f, 0], ego_xy[f, 1], ego_reach[f]
+            if not moving[f]:
+                continue
+            ec, es = e_cos[f], e_sin[f]
+            bx, by = ego_xy[f, 0] + half_reach * e_step[f, 0], ego_xy[f, 1] + half_reach * e_step[f, 1]
+            hl, hw = 0.5 * (e_length + e_sweep[f]) + slack, 0.5 * e_width + slack
             for c in range(a):
-                if not usable[f, c]:
+                if not available[f, c]:
+                    continue
+                hit = False
+                for j in range(hit_frame.shape[0]):
+                    if f >= hit_frame[j] and token[f, c] == hit_token[j]:
+                        hit = True
+                if hit:
                     continue
                 # float64 of float32 cells (a log's), exactly, before any arithmetic: as ttc computes
                 ax, ay = np.float64(a_xy[f, c, 0]), np.float64(a_xy[f, c, 1])
-                dx, dy = ax - ex, ay - ey
                 vx, vy = np.float64(a_velocity[f, c, 0]), np.float64(a_velocity[f, c, 1])
                 al, aw = np.float64(a_length[f, c]), np.float64(a_width[f, c])
                 speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)
-                reach = er + 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
-                if dx * dx + dy * dy > reach * reach:
+                radius = 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
+                dx, dy = ax - bx, ay - by
+                along = max(abs(dx * ec + dy * es) - hl, 0.0)
+                across = max(abs(dy * ec - dx * es) - hw, 0.0)
+                if along * along + across * across > radius * radius:
                     continue
                 yaw = np.float64(a_yaw[f, c])
                 ac, as_ = math.cos(yaw), math.sin(yaw)
                 tx, ty = speed * step * ac, speed * step * as_
                 sweep = 2.0 * half_reach * math.sqrt(tx * tx + ty * ty)
-                if _overlap(ex + half_reach * e_step[f, 0], ey + half_reach * e_step[f, 1], e_cos[f], e_sin[f],
-                            0.5 * (e_length + e_sweep[f]) + slack, 0.5 * e_width + slack,
-                            ax + half_reach * tx, ay + half_reach * ty, ac, as_, 0.5 * (al + sweep) + slack,
-                            0.5 * aw + slack):
+                if _overlap(bx, by, ec, es, hl, hw, ax + half_reach * tx, ay + half_reach * ty, ac, as_,
+                            0.5 * (al + sweep) + slack, 0.5 * aw + slack):
                     frames[m] = f
                     cols[m] = c
                     m += 1

@@ -36,18 +36,24 @@ def _weights(window: int, polyorder: int, deriv: int, delta: float) -> tuple[np.
 
 
 def savgol(signal: np.ndarray, window: int, polyorder: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """``signal`` (..., n) filtered along its last axis.  Each row's numbers are those it gets alone: every
+    sum runs over one row's window in one order, whatever the rows beside it (several scenes' signals
+    are filtered in one call)."""
     x = np.ascontiguousarray(signal, dtype=np.float64)
-    n = len(x)
+    n = x.shape[-1]
     if not polyorder < window <= n:
         raise ValueError(f"a Savitzky-Golay filter needs polyorder < window <= samples, got {polyorder}, {window}, {n}")
     inner, edge = _weights(window, polyorder, deriv, float(delta))
     half = window // 2
     first = half - 1 if window % 2 == 0 else half  # the window of sample i starts at i - first
-    out = np.empty(n)
-    # Sample i's window as row i of a view over x (sliding_window_view's, built directly: it costs several
-    # times the product here); numpy multiplies such a view row by row, in order, as it did before.
-    windows = np.ndarray((n - window + 1, window), dtype=np.float64, buffer=x, strides=(x.itemsize, x.itemsize))
-    out[first:first + n - window + 1] = windows @ inner
-    out[:half] = edge[:half] @ x[:window]
-    out[n - half:] = edge[window - half:] @ x[n - window:]
+    out = np.empty(x.shape)
+    # Sample i's window as row i of a view over each signal (sliding_window_view's, built directly: it costs
+    # several times the product here).  Such a view is no BLAS operand: numpy sums each window in order.
+    rows = x.reshape(-1, n)
+    windows = np.ndarray((len(rows), n - window + 1, window), dtype=np.float64, buffer=rows,
+                         strides=(rows.strides[0], x.itemsize, x.itemsize))
+    out.reshape(-1, n)[:, first:first + n - window + 1] = windows @ inner
+    # The end windows' samples: each a sum over its window's products (a reduction along the last axis)
+    out[..., :half] = (edge[:half] * x[..., None, :window]).sum(axis=-1)
+    out[..., n - half:] = (edge[window - half:] * x[..., None, n - window:]).sum(axis=-1)
     return out

@@ -61,11 +61,12 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
     expert_on_lane = None
     if inputs.map is not None:
         score_map = inputs.map
-        # one lookup for the centres, the corners and the expert: each polygon is tested once
-        holding = score_map.lanes_at(np.concatenate([inputs.ego.center[:, :2], corners.reshape(-1, 2),
-                                                     inputs.expert[:, :2]]))
+        # one lookup for the centres and the corners; the expert's first pose nearly always settles whether
+        # it drives on a lane, and its others are looked up only where it does not
+        holding = score_map.lanes_at(np.concatenate([inputs.ego.center[:, :2], corners.reshape(-1, 2)]))
         centre_lanes, corner_lanes = holding[:t], holding[t:5 * t]
-        expert_on_lane = bool(holding[5 * t:].any())
+        expert_on_lane = bool(score_map.lanes_at(inputs.expert[:1, :2]).any()
+                              or score_map.lanes_at(inputs.expert[1:, :2]).any())
         route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
         in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)

@@ -42,10 +42,7 @@ def no_ego_at_fault_collisions(inputs: ScoreInputs) -> Term:
 
 def ego_corners(inputs: ScoreInputs) -> np.ndarray:
     """(T, 4, 2) corners FL, FR, RR, RL of the ego's box."""
-    from pytest_driveeval.geometry.boxes import box_corners
-
-    ego = inputs.ego
-    return box_corners(ego.center[:, :2], ego.center[:, 2], np.array([ego.length, ego.width]))
+    return inputs.ego.corners
 
 
 def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_lanes: np.ndarray,

@@ -31,17 +31,20 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     if agents.token.shape[1] == 0:
         ttc[at_fault] = 0.0
         return ttc
-    # Agents already hit (at fault or not) are out of the projection from their first contact on.
-    collided = np.zeros(agents.token.shape, dtype=bool)
-    for c in inputs.collisions:
-        collided[c.frame:] |= agents.token[c.frame:] == c.token
     rear = ego.rear_axle
     heading = ego.center[:, 2]
-    # The bearing of the cells that could count only (most cells are empty or the ego stands still).
-    usable = agents.available & ~collided & (ego.speed > STOPPED_SPEED)[:, None]
+    moving = ego.speed > STOPPED_SPEED
     compiled = kernels.wanted()
     motion = _ego_motion(ego) if compiled else None
-    frames, cols = _candidates(ego, agents, usable, motion) if compiled else np.nonzero(usable)
+    # The bearing of the cells that could count only (most cells are empty, the ego stands still, or the
+    # agent is far); agents already hit (at fault or not) are out of the projection from their first contact on.
+    if compiled:
+        frames, cols = _candidates(ego, agents, moving, inputs.collisions, motion)
+    else:
+        collided = np.zeros(agents.token.shape, dtype=bool)
+        for c in inputs.collisions:
+            collided[c.frame:] |= agents.token[c.frame:] == c.token
+        frames, cols = np.nonzero(agents.available & ~collided & moving[:, None])
     to_agent = agents.xy[frames, cols] - rear[frames]
     bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
@@ -57,7 +60,7 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     return ttc
 
 
-#: metres of slack in :func:`_candidates`' distance bound, far more than its rounding
+#: metres added to an agent's reach in :func:`_candidates`' first test, far more than its rounding
 REACH_MARGIN = 1.0
 #: metres added to each half extent in :func:`_candidates`' swept-box test: its own cosines may differ from
 #: numpy's in the last bit, which moves a box by about 1e-14 m
@@ -73,16 +76,18 @@ def _ego_motion(ego) -> tuple[np.ndarray, ...]:
     return e_cos, e_sin, e_step, REACH * np.hypot(*e_step.T)
 
 
-def _candidates(ego, agents, usable: np.ndarray, motion: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The usable cells (as np.nonzero gives them) less those that cannot meet the ego within the horizon
-    (kernels' ``meeting_candidates``: too far apart, or swept boxes apart): all but a few percent of a real
-    scene's cells, so the bearings and the exact sweeps are computed for few."""
-    ego_reach = 0.5 * np.hypot(ego.length, ego.width) + HORIZON * ego.speed
+def _candidates(ego, agents, moving: np.ndarray, collisions: list, motion: tuple | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The cells of available agents not yet hit, at frames where the ego moves (as np.nonzero gives them),
+    less those that cannot meet the ego within the horizon (kernels' ``meeting_candidates``): all but a
+    few percent of a real scene's, so the bearings and the exact sweeps are computed for few."""
     e_cos, e_sin, e_step, e_sweep = _ego_motion(ego) if motion is None else motion
+    hit_frame = np.array([c.frame for c in collisions], dtype=np.int64)
+    hit_token = np.array([c.token for c in collisions], dtype=np.int64)
     return kernels.kernels().meeting_candidates(
-        usable, np.ascontiguousarray(ego.center[:, :2]), ego_reach, e_cos, e_sin, e_step, e_sweep, float(ego.length),
-        float(ego.width), agents.xy, agents.yaw, agents.velocity, agents.static, agents.length, agents.width, HORIZON,
-        STEP, REACH / 2, REACH_MARGIN, SWEPT_SLACK)
+        agents.available, moving, agents.token, hit_frame, hit_token, np.ascontiguousarray(ego.center[:, :2]), e_cos,
+        e_sin, e_step, e_sweep, float(ego.length), float(ego.width), agents.xy, agents.yaw, agents.velocity,
+        agents.static, agents.length, agents.width, HORIZON, STEP, REACH / 2, REACH_MARGIN, SWEPT_SLACK)
 
 
 def _wide(values: np.ndarray) -> np.ndarray:

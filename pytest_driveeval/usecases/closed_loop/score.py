@@ -84,12 +84,13 @@ class SceneMaps:
 
 
 def _ego_states(unroll: Any) -> dict[int, Any]:
-    """The ego states of every scene of the unroll whose frames are the first n, by row: made once for all
-    of them, a call per frame count rather than per scene, when the unroll is first scored, and kept with
-    it (an object that cannot keep them makes them again)."""
+    """The ego states of every scene of the unroll whose frames are the first n, by row, with their comfort
+    signals: made once for all of them, a call per frame count rather than per scene, when the unroll is
+    first scored, and kept with it (an object that cannot keep them makes them again)."""
     made = getattr(unroll, "ego_states", None)
     if made is not None:
         return made
+    from pytest_driveeval.metrics.nuplan_score.comfort import MIN_FRAMES, signals_of
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
     r = unroll.result
@@ -99,8 +100,11 @@ def _ego_states(unroll: Any) -> dict[int, Any]:
     made = {}
     for n in np.unique(counts[prefix]).tolist():
         rows = np.flatnonzero(prefix & (counts == n))
-        states = ego_from_poses(r.driven_xy[rows, :n], r.driven_yaw[rows, :n], np.arange(n) * unroll.step_time,
-                                EGO_EXTENT[0], EGO_EXTENT[1])
+        times = np.arange(n) * unroll.step_time
+        states = ego_from_poses(r.driven_xy[rows, :n], r.driven_yaw[rows, :n], times, EGO_EXTENT[0], EGO_EXTENT[1])
+        if n >= MIN_FRAMES:
+            states.comfort = signals_of(states, times)
+        states.rear_axle, states.speed, states.corners  # computed for all the rows at once (cached)
         made.update({int(row): states.scene(i) for i, row in enumerate(rows)})
     if hasattr(unroll, "ego_states"):
         unroll.ego_states = made
