@@ -36,9 +36,14 @@ class EgoStates:
     # Computed once a scene (several terms read them); the states are not changed once built.  States made
     # for several scenes at once compute them for all, and each scene's share takes its rows.
     @cached_property
-    def rear_axle(self) -> np.ndarray:
+    def heading_unit(self) -> np.ndarray:
+        """(2, T) the cosine and the sine of the box's heading."""
         h = self.center[..., 2]
-        back = self.rear_axle_to_center * np.stack([np.cos(h), np.sin(h)], axis=-1)
+        return np.stack([np.cos(h), np.sin(h)])
+
+    @cached_property
+    def rear_axle(self) -> np.ndarray:
+        back = self.rear_axle_to_center * np.moveaxis(self.heading_unit, 0, -1)
         return self.center[..., :2] - back
 
     @cached_property
@@ -61,6 +66,8 @@ class EgoStates:
         for name in ("rear_axle", "speed", "corners"):
             if name in self.__dict__:
                 one.__dict__[name] = self.__dict__[name][i]
+        if "heading_unit" in self.__dict__:
+            one.__dict__["heading_unit"] = self.heading_unit[:, i]
         return one
 
 
@@ -155,6 +162,11 @@ class ScoreInputs:
     @property
     def num_frames(self) -> int:
         return len(self.times)
+
+    @cached_property
+    def spacing(self) -> float:
+        """The frames' mean time step, s (NaN with one frame)."""
+        return float(np.mean(np.diff(self.times))) if len(self.times) > 1 else float("nan")
 
 
 def first_collisions(frames: np.ndarray, tokens: np.ndarray, at_fault: np.ndarray, groups: dict[int, str]

@@ -186,8 +186,9 @@ def _compile():
         ``moving`` at that frame, the agent not hit before (``hit_token[j]`` from frame ``hit_frame[j]`` on),
         and a superset of those :func:`first_meeting` finds a meeting for, kept by two tests no meeting
         fails.  First, the ego's box swept over the horizon (each half extent ``slack`` metres longer)
-        comes within the agent's reach of its centre: its half diagonal, its travel and ``margin``
-        metres, a circle holding its own swept box.  Then the two swept boxes overlap, ``slack`` longer,
+        comes within the agent's reach of its centre: half its length plus width (at least its half
+        diagonal), its travel at |vx| + |vy| (at least its speed) and ``margin`` metres, a circle holding
+        its own swept box.  Then the two swept boxes overlap, ``slack`` longer,
         with this kernel's cosine and sine of the agent's heading, not numpy's as first_meeting takes
         them: they may differ in the last bit, which moves a box by far less than ``slack``."""
         t, a = available.shape
@@ -213,13 +214,14 @@ def _compile():
                 ax, ay = np.float64(a_xy[f, c, 0]), np.float64(a_xy[f, c, 1])
                 vx, vy = np.float64(a_velocity[f, c, 0]), np.float64(a_velocity[f, c, 1])
                 al, aw = np.float64(a_length[f, c]), np.float64(a_width[f, c])
-                speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)
-                radius = 0.5 * math.sqrt(al * al + aw * aw) + horizon * speed + margin
+                # bounds of the half diagonal and the speed without a square root: most cells end here
+                radius = 0.5 * (al + aw) + (0.0 if a_static[f, c] else horizon * (abs(vx) + abs(vy))) + margin
                 dx, dy = ax - bx, ay - by
                 along = max(abs(dx * ec + dy * es) - hl, 0.0)
                 across = max(abs(dy * ec - dx * es) - hw, 0.0)
                 if along * along + across * across > radius * radius:
                     continue
+                speed = 0.0 if a_static[f, c] else math.sqrt(vx * vx + vy * vy)
                 yaw = np.float64(a_yaw[f, c])
                 ac, as_ = math.cos(yaw), math.sin(yaw)
                 tx, ty = speed * step * ac, speed * step * as_
@@ -276,26 +278,52 @@ def _compile():
         return k, m
 
     @jit
+    def _along(px, py, vertices, s, e, cumulative):
+        """Arc length along the line vertices[s:e] (arc lengths at its vertices cumulative[s:e]) of the
+        point's nearest point on it (lanes.project's expressions)."""
+        best, best_t, best_len2, best_i = np.inf, 0.0, 1.0, s
+        for i in range(s, e - 1):
+            ax, ay = vertices[i, 0], vertices[i, 1]
+            abx, aby = vertices[i + 1, 0] - ax, vertices[i + 1, 1] - ay
+            length2 = max(abx * abx + aby * aby, 1e-18)
+            apx, apy = px - ax, py - ay
+            t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
+            gx, gy = apx - t * abx, apy - t * aby
+            d2 = gx * gx + gy * gy
+            if d2 < best:  # the first of equally near segments, as numpy's argmin
+                best, best_t, best_len2, best_i = d2, t, length2, i
+        return cumulative[best_i] + best_t * math.sqrt(best_len2)
+
+    @jit
     def project(points, line_of, vertices, starts, cumulative, out):
         """out[p]: arc length along line line_of[p] (vertices[starts[n]:starts[n + 1]], arc lengths at its
         vertices cumulative[same]) of point p's nearest point on it (lanes.project)."""
         for p in range(points.shape[0]):
             n = line_of[p]
-            px, py = points[p, 0], points[p, 1]
-            best, best_t, best_len2, best_i = np.inf, 0.0, 1.0, starts[n]
-            for i in range(starts[n], starts[n + 1] - 1):
-                ax, ay = vertices[i, 0], vertices[i, 1]
-                abx, aby = vertices[i + 1, 0] - ax, vertices[i + 1, 1] - ay
-                length2 = max(abx * abx + aby * aby, 1e-18)
-                apx, apy = px - ax, py - ay
-                t = min(max((apx * abx + apy * aby) / length2, 0.0), 1.0)
-                gx, gy = apx - t * abx, apy - t * aby
-                d2 = gx * gx + gy * gy
-                if d2 < best:  # the first of equally near segments, as numpy's argmin
-                    best, best_t, best_len2, best_i = d2, t, length2, i
-            out[p] = cumulative[best_i] + best_t * math.sqrt(best_len2)
+            out[p] = _along(points[p, 0], points[p, 1], vertices, starts[n], starts[n + 1], cumulative)
+
+    @jit
+    def directions(points, line_of, vertices, starts, cumulative, headings, out):
+        """out[p]: the heading of line line_of[p]'s segment at point p's projection (lanes.ScoreMap.directions:
+        the last segment starting at or before it); line n's segment headings are headings[starts[n] - n:
+        starts[n + 1] - n - 1]."""
+        for p in range(points.shape[0]):
+            n = line_of[p]
+            s, e = starts[n], starts[n + 1]
+            if e - s < 2:  # no segment, no heading
+                out[p] = np.nan
+                continue
+            along = _along(points[p, 0], points[p, 1], vertices, s, e, cumulative)
+            segment = -1
+            for i in range(s, e):  # searchsorted(side="right") - 1: the vertices at or before it, less one
+                if cumulative[i] <= along:
+                    segment += 1
+                else:
+                    break
+            segment = min(max(segment, 0), e - s - 2)
+            out[p] = headings[s - n + segment]
 
     return SimpleNamespace(outline_distances=outline_distances, first_meeting=first_meeting,
-                           project=project, meeting_candidates=meeting_candidates,
+                           project=project, directions=directions, meeting_candidates=meeting_candidates,
                            nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid,
                            follow_lanes=follow_lanes)

@@ -164,6 +164,12 @@ def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.n
 
 def project(points: np.ndarray, line: np.ndarray, cumulative: np.ndarray) -> np.ndarray:
     """(P,) arc length along ``line`` of each point's nearest point on it (shapely's ``project``)."""
+    if kernels.wanted():
+        out = np.empty(len(points))
+        kernels.kernels().project(np.ascontiguousarray(points, dtype=np.float64), np.zeros(len(points), np.int64),
+                                  np.ascontiguousarray(line, dtype=np.float64), np.array([0, len(line)], np.int64),
+                                  np.ascontiguousarray(cumulative, dtype=np.float64), out)
+        return out
     a, ab = line[:-1], np.diff(line, axis=0)
     length2 = np.maximum((ab ** 2).sum(1), 1e-18)
     ap = points[:, None, :] - a[None]
@@ -212,6 +218,7 @@ class ScoreMap:
         # distances to any of them (vertices only), the baselines as one flat table.
         self.surface_set = PolygonSet(self.polygons + extra, edges=False)
         self.baseline_table = self._baseline_table()
+        self.heading_table = np.concatenate(self.headings) if self.headings else np.zeros(0)
         #: incoming[n]: the lanes leading into lane n, ascending
         self.incoming: list[list[int]] = [[] for _ in self.lane_ids]
         for m, ahead in enumerate(self.outgoing):
@@ -289,8 +296,12 @@ class ScoreMap:
     def directions(self, points: np.ndarray, lane_of: np.ndarray) -> np.ndarray:
         """(P,) heading of lane ``lane_of[p]``'s baseline at point p's projection."""
         lane_of = np.asarray(lane_of, dtype=np.int64)
-        s = self.along(points, lane_of)
         out = np.zeros(len(points))
+        if kernels.wanted() and len(points):
+            kernels.kernels().directions(np.ascontiguousarray(points, dtype=np.float64), lane_of, *self.baseline_table,
+                                         self.heading_table, out)
+            return out
+        s = self.along(points, lane_of)
         for lane in np.unique(lane_of):
             rows = np.flatnonzero(lane_of == lane)
             segment = np.clip(np.searchsorted(self.cumulative[lane], s[rows], side="right") - 1, 0,

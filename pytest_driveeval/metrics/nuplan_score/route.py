@@ -49,6 +49,21 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
     return route
 
 
+class Route(list):
+    """Per frame, the lanes assigned (a list of lists), with ``first``: (T,) each frame's first lane, -1 off
+    every lane, where the maker has it at hand."""
+
+    first: np.ndarray | None = None
+
+
+def first_lanes(route: list[list[int]]) -> np.ndarray:
+    """(T,) each frame's first lane (the one the terms use), -1 where off every lane."""
+    first = getattr(route, "first", None)
+    if first is not None:
+        return first
+    return np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
+
+
 def _look_again(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
     plain = [n for n in lanes if not score_map.connector[n]]
     if plain:
@@ -62,7 +77,8 @@ def _centre_route_compiled(score_map: ScoreMap, points: np.ndarray, headings: np
     again among several lanes, which :func:`_look_again` decides here as there."""
     t = len(points)
     out_starts, out_lanes = score_map.outgoing_table
-    widest = max(1, int(holding.sum(axis=1).max()) if t else 1, int(np.diff(out_starts).max()) if len(out_starts) > 1 else 1)
+    # a frame keeps lanes that hold its point, or the previous lane's successors: no more than either count
+    widest = max(1, holding.shape[1], int(np.diff(out_starts).max()) if len(out_starts) > 1 else 1)
     starts = np.zeros(t + 1, dtype=np.int64)
     lanes = np.empty(t * widest, dtype=np.int64)
     follow = kernels.kernels().follow_lanes
@@ -80,7 +96,10 @@ def _centre_route_compiled(score_map: ScoreMap, points: np.ndarray, headings: np
         previous = np.array(kept, dtype=np.int64)
         k += 1
     flat, bounds = lanes[:m].tolist(), starts.tolist()
-    return [flat[bounds[j]:bounds[j + 1]] for j in range(t)]
+    route = Route(flat[bounds[j]:bounds[j + 1]] for j in range(t))
+    route.first = np.where(starts[1:] > starts[:-1], lanes[np.minimum(starts[:-1], max(m - 1, 0))], -1) if m else \
+        np.full(t, -1, dtype=np.int64)
+    return route
 
 
 def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None) -> np.ndarray:

@@ -8,6 +8,7 @@ from pytest_driveeval.geometry.planar import arc_lengths
 
 from .inputs import ScoreInputs
 from .lanes import ScoreMap, project
+from .route import first_lanes
 from .term import Term
 
 #: nuplan-devkit's thresholds (its simulation_metric configs)
@@ -90,7 +91,7 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
         return Term.not_available(name, "the scene has no map")
     score_map: ScoreMap = inputs.map
     xy = inputs.ego.center[:, :2]
-    lane_of = np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
+    lane_of = first_lanes(route)
     along = np.zeros(len(route))
     on = np.flatnonzero(lane_of >= 0)
     along[on] = score_map.along(xy[on], lane_of[on])
@@ -104,7 +105,7 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     changed[1:] = lanes[1:] != lanes[:-1]
     stepped = np.flatnonzero(~changed[1:] & ~changed[:-1] & (s[1:] != 0)) + 1
     steps[on[stepped]] = s[stepped] - s[stepped - 1]
-    spacing = float(np.mean(np.diff(inputs.times))) if len(inputs.times) > 1 else 0.1
+    spacing = inputs.spacing if len(inputs.times) > 1 else 0.1
     n = int(DIRECTION_HORIZON / spacing) if spacing > 0 else 0
     window = np.convolve(steps, np.ones(n + 1))[:len(steps)]  # each frame's last n + 1 steps
     worst = abs(float(window.min())) if len(window) else 0.0
@@ -164,7 +165,7 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     if inputs.map is None:
         return Term.not_available(name, "the scene has no map")
     score_map: ScoreMap = inputs.map
-    first = np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
+    first = first_lanes(route)
     usable = np.where(np.isfinite(score_map.speed_limits) & (score_map.speed_limits > 0), score_map.speed_limits,
                       np.nan)
     limits = np.where(first >= 0, usable[first], np.nan)
@@ -184,7 +185,7 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     if not over.any() or duration <= 0:
         value = 1.0
     else:
-        loss = over.sum() * float(np.mean(np.diff(inputs.times))) / (max(MAX_OVERSPEED, 1e-3) * duration)
+        loss = over.sum() * inputs.spacing / (max(MAX_OVERSPEED, 1e-3) * duration)
         value = max(0.0, 1.0 - loss)
     term = Term(name, value, detail={"max_over_speed_limit": float(over.max()),
                                      "frames_with_speed_limit": int(known.sum())})

@@ -70,8 +70,7 @@ SWEPT_SLACK = 1e-6
 def _ego_motion(ego) -> tuple[np.ndarray, ...]:
     """Per frame: the cosine and sine of the ego's heading, its step in STEP seconds, and its travel over
     the horizon (the numbers :func:`_first_meetings` computes per pair, taken per frame)."""
-    heading = ego.center[:, 2]
-    e_cos, e_sin = np.cos(heading), np.sin(heading)
+    e_cos, e_sin = ego.heading_unit
     e_step = ego.speed[:, None] * STEP * np.stack([e_cos, e_sin], axis=1)
     return e_cos, e_sin, e_step, REACH * np.hypot(*e_step.T)
 

@@ -104,7 +104,7 @@ def _ego_states(unroll: Any) -> dict[int, Any]:
         states = ego_from_poses(r.driven_xy[rows, :n], r.driven_yaw[rows, :n], times, EGO_EXTENT[0], EGO_EXTENT[1])
         if n >= MIN_FRAMES:
             states.comfort = signals_of(states, times)
-        states.rear_axle, states.speed, states.corners  # computed for all the rows at once (cached)
+        states.heading_unit, states.rear_axle, states.speed, states.corners  # computed for all the rows at once (cached)
         made.update({int(row): states.scene(i) for i, row in enumerate(rows)})
     if hasattr(unroll, "ego_states"):
         unroll.ego_states = made
