@@ -91,17 +91,18 @@ def _compile():
                                 cell_polygons, out):
         """out[p]: the least distance of point p to the outlines of the polygons whose bounds, widened by
         ``within``, hold it (inf: none); the pairs lanes.ScoreMap.distance_to_drivable's numpy test admits.
-        The candidates are those listed in the grid cells around the point's square of side 2 ``within``,
-        one cell more on each side than the square's own (rounding cannot hide a polygon), each measured
-        once however many of those cells list it."""
+        The candidates are those listed in the grid cells that the point's square of half side ``within``
+        meets, the square a micrometre wider (a polygon the bounds test admits then meets it, whatever
+        the rounding of the subtractions), each measured once however many of those cells list it."""
         seen = np.full(bounds.shape[0], -1, dtype=np.int64)
+        reach = within + 1e-6
         for p in range(points.shape[0]):
             px, py = points[p, 0], points[p, 1]
             best = np.inf
-            i0 = max(np.floor((px - within - origin[0]) / size) - 1.0, 0.0)
-            i1 = min(np.floor((px + within - origin[0]) / size) + 1.0, nx - 1.0)
-            j0 = max(np.floor((py - within - origin[1]) / size) - 1.0, 0.0)
-            j1 = min(np.floor((py + within - origin[1]) / size) + 1.0, ny - 1.0)
+            i0 = max(np.floor((px - reach - origin[0]) / size), 0.0)
+            i1 = min(np.floor((px + reach - origin[0]) / size), nx - 1.0)
+            j0 = max(np.floor((py - reach - origin[1]) / size), 0.0)
+            j1 = min(np.floor((py + reach - origin[1]) / size), ny - 1.0)
             for i in range(int(i0), int(i1) + 1):
                 for j in range(int(j0), int(j1) + 1):
                     cell = i * int(ny) + j
@@ -119,11 +120,12 @@ def _compile():
 
     @jit
     def containing_in_grid(points, xi, yi, yj, slope, band_first, band_count, band_height, band_starts, band_edges,
-                           bounds, origin, size, nx, ny, cell_starts, cell_polygons, out):
+                           bounds, origin, size, nx, ny, cell_starts, cell_polygons, out, held, touched):
         """out[p, n]: point p in polygon n (lanes._containing's crossing-number rule), testing only the
         polygons listed in the point's grid cell (every polygon whose bounds meet the cell: the bounds
         test admits no other), and of each only the edges of the point's band (lanes._bands: the others
-        cross no horizontal line through it)."""
+        cross no horizontal line through it).  held[p]: some polygon holds point p; touched[n]: polygon n
+        holds some point (out's rows' and columns' any, without reading it again)."""
         for p in range(points.shape[0]):
             px, py = points[p, 0], points[p, 1]
             fx, fy = np.floor((px - origin[0]) / size), np.floor((py - origin[1]) / size)
@@ -142,7 +144,10 @@ def _compile():
                         e = band_edges[i]
                         if ((yi[e] <= py) != (yj[e] <= py)) and px < xi[e] + (py - yi[e]) * slope[e]:
                             count += 1
-                    out[p, n] = (count & 1) == 1
+                    if (count & 1) == 1:
+                        out[p, n] = True
+                        held[p] = True
+                        touched[n] = True
 
     @jit
     def _overlap(ax, ay, ca, sa, al, aw, bx, by, cb, sb, bl, bw):

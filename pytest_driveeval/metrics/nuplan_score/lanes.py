@@ -123,16 +123,18 @@ class PolygonSet:
         return self.xi[s:e], self.yi[s:e], self.yj[s:e], self.slope[s:e]
 
 
-def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
-    """(P, N) bool: point p lies in polygon n (the crossing-number rule of geometry.polygons)."""
+def _containing(points: np.ndarray, polygons: PolygonSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P, N) bool: point p lies in polygon n (the crossing-number rule of geometry.polygons); with its
+    rows' any (P,), some polygon holds the point, and its columns' any (N,), the polygon holds some point."""
     out = np.zeros((len(points), len(polygons)), dtype=bool)
     if not len(polygons) or not len(points):
-        return out
+        return out, np.zeros(len(points), dtype=bool), np.zeros(len(polygons), dtype=bool)
     if kernels.wanted():
+        held, touched = np.zeros(len(points), dtype=bool), np.zeros(len(polygons), dtype=bool)
         kernels.kernels().containing_in_grid(np.ascontiguousarray(points, dtype=np.float64), polygons.xi, polygons.yi,
                                              polygons.yj, polygons.slope, *polygons.bands, polygons.bounds,
-                                             *polygons.grid, out)
-        return out
+                                             *polygons.grid, out, held, touched)
+        return out, held, touched
     bounds = polygons.bounds
     x, y = points[:, 0:1], points[:, 1:2]
     near = (x >= bounds[:, 0]) & (x <= bounds[:, 2]) & (y >= bounds[:, 1]) & (y <= bounds[:, 3])
@@ -140,7 +142,7 @@ def _containing(points: np.ndarray, polygons: PolygonSet) -> np.ndarray:
         for n in np.flatnonzero(near.any(axis=0)):
             rows = np.flatnonzero(near[:, n])
             out[rows, n] = odd_crossings(points[rows, 0:1], points[rows, 1:2], *polygons.edges(n))
-    return out
+    return out, out.any(axis=1), out.any(axis=0)
 
 
 def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.ndarray, pair_polygon: np.ndarray
@@ -238,14 +240,18 @@ class ScoreMap:
 
     def lanes_at(self, points: np.ndarray) -> np.ndarray:
         """(P, N) bool: which lane surfaces hold each point."""
+        return _containing(points, self.lane_set)[0]
+
+    def lanes_holding(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`lanes_at`, with (P,) some lane holds the point and (N,) the lane holds some point."""
         return _containing(points, self.lane_set)
 
     def in_drivable(self, points: np.ndarray) -> np.ndarray:
         """(P,) bool: in one of the drivable polygons besides the lane surfaces (asked of points off every lane)."""
-        return _containing(points, self.drivable_set).any(axis=1)
+        return _containing(points, self.drivable_set)[1]
 
     def in_intersection(self, points: np.ndarray) -> np.ndarray:
-        return _containing(points, self.intersection_set).any(axis=1)
+        return _containing(points, self.intersection_set)[1]
 
     def distance_to_drivable(self, points: np.ndarray, within: float) -> np.ndarray:
         """(P,) distance to the nearest lane surface or drivable polygon, inf beyond ``within`` (m)."""

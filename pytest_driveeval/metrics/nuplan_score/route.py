@@ -102,20 +102,28 @@ def _centre_route_compiled(score_map: ScoreMap, points: np.ndarray, headings: np
     return route
 
 
-def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None) -> np.ndarray:
+def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None,
+                        lanes: np.ndarray | None = None) -> np.ndarray:
     """(T,) bool: all four corners (FL, FR, RR, RL) on one lane, or the rear ones on a lane that leads
     into the front ones' lane (nuPlan's "common or connected" route objects); False when the ego
-    straddles lanes or is partly or wholly off them."""
+    straddles lanes or is partly or wholly off them.  ``lanes``: ascending, lanes among which are all
+    those holding a corner (the others are left out of the comparisons), when the caller knows them."""
     t = len(corners)
     holding = score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding
-    holding = holding.reshape(t, 4, -1)
+    if lanes is None:
+        lanes = np.flatnonzero(holding.any(axis=0))
+    holding = holding[:, lanes].reshape(t, 4, -1)
     front = holding[:, 0] & holding[:, 1]
     rear = holding[:, 2] & holding[:, 3]
     out = (front & rear).any(axis=1)
     straddling = np.flatnonzero(~out & front.any(axis=1) & rear.any(axis=1))
     if len(straddling):
-        # over the map's links n -> m at once: a rear corners' lane n leading into a front corners' lane m
+        # over the map's links n -> m between those lanes at once: a rear corners' lane n leading into a
+        # front corners' lane m
         starts, ahead = score_map.outgoing_table
         behind = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
-        out[straddling] = (rear[straddling][:, behind] & front[straddling][:, ahead]).any(axis=1)
+        local = np.full(len(starts) - 1, -1)
+        local[lanes] = np.arange(len(lanes))
+        link = (local[behind] >= 0) & (local[ahead] >= 0)
+        out[straddling] = (rear[straddling][:, local[behind[link]]] & front[straddling][:, local[ahead[link]]]).any(axis=1)
     return out

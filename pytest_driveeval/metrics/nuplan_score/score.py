@@ -63,21 +63,22 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
         score_map = inputs.map
         # one lookup for the centres and the corners; the expert's first pose nearly always settles whether
         # it drives on a lane, and its others are looked up only where it does not
-        holding = score_map.lanes_at(np.concatenate([inputs.ego.center[:, :2], corners.reshape(-1, 2)]))
-        centre_lanes, corner_lanes = holding[:t], holding[t:5 * t]
+        holding, held, touched = score_map.lanes_holding(np.concatenate([inputs.ego.center[:, :2],
+                                                                         corners.reshape(-1, 2)]))
+        centre_lanes, corner_lanes, corner_on_lane = holding[:t], holding[t:5 * t], held[t:5 * t]
         expert_on_lane = bool(score_map.lanes_at(inputs.expert[:1, :2]).any()
                               or score_map.lanes_at(inputs.expert[1:, :2]).any())
         route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
-        in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes)
+        in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes, np.flatnonzero(touched))
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
     else:  # as nuplan-devkit's extractor finds no lane anywhere
-        corner_lanes, route = None, [[] for _ in range(inputs.num_frames)]
+        corner_on_lane, route = None, [[] for _ in range(inputs.num_frames)]
         in_one_lane = np.zeros(inputs.num_frames, dtype=bool)
         in_intersection = np.zeros(inputs.num_frames, dtype=bool)
     progress = expert_progress(inputs, expert_on_lane)
     terms = {
         "no_ego_at_fault_collisions": no_ego_at_fault_collisions(inputs),
-        "drivable_area_compliance": drivable_area_compliance(inputs, corners, corner_lanes, route),
+        "drivable_area_compliance": drivable_area_compliance(inputs, corners, corner_on_lane, route),
         "ego_is_making_progress": ego_is_making_progress(progress),
         "driving_direction_compliance": driving_direction_compliance(inputs, route),
         "ego_progress_along_expert_route": progress,

@@ -46,15 +46,16 @@ def ego_corners(inputs: ScoreInputs) -> np.ndarray:
     return inputs.ego.corners
 
 
-def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_lanes: np.ndarray,
+def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_on_lane: np.ndarray,
                              route: list[list[int]]) -> Term:
+    """``corner_on_lane`` (4T,): each corner (frame by frame, FL, FR, RR, RL) on some lane."""
     name = "drivable_area_compliance"
     if inputs.map is None:
         return Term.not_available(name, "the scene has no map")
     score_map: ScoreMap = inputs.map
     t = len(corners)
     points = corners.reshape(-1, 2)
-    outside = ~corner_lanes.any(axis=1)
+    outside = ~corner_on_lane
     outside[outside] = ~score_map.in_drivable(points[outside])
     far = np.zeros(len(points), dtype=bool)
     depth = np.zeros(len(points))
