@@ -29,17 +29,25 @@ start (``jit.start()``), warm-ups before timing.  Nothing is asserted: the figur
 
     python benchmarks/bench_nuplan_score.py [--scenes 64] [--repeats 5] [--oracle-repeats 3] [--smoke]
 
-Measured (2 cores shared with other jobs, load average 3-5: single figures vary by up to 2x between runs;
-defaults, the command above; "i23-speed" the views of the log's agent arrays and the per-frame loops made
-array operations, same results):
+Measured (2 cores shared with other jobs: single figures vary by up to 2x between runs, which is why (a)
+is the median of each repeat's own share; defaults, the command above):
 
-    figure                                   before (85b8156)   before i23-speed    now
-    (a) score, ms/scene (64 scenes)          8.9                5.0 - 7.0           4.4 - 4.7 (quickest repeat 3.6)
-    (a) score / harness time                 94 %               44 - 61 %           44 %   target <= 25 %: not met
-    (a) score maps, s (not in the score)     0.72               0.84 - 1.22         1.29 - 1.34 (load)
-    (b) real scenes, x nuplan-devkit         75 - 293x          113 - 622x          (not rerun)  met
-    (b) synthetic cases, x nuplan-devkit     34 - 147x          26 - 160x, median 64x (ours 0.6 - 1.0 ms a case,
-                                                                2.2 ms when a load spike hits): not met
+    figure                                   before (85b8156)   27d2a0d              now (2026-11-26, 4 runs)
+    (a) score, ms/scene (64 scenes)          8.9                3.8 - 4.7            1.8 - 2.0
+    (a) score / harness time                 94 %               36 - 44 %            20.1, 22.0, 22.2, 24.6 %   target <= 25 %: met
+    (a) score maps, s (not in the score)     0.72               0.9 - 1.3            0.9 - 1.4
+    (b) real scenes, x nuplan-devkit         75 - 293x          150 - 740x           86 - 867x (median 354x)    target >= 50x: met
+    (b) synthetic cases, x nuplan-devkit     34 - 147x          median 61x           46 - 160x (median 61x): the 28 one-lane
+                                                                                     cases, where ~1 ms of fixed cost per
+                                                                                     scene is all of ours
+
+What made (a): the ego states, comfort signals, corners and headings of all an unroll's scenes made in one
+call per frame count; the lane lookup's crossing test over each polygon's band of edges, reporting which
+points and lanes it found so no term scans the (points x lanes) table again; the drivable polygons that
+are lane surfaces tested once, and one distance query per off-lane corner over the grid cells it meets;
+time-to-collision candidates found in one kernel pass (a box-to-circle bound before any trigonometry);
+the lanes' directions and the expert's progress in kernels.  Every term of the real scenes is unchanged
+bit for bit (both paths, compiled and numpy).
 """
 from __future__ import annotations
 
@@ -130,7 +138,10 @@ def part_a(dataset, ids, model, repeats: int, steps: int | None, has_map: bool) 
         score_t.append(time.perf_counter() - tic)
     assert all(s is not None for s in scores)
     h, s, m = median(harness), median(score_t), median(maps_t)
-    share = 100 * s / h
+    # The machine's speed drifts (it is shared): each repeat's score against its own unroll, taken seconds
+    # apart, is the steadier figure; the median of those is the target's.
+    shares = [100 * a / b for a, b in zip(score_t, harness)]
+    share = median(shares)
     print(f"unroll of {len(ids)} scenes x {unrolled.result.scene_steps // len(ids)} steps: harness {h:.3f} s "
           f"(median of {repeats}, {min(harness):.3f}-{max(harness):.3f}), total {median(total):.3f} s")
     print(f"score of the {len(ids)} scenes (scene_score per row): {s:.3f} s (median of {repeats}, "
@@ -140,8 +151,9 @@ def part_a(dataset, ids, model, repeats: int, steps: int | None, has_map: bool) 
               f"{min(maps_t):.3f}-{max(maps_t):.3f}) = {100 * m / h:.1f} % of the harness time")
     else:
         print("score maps: none (these scenes have no map: the map's terms are not measured)")
-    print(f"score vs harness: {share:.1f} % of the unroll's harness time (target <= {SHARE_TARGET:g} %: "
-          f"{'met' if share <= SHARE_TARGET else 'NOT met'})")
+    print(f"score vs harness: {share:.1f} % of the unroll's harness time (median of the {repeats} repeats' own "
+          f"shares, {min(shares):.1f}-{max(shares):.1f}; of the medians: {100 * s / h:.1f} %) "
+          f"(target <= {SHARE_TARGET:g} %: {'met' if share <= SHARE_TARGET else 'NOT met'})")
     return unrolled, share
 
 
@@ -199,7 +211,7 @@ def part_b(unrolled, ids, distinct: int, repeats: int, oracle_repeats: int) -> N
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per figure (median)")
+    parser.add_argument("--repeats", type=int, default=7, help="timed runs per figure (median)")
     parser.add_argument("--oracle-repeats", type=int, default=3, help="nuplan-devkit's runs per case (median)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--no-oracle", action="store_true", help="part (a) only")
