@@ -84,9 +84,10 @@ class SceneMaps:
 
 
 def _ego_states(unroll: Any) -> dict[int, Any]:
-    """The ego states of every scene of the unroll whose frames are the first n, by row, with their comfort
-    signals: made once for all of them, a call per frame count rather than per scene, when the unroll is
-    first scored, and kept with it (an object that cannot keep them makes them again)."""
+    """The ego states of every scene of the unroll whose unrolled frames are one run, by row, with their
+    comfort signals: made once for all the scenes of a run (first frame, count), a call per run rather
+    than per scene, when the unroll is first scored, and kept with it (an object that cannot keep them
+    makes them again).  Each scene's numbers are those it gets alone."""
     made = getattr(unroll, "ego_states", None)
     if made is not None:
         return made
@@ -95,16 +96,19 @@ def _ego_states(unroll: Any) -> dict[int, Any]:
 
     r = unroll.result
     counts = r.valid.sum(axis=1)
-    lead = np.where(r.valid.all(axis=1), r.valid.shape[1], np.argmin(r.valid, axis=1))  # valid frames before the first invalid
-    prefix = (lead == counts) & (counts > 0)
+    first = np.argmax(r.valid, axis=1)
+    one_run = np.count_nonzero(np.diff(r.valid.astype(np.int8), axis=1, prepend=0) == 1, axis=1) == 1
     made = {}
-    for n in np.unique(counts[prefix]).tolist():
-        rows = np.flatnonzero(prefix & (counts == n))
-        times = np.arange(n) * unroll.step_time
-        states = ego_from_poses(r.driven_xy[rows, :n], r.driven_yaw[rows, :n], times, EGO_EXTENT[0], EGO_EXTENT[1])
+    for start, n in np.unique(np.stack([first[one_run], counts[one_run]], axis=1), axis=0).tolist():
+        rows = np.flatnonzero(one_run & (first == start) & (counts == n))
+        times = np.arange(start, start + n) * unroll.step_time  # as score_inputs' frames * step_time
+        frames = slice(start, start + n)
+        states = ego_from_poses(r.driven_xy[rows, frames], r.driven_yaw[rows, frames], times, EGO_EXTENT[0],
+                                EGO_EXTENT[1])
         if n >= MIN_FRAMES:
             states.comfort = signals_of(states, times)
-        states.heading_unit, states.rear_axle, states.speed, states.corners  # computed for all the rows at once (cached)
+        for name in ("heading_unit", "rear_axle", "speed", "corners"):  # each computed once for all the rows
+            getattr(states, name)
         made.update({int(row): states.scene(i) for i, row in enumerate(rows)})
     if hasattr(unroll, "ego_states"):
         unroll.ego_states = made

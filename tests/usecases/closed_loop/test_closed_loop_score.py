@@ -52,6 +52,22 @@ def test_constant_velocity_leaves_the_road_and_the_helpers_say_where(nuscenes):
     de.assert_making_progress(unroll)  # it does drive on
 
 
+def _plain(score) -> dict:
+    return {"score": score.score} | {name: {**vars(term), "series": {k: list(v) for k, v in term.series.items()}}
+                                     for name, term in score.terms.items()}
+
+
+def test_a_scene_scores_the_same_alone_as_among_the_unrolls_other_scenes(nuscenes):
+    from pytest_driveeval.usecases.closed_loop.score import scene_score
+
+    unroll = unrolled(nuscenes, "constant_velocity", list(range(6)))
+    together = score_unroll(unroll)  # the ego states and comfort signals of all six made at once
+    assert unroll.ego_states is not None and len(unroll.ego_states) == 6
+    for row, scene in enumerate(unroll.scene_ids):
+        unroll.ego_states = {}  # none made for the batch: the scene's own, alone
+        assert _plain(scene_score(unroll, row)) == _plain(together[scene]), scene
+
+
 def test_a_scene_without_a_map_scores_without_the_map_terms():
     from pytest_driveeval.io.l5kit_zarr import L5Dataset
 
