@@ -95,7 +95,7 @@ def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
     problems: dict[int, PlanningProblem] = {}
     for node in root.findall("planningProblem"):
         problem = PlanningProblem(_id(doc, node), _state(doc, node.find("initialState"), node, exact=True),
-                                  tuple(_goal(doc, g, lanelets) for g in node.findall("goalState")))
+                                  tuple(_goal(doc, g, node, lanelets) for g in node.findall("goalState")))
         if not problem.goals:
             raise doc.error(node, "planning problem without <goalState>")
         if problem.id in problems or problem.id in lanelets or problem.id in obstacles:
@@ -309,8 +309,10 @@ def _obstacles(doc: _Doc, root: ET.Element, version: str) -> dict[int, Obstacle]
 
 # ---------------------------------------------------------------- goals
 
-def _goal(doc: _Doc, node: ET.Element, lanelets: dict[int, Lanelet]) -> GoalState:
-    owner = node  # the goal state has no id: messages name it by its line
+def _goal(doc: _Doc, node: ET.Element, problem: ET.Element, lanelets: dict[int, Lanelet]) -> GoalState:
+    # A goal state has no id of its own: messages name its planning problem and the goal state's line.
+    owner = problem
+    at = f"goal state at line {doc.lines.get(node, '?')}: "
     shapes: list[Shape] = []
     refs: tuple[int, ...] = ()
     position = node.find("position")
@@ -318,15 +320,15 @@ def _goal(doc: _Doc, node: ET.Element, lanelets: dict[int, Lanelet]) -> GoalStat
         shapes = _shapes(doc, position)
         refs = tuple(int(_float(doc, r, r.get("ref"), "ref")) for r in position.findall("lanelet"))
         if not shapes and not refs:
-            raise doc.error(owner, "goal <position> holds no shape (rectangle, circle, polygon) and no lanelet")
+            raise doc.error(owner, f"{at}goal <position> holds no shape (rectangle, circle, polygon) and no lanelet")
         missing = [r for r in refs if r not in lanelets]
         if missing:
-            raise doc.error(owner, f"goal position names lanelet(s) {missing} that the file does not define")
+            raise doc.error(owner, f"{at}goal position names lanelet(s) {missing} that the file does not define")
     orientation = _value(doc, node.find("orientation"), owner, exact=False)
     velocity = _value(doc, node.find("velocity"), owner, exact=False)
     time = _value(doc, node.find("time"), owner, exact=False)
     if not (shapes or refs) and orientation is velocity is time is None:
-        raise doc.error(owner, "goal state constrains nothing: no position, orientation, velocity or time")
+        raise doc.error(owner, f"{at}goal state constrains nothing: no position, orientation, velocity or time")
     if orientation is not None and not orientation.end - orientation.start < 2 * math.pi:
-        raise doc.error(owner, f"orientation interval [{orientation.start}, {orientation.end}] spans 2 pi or more")
+        raise doc.error(owner, f"{at}orientation interval [{orientation.start}, {orientation.end}] spans 2 pi or more")
     return GoalState(tuple(shapes), refs, tuple(lanelets[r].polygon for r in refs), orientation, velocity, time)
