@@ -80,6 +80,8 @@ def test_lanker_2018b_speed_limits_and_neighbours(commonroad_dir):
     assert (rect.length, rect.width, rect.orientation, rect.center.tolist()) == (2.027, 1.5593, 1.0991, [13.083, 26.9093])
     assert goal.orientation == Interval(1.0206, 1.1951) and goal.velocity == Interval(5.9825, 11.9825)
     assert goal.time == Interval(30, 40)
+    initial = s.planning_problems[1215].initial
+    assert (initial.yaw_rate, initial.slip_angle, initial.velocity) == (-0.005041, 0.00004, 7.1171)
 
 
 def test_anglet_2020a_signs_and_time_only_goal(commonroad_dir):
