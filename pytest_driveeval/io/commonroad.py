@@ -26,13 +26,13 @@ import math
 import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from xml.parsers import expat
 
 import numpy as np
 
 from ..errors import display_path
-from .commonroad_types import (Circle, CommonRoadError, CommonRoadScenario, GoalState, Interval, Lanelet, Neighbour,
-                               Obstacle, PlanningProblem, Polygon, Rectangle, Shape, State, Trajectory)
+from .commonroad_types import (CommonRoadError, CommonRoadScenario, GoalState, Lanelet, Neighbour, Obstacle,
+                               PlanningProblem, Shape, State, Trajectory)
+from .commonroad_xml import XmlDoc, parse_xml
 
 __all__ = ["read_commonroad", "planning_problem", "CommonRoadError"]
 
@@ -41,60 +41,21 @@ SPEED_LIMIT_SIGNS = {"274", "R2-1"}  # German "Zulässige Höchstgeschwindigkeit
 _NAN = float("nan")
 
 
-class _Doc:
-    """The parsed file and where each element started, for messages."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.lines: dict[ET.Element, int] = {}
-
-    def error(self, element: ET.Element | None, message: str) -> CommonRoadError:
-        if element is None:
-            return CommonRoadError(f"{display_path(self.path)}: {message}")
-        ident = f' id="{element.get("id")}"' if element.get("id") is not None else ""
-        line = self.lines.get(element)
-        where = f"{display_path(self.path)}:{line}" if line else display_path(self.path)
-        return CommonRoadError(f"{where}: <{element.tag}{ident}>: {message}")
-
-
-def _parse(path: Path) -> tuple[ET.Element, _Doc]:
-    doc = _Doc(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise doc.error(None, f"cannot read: {exc.strerror or exc}") from None
-    builder = ET.TreeBuilder()
-    parser = expat.ParserCreate()
-    parser.buffer_text = True
-
-    def start(tag, attrs):
-        doc.lines[builder.start(tag, attrs)] = parser.CurrentLineNumber
-
-    parser.StartElementHandler = start
-    parser.EndElementHandler = builder.end
-    parser.CharacterDataHandler = builder.data
-    try:
-        parser.Parse(data, True)
-    except expat.ExpatError as exc:
-        raise doc.error(None, f"not XML: {expat.ErrorString(exc.code)} at line {exc.lineno}") from None
-    return builder.close(), doc
-
-
 def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
     """The scenario, lanelets, obstacles and planning problems of a CommonRoad XML file."""
     path = Path(path)
-    root, doc = _parse(path)
+    root, doc = parse_xml(path)
     if root.tag != "commonRoad":
         raise doc.error(root, "not a CommonRoad file: the root element is not <commonRoad>")
     version = root.get("commonRoadVersion")
     if version not in VERSIONS:
         raise doc.error(root, f"unknown commonRoadVersion {version!r}: this reader knows {', '.join(VERSIONS)}")
-    dt = _float(doc, root, root.get("timeStepSize"), "timeStepSize")
+    dt = doc.number(root, root.get("timeStepSize"), "timeStepSize")
     lanelets = _lanelets(doc, root)
     obstacles = _obstacles(doc, root, version)
     problems: dict[int, PlanningProblem] = {}
     for node in root.findall("planningProblem"):
-        problem = PlanningProblem(_id(doc, node), _state(doc, node.find("initialState"), node, exact=True),
+        problem = PlanningProblem(doc.ident(node), _state(doc, node.find("initialState"), node, exact=True),
                                   tuple(_goal(doc, g, node, lanelets) for g in node.findall("goalState")))
         if not problem.goals:
             raise doc.error(node, "planning problem without <goalState>")
@@ -114,117 +75,48 @@ def planning_problem(scenario: CommonRoadScenario, problem_id: int | str) -> Pla
                               f"(the file has: {have})") from None
 
 
-# ---------------------------------------------------------------- values
-
-def _float(doc: _Doc, element: ET.Element, text: str | None, what: str) -> float:
-    try:
-        return float(text)
-    except (TypeError, ValueError):
-        raise doc.error(element, f"{what}: expected a number, got {text!r}") from None
-
-
-def _id(doc: _Doc, node: ET.Element) -> int:
-    try:
-        return int(node.get("id"))
-    except (TypeError, ValueError):
-        raise doc.error(node, f"id: expected an integer, got {node.get('id')!r}") from None
-
-
-def _child_float(doc: _Doc, node: ET.Element, tag: str) -> float:
-    child = node.find(tag)
-    if child is None:
-        raise doc.error(node, f"<{tag}> missing")
-    return _float(doc, child, child.text, tag)
-
-
-def _value(doc: _Doc, node: ET.Element | None, owner: ET.Element, exact: bool):
-    """``<exact>`` as a float, ``<intervalStart>/<intervalEnd>`` as an Interval (an error where ``exact``)."""
-    if node is None:
-        return None
-    if node.find("exact") is not None:
-        value = _child_float(doc, node, "exact")
-        return value if exact else Interval(value, value)
-    if node.find("intervalStart") is not None or node.find("intervalEnd") is not None:
-        if exact:
-            raise doc.error(owner, f"<{node.tag}> holds an interval where an exact value is needed")
-        return Interval(_child_float(doc, node, "intervalStart"), _child_float(doc, node, "intervalEnd"))
-    raise doc.error(owner, f"<{node.tag}> holds neither <exact> nor <intervalStart>/<intervalEnd>")
-
-
-def _points(doc: _Doc, node: ET.Element | None, owner: ET.Element, what: str) -> np.ndarray:
-    if node is None:
-        raise doc.error(owner, f"<{what}> missing")
-    points = node.findall("point")
-    return np.array([[_child_float(doc, p, "x"), _child_float(doc, p, "y")] for p in points],
-                    dtype=np.float64).reshape(len(points), 2)
-
-
-def _center(doc: _Doc, node: ET.Element) -> np.ndarray:
-    c = node.find("center")
-    return np.zeros(2) if c is None else np.array([_child_float(doc, c, "x"), _child_float(doc, c, "y")])
-
-
-def _shapes(doc: _Doc, node: ET.Element) -> list[Shape]:
-    shapes: list[Shape] = []
-    for child in node:
-        if child.tag == "rectangle":
-            o = child.find("orientation")
-            shapes.append(Rectangle(_child_float(doc, child, "length"), _child_float(doc, child, "width"),
-                                    _center(doc, child), 0.0 if o is None else _float(doc, o, o.text, "orientation")))
-        elif child.tag == "circle":
-            shapes.append(Circle(_child_float(doc, child, "radius"), _center(doc, child)))
-        elif child.tag == "polygon":
-            vertices = _points(doc, child, child, "polygon")
-            if len(vertices) > 1 and np.array_equal(vertices[0], vertices[-1]):
-                vertices = vertices[:-1]
-            if len(vertices) < 3:
-                raise doc.error(child, f"polygon with {len(vertices)} distinct vertices")
-            shapes.append(Polygon(vertices))
-    return shapes
-
-
 # ---------------------------------------------------------------- lanelets
 
-def _neighbour(doc: _Doc, node: ET.Element | None) -> Neighbour | None:
+def _neighbour(doc: XmlDoc, node: ET.Element | None) -> Neighbour | None:
     if node is None:
         return None
-    return Neighbour(int(_float(doc, node, node.get("ref"), "ref")), node.get("drivingDir", "same") == "same")
+    return Neighbour(int(doc.number(node, node.get("ref"), "ref")), node.get("drivingDir", "same") == "same")
 
 
-def _speed_limit_signs(doc: _Doc, root: ET.Element) -> dict[int, float]:
+def _speed_limit_signs(doc: XmlDoc, root: ET.Element) -> dict[int, float]:
     limits = {}
     for sign in root.findall("trafficSign"):
         for element in sign.findall("trafficSignElement"):
             if (element.findtext("trafficSignID") or "").strip() in SPEED_LIMIT_SIGNS:
                 value = element.find("additionalValue")
                 if value is not None:
-                    limits[_id(doc, sign)] = _float(doc, value, value.text, "additionalValue")
+                    limits[doc.ident(sign)] = doc.number(value, value.text, "additionalValue")
     return limits
 
 
-def _lanelets(doc: _Doc, root: ET.Element) -> dict[int, Lanelet]:
+def _lanelets(doc: XmlDoc, root: ET.Element) -> dict[int, Lanelet]:
     signs = _speed_limit_signs(doc, root)
     lanelets: dict[int, Lanelet] = {}
     for node in root.findall("lanelet"):
-        ident = _id(doc, node)
+        ident = doc.ident(node)
         if ident in lanelets:
             raise doc.error(node, f"lanelet id {ident} is used twice")
-        left = _points(doc, node.find("leftBound"), node, "leftBound")
-        right = _points(doc, node.find("rightBound"), node, "rightBound")
+        left = doc.points(node.find("leftBound"), node, "leftBound")
+        right = doc.points(node.find("rightBound"), node, "rightBound")
         if len(left) != len(right) or len(left) < 2:
             raise doc.error(node, f"left bound has {len(left)} points, right bound {len(right)}: "
                                   "both need the same count, at least 2")
-        refs = tuple(int(_float(doc, r, r.get("ref"), "ref")) for r in node.findall("trafficSignRef"))
+        refs = tuple(int(doc.number(r, r.get("ref"), "ref")) for r in node.findall("trafficSignRef"))
         limit = node.find("speedLimit")
-        speed = (_float(doc, limit, limit.text, "speedLimit") if limit is not None
+        speed = (doc.number(limit, limit.text, "speedLimit") if limit is not None
                  else min((signs[r] for r in refs if r in signs), default=None))
         lanelets[ident] = Lanelet(
             ident, left, right,
-            tuple(int(_float(doc, r, r.get("ref"), "ref")) for r in node.findall("predecessor")),
-            tuple(int(_float(doc, r, r.get("ref"), "ref")) for r in node.findall("successor")),
+            tuple(int(doc.number(r, r.get("ref"), "ref")) for r in node.findall("predecessor")),
+            tuple(int(doc.number(r, r.get("ref"), "ref")) for r in node.findall("successor")),
             _neighbour(doc, node.find("adjacentLeft")), _neighbour(doc, node.find("adjacentRight")), speed, refs)
     for node in root.findall("lanelet"):
-        ll = lanelets[_id(doc, node)]
+        ll = lanelets[doc.ident(node)]
         named = [*ll.predecessors, *ll.successors] + [n.id for n in (ll.adjacent_left, ll.adjacent_right) if n]
         missing = sorted({i for i in named if i not in lanelets})
         if missing:
@@ -234,7 +126,7 @@ def _lanelets(doc: _Doc, root: ET.Element) -> dict[int, Lanelet]:
 
 # ---------------------------------------------------------------- states and obstacles
 
-def _state(doc: _Doc, node: ET.Element | None, owner: ET.Element, exact: bool) -> State:
+def _state(doc: XmlDoc, node: ET.Element | None, owner: ET.Element, exact: bool) -> State:
     if node is None:
         raise doc.error(owner, "<initialState> missing")
     position = node.find("position")
@@ -242,20 +134,20 @@ def _state(doc: _Doc, node: ET.Element | None, owner: ET.Element, exact: bool) -
     if point is None:
         raise doc.error(owner, f"<{node.tag}> needs a <position><point> (time step "
                                f"{node.findtext('time/exact', '?').strip()})")
-    time = _value(doc, node.find("time"), owner, exact=True)
+    time = doc.value(node.find("time"), owner, exact=True)
     if time is None:
         raise doc.error(owner, f"<{node.tag}> without <time>")
     if time != int(time):
         raise doc.error(owner, f"<{node.tag}>: time step {time} is not an integer")
-    fields = {name: _value(doc, node.find(tag), owner, exact=True)
+    fields = {name: doc.value(node.find(tag), owner, exact=True)
               for name, tag in (("orientation", "orientation"), ("velocity", "velocity"),
                                 ("acceleration", "acceleration"), ("yaw_rate", "yawRate"),
                                 ("slip_angle", "slipAngle"))}
-    return State(int(time), _child_float(doc, point, "x"), _child_float(doc, point, "y"),
+    return State(int(time), doc.child_number(point, "x"), doc.child_number(point, "y"),
                  **{k: _NAN if v is None else v for k, v in fields.items()})
 
 
-def _trajectory(doc: _Doc, node: ET.Element, states: list[State]) -> Trajectory:
+def _trajectory(doc: XmlDoc, node: ET.Element, states: list[State]) -> Trajectory:
     states = sorted(states, key=lambda s: s.time_step)
     steps = [s.time_step for s in states]
     for a, b in zip(steps, steps[1:]):
@@ -263,17 +155,17 @@ def _trajectory(doc: _Doc, node: ET.Element, states: list[State]) -> Trajectory:
             raise doc.error(node, f"time step {a} is given twice")
         if b != a + 1:
             raise doc.error(node, f"no state at time step {a + 1} (states jump from {a} to {b})")
-    column = lambda name: np.array([getattr(s, name) for s in states], dtype=np.float64)  # noqa: E731
+    column = lambda name: np.array([getattr(s, name) for s in states], dtype=np.float64)
     return Trajectory(np.array(steps, dtype=np.int64), column("x"), column("y"), column("orientation"),
                       column("velocity"), column("acceleration"))
 
 
-def _obstacle(doc: _Doc, node: ET.Element, role: str) -> Obstacle:
-    ident = _id(doc, node)
+def _obstacle(doc: XmlDoc, node: ET.Element, role: str) -> Obstacle:
+    ident = doc.ident(node)
     if node.find("occupancySet") is not None and node.find("trajectory") is None:
         raise doc.error(node, "obstacles given by an occupancy set are not supported (only trajectories)")
     shape_node = node.find("shape")
-    shapes = _shapes(doc, shape_node) if shape_node is not None else []
+    shapes = doc.shapes(shape_node) if shape_node is not None else []
     if len(shapes) != 1:
         raise doc.error(node, f"needs one shape (rectangle, circle or polygon), found {len(shapes)}")
     initial = _state(doc, node.find("initialState"), node, exact=True)
@@ -287,7 +179,7 @@ def _obstacle(doc: _Doc, node: ET.Element, role: str) -> Obstacle:
     return Obstacle(ident, role, kind or "unknown", shapes[0], initial, _trajectory(doc, node, states))
 
 
-def _obstacles(doc: _Doc, root: ET.Element, version: str) -> dict[int, Obstacle]:
+def _obstacles(doc: XmlDoc, root: ET.Element, version: str) -> dict[int, Obstacle]:
     found: list[tuple[ET.Element, str]] = []
     if version == "2018b":
         for node in root.findall("obstacle"):
@@ -309,7 +201,7 @@ def _obstacles(doc: _Doc, root: ET.Element, version: str) -> dict[int, Obstacle]
 
 # ---------------------------------------------------------------- goals
 
-def _goal(doc: _Doc, node: ET.Element, problem: ET.Element, lanelets: dict[int, Lanelet]) -> GoalState:
+def _goal(doc: XmlDoc, node: ET.Element, problem: ET.Element, lanelets: dict[int, Lanelet]) -> GoalState:
     # A goal state has no id of its own: messages name its planning problem and the goal state's line.
     owner = problem
     at = f"goal state at line {doc.lines.get(node, '?')}: "
@@ -317,16 +209,16 @@ def _goal(doc: _Doc, node: ET.Element, problem: ET.Element, lanelets: dict[int, 
     refs: tuple[int, ...] = ()
     position = node.find("position")
     if position is not None:
-        shapes = _shapes(doc, position)
-        refs = tuple(int(_float(doc, r, r.get("ref"), "ref")) for r in position.findall("lanelet"))
+        shapes = doc.shapes(position)
+        refs = tuple(int(doc.number(r, r.get("ref"), "ref")) for r in position.findall("lanelet"))
         if not shapes and not refs:
             raise doc.error(owner, f"{at}goal <position> holds no shape (rectangle, circle, polygon) and no lanelet")
         missing = [r for r in refs if r not in lanelets]
         if missing:
             raise doc.error(owner, f"{at}goal position names lanelet(s) {missing} that the file does not define")
-    orientation = _value(doc, node.find("orientation"), owner, exact=False)
-    velocity = _value(doc, node.find("velocity"), owner, exact=False)
-    time = _value(doc, node.find("time"), owner, exact=False)
+    orientation = doc.value(node.find("orientation"), owner, exact=False)
+    velocity = doc.value(node.find("velocity"), owner, exact=False)
+    time = doc.value(node.find("time"), owner, exact=False)
     if not (shapes or refs) and orientation is velocity is time is None:
         raise doc.error(owner, f"{at}goal state constrains nothing: no position, orientation, velocity or time")
     if orientation is not None and not orientation.end - orientation.start < 2 * math.pi:
