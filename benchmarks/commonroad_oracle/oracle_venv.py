@@ -50,15 +50,17 @@ def existing_python(venv: Path = VENV) -> Path | None:
     return python if python.exists() and (venv / READY).exists() else None
 
 
-def read_scenario(path: Path, goal_states: list[dict] | None = None, python: Path | None = None,
-                  timeout: float = 600) -> dict:
+def read_scenario(path: Path, goal_states: list[dict] | None = None, points: list[list[float]] | None = None,
+                  python: Path | None = None, timeout: float = 600) -> dict:
     """What commonroad-io reads from ``path`` (read_scenario.py's JSON), with its goal check on ``goal_states``
-    ({"planning_problem": id, "x", "y", "orientation", "velocity", "time_step"} each)."""
+    ({"planning_problem": id, "x", "y", "orientation", "velocity", "time_step"} each) and its lanelet
+    lookup at ``points`` ([x, y] each)."""
     python = python or oracle_python(quiet=True)
     with tempfile.TemporaryDirectory() as tmp:
-        states = Path(tmp) / "states.json"
+        states, at = Path(tmp) / "states.json", Path(tmp) / "points.json"
         states.write_text(json.dumps(goal_states or []))
-        done = subprocess.run([str(python), str(READER), str(path), "--states", str(states)],
+        at.write_text(json.dumps(points or []))
+        done = subprocess.run([str(python), str(READER), str(path), "--states", str(states), "--points", str(at)],
                               capture_output=True, text=True, timeout=timeout)
     if done.returncode != 0:
         raise RuntimeError(f"{READER.name} failed on {path}:\n{done.stderr[-4000:]}")

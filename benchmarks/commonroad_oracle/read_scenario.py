@@ -4,15 +4,17 @@ Imports nothing from pytest_driveeval. Prints lanelets (id, bounds, neighbours, 
 speed-limit signs commonroad-io makes of a 2018b <speedLimit> or reads in 2020a), obstacles (id, role,
 type, shape, states by time step), planning problems (initial state, goal states) and, for each state
 in the ``--states`` JSON list ({"planning_problem", "x", "y", "orientation", "velocity", "time_step"}),
-commonroad-io's ``GoalRegion.is_reached``.
+commonroad-io's ``GoalRegion.is_reached``; each obstacle's occupancy outline at each of its time steps;
+for each point in the ``--points`` JSON list, the lanelets ``find_lanelet_by_position`` finds there.
 
-    ~/.cache/driveeval-bench/commonroad/bin/python read_scenario.py scenario.xml [--states states.json]
+    ~/.cache/driveeval-bench/commonroad/bin/python read_scenario.py scenario.xml [--states s.json] [--points p.json]
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
+from pathlib import Path
 from typing import Any, Dict, List, Optional
 
 import numpy as np
@@ -79,7 +81,7 @@ def speed_limits(scenario: Any) -> Dict[int, float]:
     return limits
 
 
-def read(path: str, states: List[Dict[str, Any]]) -> Dict[str, Any]:
+def read(path: str, states: List[Dict[str, Any]], points: List[List[float]]) -> Dict[str, Any]:
     scenario, problems = CommonRoadFileReader(path).open()
     signs = speed_limits(scenario)
     lanelets = []
@@ -97,9 +99,13 @@ def read(path: str, states: List[Dict[str, Any]]) -> Dict[str, Any]:
         prediction = getattr(obstacle, "prediction", None)
         if prediction is not None and hasattr(prediction, "trajectory"):
             states_of += list(prediction.trajectory.state_list)
+        outlines = []
+        for s in states_of:
+            occupancy = obstacle.occupancy_at_time(s.time_step)
+            outlines.append(vertices(np.asarray(occupancy.shapely_object.exterior.coords)[:-1]))
         obstacles.append({"id": obstacle.obstacle_id, "role": obstacle.obstacle_role.value,
                           "type": obstacle.obstacle_type.value, "shape": shape_json(obstacle.obstacle_shape),
-                          "states": [state_json(s) for s in states_of]})
+                          "states": [state_json(s) for s in states_of], "outlines": outlines})
     planning = []
     for pid, problem in problems.planning_problem_dict.items():
         lanelet_refs = problem.goal.lanelets_of_goal_position or {}
@@ -112,14 +118,18 @@ def read(path: str, states: List[Dict[str, Any]]) -> Dict[str, Any]:
         state = CustomState(time_step=int(s["time_step"]), position=np.array([s["x"], s["y"]], dtype=float),
                             orientation=float(s["orientation"]), velocity=float(s["velocity"]))
         reached.append(bool(problem.goal.is_reached(state)))
+    on_lanelets = scenario.lanelet_network.find_lanelet_by_position([np.array(p, dtype=float) for p in points]) \
+        if points else []
     return {"benchmark_id": str(scenario.scenario_id), "dt": scenario.dt, "lanelets": lanelets,
-            "obstacles": obstacles, "planning_problems": planning, "goal_reached": reached}
+            "obstacles": obstacles, "planning_problems": planning, "goal_reached": reached,
+            "lanelets_at": [sorted(int(i) for i in ids) for ids in on_lanelets]}
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scenario")
     parser.add_argument("--states", help="JSON file: a list of states to test against their planning problem's goal")
+    parser.add_argument("--points", help="JSON file: a list of [x, y] points to look lanelets up at")
     args = parser.parse_args()
-    wanted = json.load(open(args.states)) if args.states else []
-    print(json.dumps(read(args.scenario, wanted), allow_nan=True, default=lambda o: None if o is None else str(o)))
+    states, points = (json.loads(Path(name).read_text()) if name else [] for name in (args.states, args.points))
+    print(json.dumps(read(args.scenario, states, points), default=str))

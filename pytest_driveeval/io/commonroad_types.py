@@ -1,6 +1,6 @@
 """What a CommonRoad scenario holds, as plain numpy arrays: lanelets, obstacles, planning problems.
 
-The reader is ``pytest_driveeval.io.commonroad``; the goal test ``commonroad_goal``.  Values the file
+The reader is ``pytest_driveeval.io.commonroad``; the goal test ``commonroad_geometry``.  Values the file
 leaves out are ``nan`` (floats) or ``None`` (intervals, neighbours, speed limits).
 """
 from __future__ import annotations
@@ -128,7 +128,7 @@ class Interval:
 
 @dataclass(frozen=True)
 class GoalState:
-    """One goal state: reached when every constraint given holds (``commonroad_goal.goal_reached``).
+    """One goal state: reached when every constraint given holds (``commonroad_geometry.goal_reached``).
 
     ``shapes`` and ``lanelets`` are the alternatives of the position (any one suffices);
     ``lanelet_polygons`` are the referenced lanelets' outlines, resolved when reading.

@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 from pytest_driveeval.errors import DriveEvalError
 from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem, read_commonroad
-from pytest_driveeval.io.commonroad_goal import goal_reached, in_shape, on_road
+from pytest_driveeval.io.commonroad_geometry import goal_reached, in_shape, on_road
 from pytest_driveeval.io.commonroad_types import Circle, GoalState, Interval, PlanningProblem, Polygon, Rectangle, State
 
 TUTORIAL = REPO_ROOT / "fixtures" / "commonroad" / "ZAM_Tutorial-1_2_T-1.xml"

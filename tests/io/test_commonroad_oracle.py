@@ -14,7 +14,7 @@ import pytest
 
 from conftest import REPO_ROOT
 from pytest_driveeval.io.commonroad import read_commonroad
-from pytest_driveeval.io.commonroad_goal import goal_reached
+from pytest_driveeval.io.commonroad_geometry import goal_reached, lanelets_at, obstacle_outline
 from pytest_driveeval.io.commonroad_types import Circle, Polygon, Rectangle
 
 FILES = ["FRA_Anglet-1_1_T-1", "USA_Lanker-1_1_T-1", "USA_US101-3_3_T-1", "ZAM_Tutorial-1_2_T-1"]
@@ -73,6 +73,14 @@ def goal_grid(problem) -> list[dict]:
     return states
 
 
+def road_points(scenario) -> np.ndarray:
+    """A 60 x 60 grid over the lanelets' extent and every bound vertex (on an outline: the edge case)."""
+    vertices = np.concatenate([ll.polygon for ll in scenario.lanelets.values()])
+    lo, hi = vertices.min(axis=0) - 1.0, vertices.max(axis=0) + 1.0
+    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], 60), np.linspace(lo[1], hi[1], 60))
+    return np.concatenate([np.stack([gx.ravel(), gy.ravel()], axis=1), vertices])
+
+
 @pytest.fixture(scope="module")
 def compared(shared_data, oracle_python):
     out = {}
@@ -80,7 +88,9 @@ def compared(shared_data, oracle_python):
         path = shared_data / "commonroad" / f"{name}.xml"
         ours = read_commonroad(path)
         grid = [s for p in ours.planning_problems.values() for s in goal_grid(p)]
-        out[name] = (ours, grid, ORACLE.read_scenario(path, grid, python=oracle_python))
+        points = road_points(ours)
+        theirs = ORACLE.read_scenario(path, grid, points.tolist(), python=oracle_python)
+        out[name] = (ours, grid, points, theirs)
     return out
 
 
@@ -90,7 +100,7 @@ def close(a, b) -> bool:
 
 @pytest.mark.parametrize("name", FILES)
 def test_lanelets_equal(compared, name):
-    ours, _, theirs = compared[name]
+    ours, _, _, theirs = compared[name]
     assert sorted(ours.lanelets) == sorted(ll["id"] for ll in theirs["lanelets"])
     assert ours.dt == theirs["dt"]
     for ll in theirs["lanelets"]:
@@ -115,7 +125,7 @@ def state_matches(mine, theirs: dict) -> None:
 
 @pytest.mark.parametrize("name", FILES)
 def test_obstacles_equal(compared, name):
-    ours, _, theirs = compared[name]
+    ours, _, _, theirs = compared[name]
     assert sorted(ours.obstacles) == sorted(o["id"] for o in theirs["obstacles"])
     states = 0
     for ob in theirs["obstacles"]:
@@ -135,7 +145,7 @@ def test_obstacles_equal(compared, name):
 
 @pytest.mark.parametrize("name", FILES)
 def test_planning_problems_equal(compared, name):
-    ours, _, theirs = compared[name]
+    ours, _, _, theirs = compared[name]
     assert sorted(ours.planning_problems) == sorted(p["id"] for p in theirs["planning_problems"])
     for pp in theirs["planning_problems"]:
         mine = ours.planning_problems[pp["id"]]
@@ -171,7 +181,7 @@ def test_planning_problems_equal(compared, name):
 
 @pytest.mark.parametrize("name", FILES)
 def test_goal_reached_equal(compared, name):
-    ours, grid, theirs = compared[name]
+    ours, grid, _, theirs = compared[name]
     assert len(theirs["goal_reached"]) == len(grid) > 0
     mine = []
     for s in grid:
@@ -180,4 +190,25 @@ def test_goal_reached_equal(compared, name):
     differ = [s for s, a, b in zip(grid, mine, theirs["goal_reached"]) if a != b]
     assert not differ, f"{len(differ)} of {len(grid)} differ, e.g. {differ[:3]}"
     # the grid must meet the goal somewhere and miss it elsewhere, or it tests little
+    assert any(mine) and not all(mine)
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_obstacle_outlines_equal(compared, name):
+    ours, _, _, theirs = compared[name]
+    for ob in theirs["obstacles"]:
+        mine = ours.obstacles[ob["id"]]
+        for st, outline in zip(ob["states"], ob["outlines"]):
+            corners = obstacle_outline(mine, int(st["time_step"]))
+            assert len(corners) == len(outline)
+            gap = np.linalg.norm(corners[:, None, :] - np.asarray(outline)[None, :, :], axis=2).min(axis=1)
+            assert gap.max() < 1e-9, (ob["id"], st["time_step"])
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_lanelets_at_points_equal(compared, name):
+    ours, _, points, theirs = compared[name]
+    mine = [sorted(ids) for ids in lanelets_at(ours, points[:, 0], points[:, 1])]
+    differ = [(p.tolist(), a, b) for p, a, b in zip(points, mine, theirs["lanelets_at"]) if a != b]
+    assert not differ, f"{len(differ)} of {len(points)} points differ, e.g. {differ[:3]}"
     assert any(mine) and not all(mine)

@@ -1,4 +1,4 @@
-"""CommonRoad's goal test and road test on states read by ``pytest_driveeval.io.commonroad``.
+"""CommonRoad's goal test, road test and obstacle outlines on what ``pytest_driveeval.io.commonroad`` reads.
 
 The semantics follow commonroad-io's ``GoalRegion.is_reached`` (checked against it by
 tests/io/test_commonroad_oracle.py): a planning problem's goal is reached when any of its goal states
@@ -16,9 +16,10 @@ import numpy as np
 
 from ..geometry import points_in_polygon
 from ..geometry.polygons import outline_distance
-from .commonroad_types import Circle, CommonRoadScenario, GoalState, PlanningProblem, Polygon, Rectangle, Shape
+from .commonroad_types import (Circle, CommonRoadScenario, GoalState, Obstacle, PlanningProblem, Polygon, Rectangle,
+                               Shape)
 
-__all__ = ["goal_reached", "in_shape", "in_outline", "on_road"]
+__all__ = ["goal_reached", "in_shape", "in_outline", "on_road", "lanelets_at", "obstacle_outline"]
 
 # Points this close to an outline count as on it: commonroad-io's shapely test includes the boundary,
 # which a crossing-number test only half does.
@@ -99,3 +100,42 @@ def on_road(scenario: CommonRoadScenario, x, y) -> np.ndarray:
         if near.any():
             flat[near] = in_outline(xs[near], ys[near], outline)
     return flat.reshape(out.shape)
+
+
+def lanelets_at(scenario: CommonRoadScenario, x, y) -> list[list[int]]:
+    """For each point, the ids of the lanelets whose outline holds it (in or on), in the file's order;
+    commonroad-io's ``LaneletNetwork.find_lanelet_by_position``."""
+    xs, ys = np.atleast_1d(np.asarray(x, dtype=np.float64)), np.atleast_1d(np.asarray(y, dtype=np.float64))
+    xs, ys = np.broadcast_arrays(xs, ys)
+    xs, ys = xs.ravel(), ys.ravel()
+    found: list[list[int]] = [[] for _ in range(len(xs))]
+    for lanelet in scenario.lanelets.values():
+        outline = lanelet.polygon
+        lo, hi = outline.min(axis=0) - ON_EDGE, outline.max(axis=0) + ON_EDGE
+        near = np.flatnonzero((xs >= lo[0]) & (xs <= hi[0]) & (ys >= lo[1]) & (ys <= hi[1]))
+        if len(near):
+            for i in near[in_outline(xs[near], ys[near], outline)]:
+                found[i].append(lanelet.id)
+    return found
+
+
+def obstacle_outline(obstacle: Obstacle, time_step: int, circle_vertices: int = 32) -> np.ndarray:
+    """(K, 2) outline of the obstacle's shape at its state of ``time_step``: the shape (placed by its own
+    center and orientation, zero for the files seen) turned by the state's orientation and moved to its
+    position.  A rectangle gives its 4 corners counter-clockwise from rear right; a circle a
+    ``circle_vertices``-gon through its rim."""
+    state = obstacle.trajectory.at(time_step)
+    shape = obstacle.shape
+    if isinstance(shape, Rectangle):
+        hl, hw = 0.5 * shape.length, 0.5 * shape.width
+        local = np.array([[-hl, -hw], [hl, -hw], [hl, hw], [-hl, hw]])
+        c, s = math.cos(shape.orientation), math.sin(shape.orientation)
+        local = local @ np.array([[c, s], [-s, c]]) + shape.center
+    elif isinstance(shape, Circle):
+        a = np.linspace(0.0, 2.0 * math.pi, circle_vertices, endpoint=False)
+        local = shape.center + shape.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
+    else:
+        local = shape.vertices
+    heading = 0.0 if math.isnan(state.orientation) else state.orientation
+    c, s = math.cos(heading), math.sin(heading)
+    return local @ np.array([[c, s], [-s, c]]) + np.array([state.x, state.y])
