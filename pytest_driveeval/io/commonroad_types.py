@@ -1,7 +1,8 @@
 """What a CommonRoad scenario holds, as plain numpy arrays: lanelets, obstacles, planning problems.
 
 The reader is ``pytest_driveeval.io.commonroad``; the goal test ``commonroad_geometry``.  Values the file
-leaves out are ``nan`` (floats) or ``None`` (intervals, neighbours, speed limits).
+leaves out are ``nan`` (floats) or ``None`` (intervals, neighbours, speed limits).  Classes that hold
+arrays compare by identity (``eq=False``): an array's ``==`` has no single truth value.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ class CommonRoadError(DataError, ValueError):
     """A file that is not a CommonRoad scenario this reader can use, or an inconsistent element in one."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Rectangle:
     length: float
     width: float
@@ -29,13 +30,13 @@ class Rectangle:
     orientation: float = 0.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Circle:
     radius: float
     center: np.ndarray  # (2,)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Polygon:
     vertices: np.ndarray  # (K, 2), not closed (the first vertex is not repeated)
 
@@ -49,7 +50,7 @@ class Neighbour:
     same_direction: bool
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Lanelet:
     id: int
     left: np.ndarray   # (N, 2) left bound, in driving direction
@@ -85,7 +86,7 @@ class State:
     slip_angle: float = float("nan")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Trajectory:
     """An obstacle's states over consecutive time steps ``t`` (initial state first); absent values are nan."""
 
@@ -107,7 +108,7 @@ class Trajectory:
                      float(self.velocity[i]), float(self.acceleration[i]))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Obstacle:
     id: int
     role: str  # "dynamic" or "static"
@@ -126,7 +127,7 @@ class Interval:
         return (self.start <= value) & (value <= self.end)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class GoalState:
     """One goal state: reached when every constraint given holds (``commonroad_geometry.goal_reached``).
 
@@ -146,7 +147,7 @@ class GoalState:
         return bool(self.shapes or self.lanelets)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PlanningProblem:
     id: int
     initial: State

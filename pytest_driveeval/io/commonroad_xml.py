@@ -60,7 +60,10 @@ class XmlDoc:
         if node.find("intervalStart") is not None or node.find("intervalEnd") is not None:
             if exact:
                 raise self.error(owner, f"<{node.tag}> holds an interval where an exact value is needed")
-            return Interval(self.child_number(node, "intervalStart"), self.child_number(node, "intervalEnd"))
+            interval = Interval(self.child_number(node, "intervalStart"), self.child_number(node, "intervalEnd"))
+            if not interval.start <= interval.end:
+                raise self.error(owner, f"<{node.tag}> interval starts at {interval.start}, after its end {interval.end}")
+            return interval
         raise self.error(owner, f"<{node.tag}> holds neither <exact> nor <intervalStart>/<intervalEnd>")
 
     def points(self, node: ET.Element | None, owner: ET.Element, what: str) -> np.ndarray:

@@ -101,7 +101,7 @@ def test_anglet_2020a_signs_and_time_only_goal(commonroad_dir):
     assert goal_reached(goal, 1e4, -1e4, 0.0, 0.0, 33) and not goal_reached(goal, 0, 0, 0, 0, 32)
 
 
-def test_on_road(commonroad_dir):
+def test_on_road():
     s = read_commonroad(TUTORIAL)
     assert on_road(s, [15.0, 15.0, 15.0], [0.0, 1.75, 50.0]).tolist() == [True, True, False]
 
@@ -153,6 +153,9 @@ BAD = {
                                        "<intervalEnd>2</intervalEnd></time>")),
                       r'<planningProblem id="5">: goal state at line \d+: goal <position> holds no shape'),
     "goal_nothing": (scenario(problem("")), r'<planningProblem id="5">: goal state at line \d+: .*constrains nothing'),
+    "goal_reversed_interval": (scenario(problem("<velocity><intervalStart>5</intervalStart><intervalEnd>2</intervalEnd>"
+                                                "</velocity>")),
+                               r'<planningProblem id="5">: <velocity> interval starts at 5.0, after its end 2.0'),
     "goal_missing_lanelet": (scenario(problem('<position><lanelet ref="42"/></position>')),
                              r'<planningProblem id="5">: .*names lanelet\(s\) \[42\]'),
     "empty_trajectory": (scenario(dynamic(9, "<trajectory/>")), r'<dynamicObstacle id="9">: .*empty or missing <trajectory>'),
