@@ -44,8 +44,10 @@ SMOKED = {
     "nuplan_oracle/compare_scenes.py": (rf"^terms agreeing with nuplan-devkit: {NUMBER} of", ("torch",)),
 }
 # Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs l5kit's where its venv exists,
-# the nuPlan score comparison test nuplan-devkit's.
+# the nuPlan score comparison test nuplan-devkit's, tests/io/test_commonroad_oracle.py commonroad-io's.
 NOT_SMOKED = {
+    "commonroad_oracle/oracle_venv.py": "creates commonroad-io's venv: pip installs, minutes",
+    "commonroad_oracle/read_scenario.py": "imports commonroad-io: runs inside its venv only",
     "l5kit_oracle/compare_rasters.py": "compares with l5kit itself, in its own venv",
     "l5kit_oracle/oracle_venv.py": "creates l5kit's venv: pip installs, minutes",
     "l5kit_oracle/rasterize.py": "imports l5kit: runs inside its venv only",

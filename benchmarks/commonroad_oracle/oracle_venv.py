@@ -1,0 +1,74 @@
+"""Create or check the venv that holds commonroad-io, the oracle for pytest_driveeval.io.commonroad.
+
+commonroad-io pins protobuf 3.20.2 and brings rtree, omegaconf, networkx, lxml, iso3166 and the
+vehicle models, which is why the package reads CommonRoad XML itself and commonroad-io lives only
+here, at ``~/.cache/driveeval-bench/commonroad``, never in the package's requirements. Run it as a
+script or call ``oracle_python()``: both are idempotent and print what they did. ``read_scenario``
+runs read_scenario.py in the venv and returns its JSON.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
+from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
+
+VENV = Path.home() / ".cache" / "driveeval-bench" / "commonroad"
+READER = Path(__file__).with_name("read_scenario.py")
+READY = "oracle-ready.json"  # written after the import check passes; existing_python() looks for it
+PINS = {"commonroad-io": "2026.1"}
+CHECK = ("import json, importlib.metadata as m;"
+         "from commonroad.common.file_reader import CommonRoadFileReader;"
+         "print(json.dumps({n: m.version(n) for n in ['commonroad-io', 'numpy', 'shapely', 'protobuf']}))")
+
+
+def oracle_python(venv: Path = VENV, quiet: bool = False) -> Path:
+    """The venv's python, after creating the venv and installing commonroad-io if missing or another version."""
+    say = say_to("commonroad", quiet)
+    python = venv_python(venv, "commonroad-io oracle", say)
+    if mismatched(installed(python, list(PINS)), PINS):
+        say("installing " + " ".join(requirement(n, v) for n, v in PINS.items()))
+        pip_install(python, [requirement(n, v) for n, v in PINS.items()])
+    else:
+        say("commonroad-io present")
+    check = subprocess.run([str(python), "-c", CHECK], capture_output=True, text=True)
+    if check.returncode != 0:
+        raise RuntimeError(f"commonroad-io does not import in {venv}:\n{check.stderr}")
+    (venv / READY).write_text(check.stdout)
+    say(f"imports fine: {check.stdout.strip()}")
+    return python
+
+
+def existing_python(venv: Path = VENV) -> Path | None:
+    """The venv's python if it passed its import check before, else None; creates nothing (for skips)."""
+    python = venv / "bin" / "python"
+    return python if python.exists() and (venv / READY).exists() else None
+
+
+def read_scenario(path: Path, goal_states: list[dict] | None = None, points: list[list[float]] | None = None,
+                  python: Path | None = None, timeout: float = 600) -> dict:
+    """What commonroad-io reads from ``path`` (read_scenario.py's JSON), with its goal check on ``goal_states``
+    ({"planning_problem": id, "x", "y", "orientation", "velocity", "time_step"} each) and its lanelet
+    lookup at ``points`` ([x, y] each)."""
+    python = python or oracle_python(quiet=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        states, at = Path(tmp) / "states.json", Path(tmp) / "points.json"
+        states.write_text(json.dumps(goal_states or []))
+        at.write_text(json.dumps(points or []))
+        done = subprocess.run([str(python), str(READER), str(path), "--states", str(states), "--points", str(at)],
+                              capture_output=True, text=True, timeout=timeout)
+    if done.returncode != 0:
+        raise RuntimeError(f"{READER.name} failed on {path}:\n{done.stderr[-4000:]}")
+    return json.loads(done.stdout)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--venv", type=Path, default=VENV)
+    args = parser.parse_args()
+    print(oracle_python(args.venv))
