@@ -200,6 +200,8 @@ def main(argv=None) -> int:
             takeover = rng.random(args.envs) < beta
 
             def act(obs, episodes, expert):
+                if takeover.all():  # round 0: the expert drives every episode, the actor is not asked
+                    return expert
                 with torch.no_grad():
                     own = actor(torch.from_numpy(obs)).numpy()
                 return np.where(takeover[:, None], expert, own)
