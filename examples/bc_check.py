@@ -2,7 +2,7 @@
 expert, the same data, loss, optimiser and updates for each network, judged by the imitation error
 on states of held-out seeds.
 
-    python examples/bc_check.py --blueprint all --train-batches 8 --epochs 8 --seed 0
+    python examples/bc_check.py --blueprint all --train-batches 8 --epochs 32 --seed 0 --threads 1
 
 Data, per blueprint: the expert drives ``--train-batches`` batches of 32 episodes on the training
 seeds of examples/train_gnn_policy.py (100000 upwards; this is its DAgger round 0) and one batch of
@@ -42,7 +42,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--blueprint", default="all", choices=["all", *BLUEPRINTS])
     p.add_argument("--networks", nargs="+", default=sorted(NETWORKS), choices=sorted(NETWORKS))
     p.add_argument("--train-batches", type=int, default=8, help="batches of 32 expert episodes to train on")
-    p.add_argument("--epochs", type=int, default=8, help="passes over the training states")
+    p.add_argument("--epochs", type=int, default=32, help="passes over the training states")
     p.add_argument("--batch", type=int, default=256)
     p.add_argument("--lr", type=float, default=3e-4)
     p.add_argument("--seed", type=int, default=0)
@@ -105,7 +105,8 @@ def main(argv=None) -> int:
         writer = csv.DictWriter(fh, fieldnames=FIELDS)
         writer.writeheader()
         writer.writerows(rows)
-    print(f"\nbehaviour cloning of the IDM expert, seed {args.seed}, {args.train_batches} x 32 training episodes, "
+    print(f"\nbehaviour cloning of the IDM expert, seed {args.seed}, {args.threads} thread(s), "
+          f"{args.train_batches} x 32 training episodes, "
           f"{args.epochs} epochs; MSE in scaled actions (written to {args.out})")
     print(f"{'blueprint':<13}{'network':<8}{'params':>8}{'train states':>14}{'held-out states':>17}"
           f"{'train MSE':>11}{'held-out MSE':>14}")
