@@ -16,6 +16,10 @@ the pair tensor is made once and then changed in place.  Padded nodes lose
 their edges, so no finite value they hold reaches the output.  The message's
 second layer is folded into the node update (see ``MessageRound.updated``).
 
+The squashed Gaussian head (:class:`SquashedGaussianActor`) and the twin Q heads
+(:class:`TwinCritic`) take the encoder as a part, so :mod:`.mlp`'s flat-vector actor and critic
+are the same code with another encoder.
+
 Everything here compiles with ``torch.jit.script``; weights load with
 ``weights.pt=pytest_driveeval.policies.gnn:make_actor``.  float32 or float64:
 float16 cannot hold the ``1e30``.
