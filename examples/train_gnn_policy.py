@@ -1,13 +1,22 @@
-"""Train the shipped GNN actor (seed 002) with soft actor-critic, warm-started by DAgger from IDMExpert.
+"""Train the shipped GNN actor (seed 002), or the MLP actor it is compared with, by soft actor-critic
+warm-started by DAgger from IDMExpert.
 
-    python examples/train_gnn_policy.py --blueprint merging --minutes 20 --seed 0 \\
-        --out fixtures/models/gnn_actor_merging.pt2
+    python examples/train_gnn_policy.py --network gnn --blueprint merging --minutes 20 --seed 0
 
-Writes ``<out>`` (a torch.export program, ``.pt2``; input the flat graph
-observation (E, 279) float32 of ``evaluate.observe`` with agent_limit 12, output
-the deterministic action (E, 2) = (acceleration m/s^2, steering rad)), and next
-to it ``<stem>_training.csv`` and ``<stem>_training.png``: the learning curve on
-64 held-out episodes (seeds 0..63, the evaluation range, never trained on).
+Writes ``<out>`` (default fixtures/models/<network>_actor_<blueprint>.pt2; a
+torch.export program; input the flat graph observation (E, 279) float32 of
+``evaluate.observe`` with agent_limit 12, output the deterministic action
+(E, 2) = (acceleration m/s^2, steering rad)), and next to it
+``<stem>_training.csv`` and ``<stem>_training.png``: the learning curve on 64
+held-out episodes (seeds 0..63, the evaluation range, never trained on), with
+the collection throughput so far (``env_steps_per_s``: steps of running
+episodes per second spent collecting, i.e. acting, labelling by the expert,
+simulating and observing; torch on ``--threads`` threads, 2 by default).
+
+``--network`` (gnn: policies/gnn.py, mlp: policies/mlp.py, the seed's "SAC") is
+the only thing that differs between runs compared: same seeds, DAgger rounds,
+SAC, budget and reward.  The pieces other than the loop are in
+examples/policy_training.py.
 
 Method, in two phases; both collect experience from ``--envs`` episodes of the
 batched simulator stepped together, on training seeds from ``--train-seed``
@@ -46,7 +55,7 @@ range.  In the run that made fixtures/models/gnn_actor_merging.pt2 (seed 0,
 already reached 100 % goals, 0 % collisions on both ranges and SAC fine-tuning
 held that for 23,579 updates without beating it, so the shipped weights are
 that DAgger checkpoint.  Deterministic for a seed
-with ``--steps`` (torch and numpy seeded, 2 threads); ``--minutes`` stops on
+with ``--steps`` (torch and numpy seeded, the same ``--threads``); ``--minutes`` stops on
 wall time, so a run cut by it depends on the machine's speed.
 """
 from __future__ import annotations
@@ -62,26 +71,44 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction
-from pytest_driveeval.policies.idm_expert import IDMExpert
-from pytest_driveeval.policies.export import export_program
-from pytest_driveeval.policies.gnn import make_actor, make_critic
-from pytest_driveeval.sim.blueprints import make_blueprint
-from pytest_driveeval.sim.episodes import reset
-from pytest_driveeval.usecases.policy_benchmark.evaluate import observe, run_policy
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # policy_training, next to this script
 
-AGENT_LIMIT = 12
-HELD_OUT = np.arange(0, 64)
-VALIDATION = np.arange(50000, 50064)
+from policy_training import (  # noqa: E402
+    AGENT_LIMIT,
+    BLUEPRINTS,
+    HELD_OUT,
+    NETWORKS,
+    VALIDATION,
+    Collector,
+    Replay,
+    bc_loss,
+    default_out,
+    evaluate,
+    plot,
+)
+
+from pytest_driveeval.policies.control_baselines import ConstantAction, RandomAction  # noqa: E402
+from pytest_driveeval.policies.export import export_program  # noqa: E402
+from pytest_driveeval.policies.idm_expert import IDMExpert  # noqa: E402
+from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
+from pytest_driveeval.sim.episodes import reset  # noqa: E402
+from pytest_driveeval.usecases.policy_benchmark.evaluate import observe, run_policy  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--blueprint", default="merging", choices=["highway", "merging", "intersection"])
+    p.add_argument("--network", default="gnn", choices=sorted(NETWORKS),
+                   help="gnn: policies/gnn.py; mlp: policies/mlp.py; nothing else differs between the two")
+    p.add_argument("--blueprint", default="merging", choices=BLUEPRINTS)
     p.add_argument("--steps", type=int, default=20000, help="SAC gradient updates (after the critic warm-up)")
-    p.add_argument("--minutes", type=float, default=20.0, help="wall-time budget for the whole run")
+    p.add_argument("--minutes", type=float, default=20.0,
+                   help="wall-time budget: no DAgger round, critic warm-up update or SAC update starts after it "
+                        "(the last evaluations and the export come on top)")
+    p.add_argument("--threads", type=int, default=2,
+                   help="torch threads; on a machine whose cores other jobs keep busy, 1 can be 10-50x faster "
+                        "(the second thread's wake-ups wait for a core)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=None, help="default fixtures/models/gnn_actor_<blueprint>.pt2")
+    p.add_argument("--out", type=Path, default=None, help="default fixtures/models/<network>_actor_<blueprint>.pt2")
     p.add_argument("--envs", type=int, default=32, help="episodes stepped together")
     p.add_argument("--train-seed", type=int, default=100000, help="first training seed (evaluation uses 0..999)")
     p.add_argument("--dagger-rounds", type=int, default=6, help="0: SAC from scratch")
@@ -101,99 +128,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-class Replay:
-    """Transitions with the expert's label of each state, in preallocated arrays."""
-
-    def __init__(self, capacity: int, obs_size: int):
-        self.obs = np.zeros((capacity, obs_size), np.float32)
-        self.next_obs = np.zeros((capacity, obs_size), np.float32)
-        self.action = np.zeros((capacity, 2), np.float32)
-        self.expert = np.zeros((capacity, 2), np.float32)
-        self.reward = np.zeros(capacity, np.float32)
-        self.terminal = np.zeros(capacity, np.float32)
-        self.capacity, self.size, self.head = capacity, 0, 0
-
-    def add(self, obs, action, expert, reward, next_obs, terminal) -> None:
-        n = len(obs)
-        idx = (self.head + np.arange(n)) % self.capacity
-        self.obs[idx], self.action[idx], self.expert[idx] = obs, action, expert
-        self.reward[idx], self.next_obs[idx], self.terminal[idx] = reward, next_obs, terminal
-        self.head = (self.head + n) % self.capacity
-        self.size = min(self.size + n, self.capacity)
-
-    def sample(self, rng: np.random.Generator, batch: int):
-        idx = rng.integers(0, self.size, batch)
-        return tuple(torch.from_numpy(a[idx]) for a in
-                     (self.obs, self.action, self.expert, self.reward, self.next_obs, self.terminal))
-
-
-class Collector:
-    """``envs`` episodes stepped together; a new batch of seeds once all of them have ended."""
-
-    def __init__(self, blueprint, envs: int, first_seed: int, progress_scale: float):
-        self.blueprint, self.envs, self.next_seed = blueprint, envs, first_seed
-        self.progress_scale = progress_scale
-        self.expert = IDMExpert()
-        self.episodes_done = 0
-        self.outcomes: list[np.ndarray] = []
-        self._new_batch()
-
-    def _new_batch(self) -> None:
-        seeds = np.arange(self.next_seed, self.next_seed + self.envs)
-        self.next_seed += self.envs
-        self.episodes = reset(self.blueprint, seeds, AGENT_LIMIT)
-        self.obs = observe(self.episodes, AGENT_LIMIT).numpy()
-        self.distance = self._goal_distance()
-
-    def _goal_distance(self) -> np.ndarray:
-        return np.linalg.norm(self.episodes.xy[:, 0] - self.episodes.goal_centre, axis=1)
-
-    def step(self, act) -> tuple:
-        """One step of every running episode; ``act(obs, episodes) -> actions (E, 2)``.  Returns the
-        running episodes' transitions (obs, action, expert label, shaped reward, next obs, terminal)."""
-        ep = self.episodes
-        running = ~ep.done
-        expert = self.expert.act_on_episodes(ep)
-        actions = np.where(running[:, None], act(self.obs, ep, expert), 0.0)
-        result = ep.step(actions)
-        next_obs = observe(ep, AGENT_LIMIT).numpy()
-        distance = self._goal_distance()
-        # The seed's reward without its per-step bonus, plus progress towards the goal.
-        reward = (result.goal.astype(np.float32) - (result.collision | result.off_road)
-                  + self.progress_scale * (self.distance - distance))
-        terminal = result.goal | result.collision | result.off_road
-        out = (self.obs[running], actions[running].astype(np.float32), expert[running].astype(np.float32),
-               reward[running].astype(np.float32), next_obs[running], terminal[running].astype(np.float32))
-        self.obs, self.distance = next_obs, distance
-        if ep.done.all():
-            self.outcomes.append(ep.outcome.copy())
-            self.episodes_done += self.envs
-            self._new_batch()
-        return out
-
-
-def scaled(actor, action: torch.Tensor) -> torch.Tensor:
-    return (action - actor.action_center) / actor.action_half_range
-
-
-def bc_loss(actor, obs: torch.Tensor, expert: torch.Tensor) -> torch.Tensor:
-    # The expert often acts at a bound, where tanh cannot reach: aim just inside it.
-    target = scaled(actor, expert).clamp(-0.97, 0.97)
-    return F.mse_loss(scaled(actor, actor(obs)), target)
-
-
-def evaluate(actor, blueprint, seeds: np.ndarray) -> dict[str, float]:
-    actor.eval()
-    figures = run_policy(blueprint, seeds, actor, "gnn", agent_limit=AGENT_LIMIT).figures()
-    actor.train()
-    return figures
-
-
 def main(argv=None) -> int:
     args = parse_args(argv)
-    out = args.out or Path(__file__).resolve().parents[1] / "fixtures" / "models" / f"gnn_actor_{args.blueprint}.pt2"
+    out = args.out or default_out(args.network, args.blueprint)
     out.parent.mkdir(parents=True, exist_ok=True)
-    torch.set_num_threads(2)
+    torch.set_num_threads(args.threads)
     # Saturated sigmoids on states far off the road leave denormal floats that slow every
     # matmul by 10-30x on x86; flushed to zero they change nothing we can measure.
     torch.set_flush_denormal(True)
@@ -206,8 +145,9 @@ def main(argv=None) -> int:
         return time.monotonic() - start
 
     blueprint = make_blueprint(args.blueprint)
-    actor = make_actor().train()
-    critic = make_critic()
+    network = NETWORKS[args.network]
+    actor = network.make_actor().train()
+    critic = network.make_critic()
     target = copy.deepcopy(critic).requires_grad_(False)
     obs_size = actor.encoder.observation_size
     replay = Replay(args.buffer, obs_size)
@@ -229,10 +169,11 @@ def main(argv=None) -> int:
     best = {"score": (-1.0, 0.0), "state": copy.deepcopy(actor.state_dict()), "row": None}
 
     def checkpoint(phase: str, updates: int) -> None:
-        held = evaluate(actor, blueprint, HELD_OUT)
-        val = evaluate(actor, blueprint, VALIDATION)
+        held = evaluate(actor, blueprint, HELD_OUT, args.network)
+        val = evaluate(actor, blueprint, VALIDATION, args.network)
         row = {"phase": phase, "updates": updates, "episodes": collector.episodes_done,
                "transitions": replay.size, "minutes": round(elapsed() / 60.0, 2),
+               "env_steps": collector.env_steps, "env_steps_per_s": round(collector.steps_per_second, 1),
                "alpha": round(float(log_alpha.detach().exp()), 5),
                **{f"held_out_{k}": round(held[k], 2) for k in ("goal_rate", "collision_rate", "off_road_rate",
                                                                 "step_limit_rate")},
@@ -251,18 +192,21 @@ def main(argv=None) -> int:
     # Phase 1: DAgger from the expert.
     bc_updates = 0
     for rnd in range(args.dagger_rounds):
+        if rnd and time.monotonic() >= deadline:
+            print(f"DAgger stopped after {rnd} rounds: the --minutes budget is spent", flush=True)
+            break
         beta = 0.5 ** rnd
         for _ in range(args.dagger_batches):
             takeover = rng.random(args.envs) < beta
 
             def act(obs, episodes, expert):
+                if takeover.all():  # round 0: the expert drives every episode, the actor is not asked
+                    return expert
                 with torch.no_grad():
                     own = actor(torch.from_numpy(obs)).numpy()
                 return np.where(takeover[:, None], expert, own)
 
-            first = collector.episodes_done
-            while collector.episodes_done == first:
-                replay.add(*collector.step(act))
+            collector.episodes_of(act, replay=replay)
         epochs = args.bc_epochs * max(1, replay.size // args.batch)
         for _ in range(epochs):
             obs, _, expert, *_ = replay.sample(rng, args.batch)
@@ -319,9 +263,11 @@ def main(argv=None) -> int:
     if replay.size < args.batch:  # from scratch: fill the buffer with the untrained actor's experience
         while replay.size < 10 * args.batch:
             replay.add(*collector.step(sac_act))
-    for i in range(args.critic_warmup):
+    warmup = 0
+    while warmup < args.critic_warmup and (warmup == 0 or time.monotonic() < deadline):
         sac_update(0, actor_too=False)
-    print(f"critic warm-up: {args.critic_warmup} updates, {elapsed() / 60:.1f} min", flush=True)
+        warmup += 1
+    print(f"critic warm-up: {warmup} updates, {elapsed() / 60:.1f} min", flush=True)
 
     updates = 0
     while updates < args.steps and time.monotonic() < deadline:
@@ -338,7 +284,7 @@ def main(argv=None) -> int:
     actor.eval()
     example = observe(reset(blueprint, np.arange(8), agent_limit=AGENT_LIMIT), AGENT_LIMIT)
     program = export_program(actor, (example,), out)
-    final = run_policy(blueprint, HELD_OUT, program, "gnn", agent_limit=AGENT_LIMIT).figures()
+    final = run_policy(blueprint, HELD_OUT, program, args.network, agent_limit=AGENT_LIMIT).figures()
 
     stem = out.with_suffix("")
     csv_path = stem.parent / f"{stem.name}_training.csv"
@@ -346,52 +292,20 @@ def main(argv=None) -> int:
         writer = csv.DictWriter(fh, fieldnames=list(curve[0]))
         writer.writeheader()
         writer.writerows(curve)
-    plot(curve, baselines, best["row"], args, stem.parent / f"{stem.name}_training.png")
+    plot(curve, baselines, best["row"], args, collector.steps_per_second, stem.parent / f"{stem.name}_training.png")
 
     print(f"\nshipped: {out} (chosen at {best['row']['phase']} {best['row']['updates']} updates), "
           f"{elapsed() / 60:.1f} min, {updates} SAC updates, {bc_updates} BC updates, "
           f"{collector.episodes_done} training episodes, {replay.size} transitions in the buffer")
-    print(f"held-out seeds 0..63: gnn goal {final['goal_rate']:.1f} % collision {final['collision_rate']:.1f} % "
+    print(f"collection throughput: {collector.steps_per_second:,.0f} env steps/s ({collector.env_steps} steps in "
+          f"{collector.seconds:.1f} s of collection, {torch.get_num_threads()} threads, {args.network}, "
+          f"{args.blueprint})")
+    print(f"held-out seeds 0..63: {args.network} goal {final['goal_rate']:.1f} % collision {final['collision_rate']:.1f} % "
           f"off-road {final['off_road_rate']:.1f} % step limit {final['step_limit_rate']:.1f} %")
     for name, fig in baselines.items():
         print(f"{'':14}{name} goal {fig['goal_rate']:.1f} % collision {fig['collision_rate']:.1f} % "
               f"off-road {fig['off_road_rate']:.1f} %")
     return 0
-
-
-def plot(curve: list[dict], baselines: dict, chosen: dict | None, args, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    x = np.arange(len(curve))
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    for key, label, colour in (("held_out_goal_rate", "goal", "tab:green"),
-                               ("held_out_collision_rate", "collision", "tab:red"),
-                               ("held_out_off_road_rate", "off-road", "tab:orange"),
-                               ("held_out_step_limit_rate", "step limit", "tab:gray")):
-        ax.plot(x, [r[key] for r in curve], marker="o", ms=3, label=f"gnn {label}", color=colour)
-    styles = {"random": ":", "constant": "-.", "idm_expert": "--"}
-    for name, fig_ in baselines.items():
-        ax.axhline(fig_["goal_rate"], ls=styles[name], color="tab:green", alpha=0.5, lw=1,
-                   label=f"{name} goal ({fig_['goal_rate']:.0f} %)")
-    dagger = [i for i, r in enumerate(curve) if r["phase"] == "dagger"]
-    if dagger:
-        ax.axvspan(-0.5, dagger[-1] + 0.5, color="tab:blue", alpha=0.07, label="DAgger warm start")
-    if chosen is not None:
-        ax.axvline(curve.index(chosen), color="k", lw=0.8, label="shipped checkpoint")
-    ax.set_xticks(x[::max(1, len(x) // 12)])
-    ax.set_xticklabels([f"{curve[i]['phase'][0]}{curve[i]['updates']}" for i in x[::max(1, len(x) // 12)]],
-                       rotation=45, fontsize=7)
-    ax.set_xlabel("checkpoint (i: init, d: DAgger BC updates, s: SAC updates)")
-    ax.set_ylabel("% of 64 held-out episodes (seeds 0..63)")
-    ax.set_ylim(-2, 102)
-    ax.set_title(f"GNN actor on {args.blueprint}: DAgger warm start + SAC (seed {args.seed})")
-    ax.legend(fontsize=7, loc="center right")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 if __name__ == "__main__":

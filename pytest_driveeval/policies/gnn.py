@@ -16,6 +16,10 @@ the pair tensor is made once and then changed in place.  Padded nodes lose
 their edges, so no finite value they hold reaches the output.  The message's
 second layer is folded into the node update (see ``MessageRound.updated``).
 
+The squashed Gaussian head (:class:`SquashedGaussianActor`) and the twin Q heads
+(:class:`TwinCritic`) take the encoder as a part, so :mod:`.mlp`'s flat-vector actor and critic
+are the same code with another encoder.
+
 Everything here compiles with ``torch.jit.script``; weights load with
 ``weights.pt=pytest_driveeval.policies.gnn:make_actor``.  float32 or float64:
 float16 cannot hold the ``1e30``.
@@ -39,7 +43,8 @@ from .graph import (
     split_flat,
 )
 
-__all__ = ["GNNActor", "GNNCritic", "GraphEncoder", "MessageRound", "make_actor", "make_critic"]
+__all__ = ["GNNActor", "GNNCritic", "GraphEncoder", "MessageRound", "SquashedGaussianActor", "TwinCritic",
+           "check_flat", "make_actor", "make_critic"]
 
 # The shipped configuration: widths chosen to pass 200k observations/s at batch 256 on one core.
 HIDDEN = 32
@@ -50,6 +55,23 @@ HEAD_HIDDEN = 64
 ACTION_LOW = (-5.0, -0.2)
 ACTION_HIGH = (4.0, 0.2)
 LOG_STD_MIN, LOG_STD_MAX = -5.0, 2.0
+
+
+def check_flat(flat: Tensor, agent_limit: int, num_features: int, size: int) -> None:
+    """Refuse flat observations of another width or whose header names another K or F."""
+    if flat.dim() != 2 or flat.shape[1] != size:
+        raise ValueError(f"flat observations: expected shape (B, {size}) for K="
+                         f"{agent_limit}, F={num_features}, found {list(flat.shape)}")
+    header_ok = (flat[:, 0] == agent_limit).all() & (flat[:, 2] == num_features).all()
+    header_error = f"flat observations: header [K, n, F] does not say K={agent_limit}, F={num_features}"
+    if torch.jit.is_scripting():
+        if not bool(header_ok):
+            raise ValueError(header_error)
+    elif torch.compiler.is_exporting():
+        # An exported program cannot branch on values: the check becomes an op that fails the call.
+        torch._assert_async(header_ok, header_error)
+    elif not bool(header_ok):
+        raise ValueError(header_error)
 
 
 class MessageRound(nn.Module):
@@ -113,19 +135,7 @@ class GraphEncoder(nn.Module):
         self.register_buffer("edge_columns", torch.tensor(EDGE_SOURCE_COLUMNS), persistent=False)
 
     def forward(self, flat: Tensor) -> Tensor:
-        if flat.dim() != 2 or flat.shape[1] != self.observation_size:
-            raise ValueError(f"flat observations: expected shape (B, {self.observation_size}) for K="
-                             f"{self.agent_limit}, F={self.num_features}, found {list(flat.shape)}")
-        header_ok = (flat[:, 0] == self.agent_limit).all() & (flat[:, 2] == self.num_features).all()
-        header_error = f"flat observations: header [K, n, F] does not say K={self.agent_limit}, F={self.num_features}"
-        if torch.jit.is_scripting():
-            if not bool(header_ok):
-                raise ValueError(header_error)
-        elif torch.compiler.is_exporting():
-            # An exported program cannot branch on values: the check becomes an op that fails the call.
-            torch._assert_async(header_ok, header_error)
-        elif not bool(header_ok):
-            raise ValueError(header_error)
+        check_flat(flat, self.agent_limit, self.num_features, self.observation_size)
         nodes, adjacency, mask = split_flat(flat, self.agent_limit, self.num_features)
         return self.ego_embedding(nodes, adjacency, mask)
 
@@ -155,17 +165,17 @@ def _bounds(low: Sequence[float], high: Sequence[float]) -> tuple[Tensor, Tensor
     return (high_t + low_t) / 2, (high_t - low_t) / 2
 
 
-class GNNActor(nn.Module):
-    """Squashed Gaussian policy: ``forward`` is the deterministic action for evaluation."""
+class SquashedGaussianActor(nn.Module):
+    """Squashed Gaussian policy over an encoder's embedding: ``forward`` is the deterministic
+    action for evaluation.  The GNN and MLP actors differ only in ``encoder`` (flat observation
+    -> (B, features)), so the head, squashing and log-density are this one implementation."""
 
-    def __init__(self, agent_limit: int = SEED_AGENT_LIMIT, num_features: int = len(NODE_FEATURES),
-                 hidden: int = HIDDEN, message_hidden: int = MESSAGE_HIDDEN, rounds: int = ROUNDS,
-                 head_hidden: int = HEAD_HIDDEN, action_low: Sequence[float] = ACTION_LOW,
-                 action_high: Sequence[float] = ACTION_HIGH):
+    def __init__(self, encoder: nn.Module, features: int, head_hidden: int, action_low: Sequence[float],
+                 action_high: Sequence[float]):
         super().__init__()
         center, half = _bounds(action_low, action_high)
-        self.encoder = GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds)
-        self.head = mlp(hidden, head_hidden, 2 * center.shape[0])
+        self.encoder = encoder
+        self.head = mlp(features, head_hidden, 2 * center.shape[0])
         self.log_std_min, self.log_std_max = LOG_STD_MIN, LOG_STD_MAX
         # In the state_dict, so trained weights travel with the bounds they were trained for.
         self.register_buffer("action_center", center)
@@ -194,20 +204,18 @@ class GNNActor(nn.Module):
         return action, (gaussian - squash).sum(dim=-1)
 
 
-class GNNCritic(nn.Module):
-    """Twin Q: two independent encoder + MLP pairs over ``[ego embedding, action scaled to [-1, 1]]``."""
+class TwinCritic(nn.Module):
+    """Twin Q: two independent encoder + MLP pairs over ``[embedding, action scaled to [-1, 1]]``."""
 
-    def __init__(self, agent_limit: int = SEED_AGENT_LIMIT, num_features: int = len(NODE_FEATURES),
-                 hidden: int = HIDDEN, message_hidden: int = MESSAGE_HIDDEN, rounds: int = ROUNDS,
-                 head_hidden: int = HEAD_HIDDEN, action_low: Sequence[float] = ACTION_LOW,
-                 action_high: Sequence[float] = ACTION_HIGH):
+    def __init__(self, encoder1: nn.Module, encoder2: nn.Module, features: int, head_hidden: int,
+                 action_low: Sequence[float], action_high: Sequence[float]):
         super().__init__()
         center, half = _bounds(action_low, action_high)
         actions = center.shape[0]
-        self.encoder1 = GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds)
-        self.encoder2 = GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds)
-        self.q1 = mlp(hidden + actions, head_hidden, 1)
-        self.q2 = mlp(hidden + actions, head_hidden, 1)
+        self.encoder1 = encoder1
+        self.encoder2 = encoder2
+        self.q1 = mlp(features + actions, head_hidden, 1)
+        self.q2 = mlp(features + actions, head_hidden, 1)
         self.register_buffer("action_center", center)
         self.register_buffer("action_half_range", half)
 
@@ -219,6 +227,29 @@ class GNNCritic(nn.Module):
         q1 = self.q1(torch.cat([self.encoder1(flat), scaled], dim=-1)).squeeze(-1)
         q2 = self.q2(torch.cat([self.encoder2(flat), scaled], dim=-1)).squeeze(-1)
         return q1, q2
+
+
+class GNNActor(SquashedGaussianActor):
+    """The squashed Gaussian policy over the message-passing encoder's ego embedding."""
+
+    def __init__(self, agent_limit: int = SEED_AGENT_LIMIT, num_features: int = len(NODE_FEATURES),
+                 hidden: int = HIDDEN, message_hidden: int = MESSAGE_HIDDEN, rounds: int = ROUNDS,
+                 head_hidden: int = HEAD_HIDDEN, action_low: Sequence[float] = ACTION_LOW,
+                 action_high: Sequence[float] = ACTION_HIGH):
+        super().__init__(GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds), hidden,
+                         head_hidden, action_low, action_high)
+
+
+class GNNCritic(TwinCritic):
+    """Twin Q over two independent message-passing encoders."""
+
+    def __init__(self, agent_limit: int = SEED_AGENT_LIMIT, num_features: int = len(NODE_FEATURES),
+                 hidden: int = HIDDEN, message_hidden: int = MESSAGE_HIDDEN, rounds: int = ROUNDS,
+                 head_hidden: int = HEAD_HIDDEN, action_low: Sequence[float] = ACTION_LOW,
+                 action_high: Sequence[float] = ACTION_HIGH):
+        super().__init__(GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds),
+                         GraphEncoder(agent_limit, num_features, hidden, message_hidden, rounds), hidden,
+                         head_hidden, action_low, action_high)
 
 
 def make_actor(*, agent_limit: int = SEED_AGENT_LIMIT, num_features: int = len(NODE_FEATURES),
