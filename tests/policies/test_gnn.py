@@ -32,6 +32,8 @@ from pytest_driveeval.policies.graph import (
 )
 from pytest_driveeval.policies.loading import load_model
 
+from flat_examples import example_flat
+
 F = 11
 
 
@@ -246,7 +248,7 @@ def test_sample_log_prob_is_the_density_of_the_squashed_scaled_gaussian():
     # Default initialisation: means near 0, where tanh is still invertible in float64.
     torch.manual_seed(0)
     actor = make_actor().double()
-    flat = torch.cat([_example_flat(s) for s in range(4)]).double()
+    flat = torch.cat([example_flat(s) for s in range(4)]).double()
     with torch.no_grad():
         torch.manual_seed(0)
         action, log_prob = actor.sample(flat)
@@ -260,18 +262,11 @@ def test_sample_log_prob_is_the_density_of_the_squashed_scaled_gaussian():
     assert log_prob.shape == (4,) and not torch.equal(action, actor(flat))
 
 
-def _example_flat(seed: int, agents: int = 9) -> torch.Tensor:
-    rng = np.random.default_rng(seed)
-    return encode(graph_observation(
-        xy=rng.uniform(-40, 40, (1, agents, 2)), yaw=rng.uniform(0, 6, (1, agents)),
-        speed=rng.uniform(0, 30, (1, agents)), valid=rng.random((1, agents)) < 0.8,
-        goal_xy=np.array([[150.0, 0.0]]), goal_speed=np.array([15.0]),
-        ranges=ObservationRanges.from_bounding_box(-100, -100, 200, 100)))
 
 
 def test_sac_losses_reach_every_weight():
     actor, critic = make_actor().train(), make_critic()
-    flat = torch.cat([_example_flat(s) for s in range(8)])
+    flat = torch.cat([example_flat(s) for s in range(8)])
     action, log_prob = actor.sample(flat)
     q1, q2 = critic(flat, action)
     assert q1.shape == q2.shape == (8,) and not torch.equal(q1, q2)
@@ -286,7 +281,7 @@ def test_sac_losses_reach_every_weight():
 @pytest.mark.filterwarnings("ignore:`torch.jit.*` is deprecated:DeprecationWarning")
 def test_scripted_saved_and_loaded_models_act_the_same(tmp_path):
     actor, critic = spread(make_actor()), make_critic()
-    flat = torch.cat([_example_flat(s) for s in range(5)])
+    flat = torch.cat([example_flat(s) for s in range(5)])
     scripted, scripted_critic = torch.jit.script(actor), torch.jit.script(critic)
     torch.jit.save(scripted, tmp_path / "actor.pt")
     torch.save(actor.state_dict(), tmp_path / "weights.pt")
@@ -315,7 +310,7 @@ def test_the_factories_build_the_shipped_configuration():
 
 
 def test_observations_of_another_shape_are_refused_with_the_shapes():
-    flat = _example_flat(0)
+    flat = example_flat(0)
     small = make_actor(agent_limit=8)
     with pytest.raises(ValueError, match=r"expected shape \(B, 155\) for K=8, F=11, found \[1, 279\]"):
         small(flat)

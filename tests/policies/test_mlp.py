@@ -2,16 +2,17 @@
 the flat observation read as one vector."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-from pytest_driveeval.policies import gnn, mlp  # noqa: E402
+from pytest_driveeval.policies import gnn  # noqa: E402
 from pytest_driveeval.policies.export import export_program  # noqa: E402
-from pytest_driveeval.policies.graph import ObservationRanges, encode, graph_observation, observation_size  # noqa: E402
+from pytest_driveeval.policies.graph import observation_size  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
 from pytest_driveeval.policies.mlp import MLPActor, MLPCritic, make_actor, make_critic, parameter_count  # noqa: E402
+
+from flat_examples import example_flat  # noqa: E402
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -22,13 +23,6 @@ def one_thread():
     torch.set_num_threads(threads)
 
 
-def example_flat(seed: int, agents: int = 9) -> torch.Tensor:
-    rng = np.random.default_rng(seed)
-    return encode(graph_observation(
-        xy=rng.uniform(-40, 40, (1, agents, 2)), yaw=rng.uniform(0, 6, (1, agents)),
-        speed=rng.uniform(0, 30, (1, agents)), valid=rng.random((1, agents)) < 0.8,
-        goal_xy=np.array([[150.0, 0.0]]), goal_speed=np.array([15.0]),
-        ranges=ObservationRanges.from_bounding_box(-100, -100, 200, 100)))
 
 
 FLAT = torch.cat([example_flat(s) for s in range(6)])
