@@ -58,6 +58,26 @@ def installed(python: Path, names: List[str]) -> Dict[str, Optional[str]]:
     return json.loads(done.stdout)
 
 
+def install_pins(python: Path, pins: Dict[str, Optional[str]], say: Callable[[str], None]) -> None:
+    """Install ``pins`` into ``python``'s environment when any is absent or at another version."""
+    wrong = mismatched(installed(python, list(pins)), pins)
+    if not wrong:
+        say("pinned dependencies present")
+        return
+    say("installing " + " ".join(requirement(n, pins[n]) for n in wrong))
+    # All pins in one resolve, so that no dependency pulls another version of a pinned one.
+    pip_install(python, [requirement(n, v) for n, v in pins.items()])
+
+
+def import_check(python: Path, args: List[str], what: str, venv: Path) -> str:
+    """Run ``python args`` (an import check that prints what it found); its output, or an error that
+    says ``what`` does not import in ``venv``."""
+    done = subprocess.run([str(python), *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{what} does not import in {venv}:\n{done.stderr}")
+    return done.stdout
+
+
 def mismatched(have: Dict[str, Optional[str]], wanted: Dict[str, Optional[str]]) -> List[str]:
     """The pinned names absent or at another version; a local-version tag (torch's "+cpu") still satisfies
     its pin."""

@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
-from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
+from reference_venvs import import_check, install_pins, say_to, venv_python  # noqa: E402
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "commonroad"
 READER = Path(__file__).with_name("read_scenario.py")
@@ -31,16 +31,10 @@ def oracle_python(venv: Path = VENV, quiet: bool = False) -> Path:
     """The venv's python, after creating the venv and installing commonroad-io if missing or another version."""
     say = say_to("commonroad", quiet)
     python = venv_python(venv, "commonroad-io oracle", say)
-    if mismatched(installed(python, list(PINS)), PINS):
-        say("installing " + " ".join(requirement(n, v) for n, v in PINS.items()))
-        pip_install(python, [requirement(n, v) for n, v in PINS.items()])
-    else:
-        say("commonroad-io present")
-    check = subprocess.run([str(python), "-c", CHECK], capture_output=True, text=True)
-    if check.returncode != 0:
-        raise RuntimeError(f"commonroad-io does not import in {venv}:\n{check.stderr}")
-    (venv / READY).write_text(check.stdout)
-    say(f"imports fine: {check.stdout.strip()}")
+    install_pins(python, PINS, say)
+    found = import_check(python, ["-c", CHECK], "commonroad-io", venv)
+    (venv / READY).write_text(found)
+    say(f"imports fine: {found.strip()}")
     return python
 
 

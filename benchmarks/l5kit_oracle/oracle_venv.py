@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
-from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
+from reference_venvs import import_check, install_pins, installed, pip_install, say_to, venv_python  # noqa: E402
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "l5kit"
 RASTERIZE = Path(__file__).with_name("rasterize.py")
@@ -50,23 +50,14 @@ def oracle_python(venv: Path = VENV, quiet: bool = False) -> Path:
     """The venv's python, after creating the venv and installing what is missing or differs."""
     say = say_to("l5kit", quiet)
     python = venv_python(venv, "l5kit oracle", say)
-    deps = PINS  # l5kit's imports need nothing beyond them (checked by CHECK below)
-    wrong = mismatched(installed(python, list(deps)), deps)
-    if wrong:
-        say("installing " + " ".join(requirement(n, deps[n]) for n in wrong))
-        # All pins in one resolve, so no dependency pulls another numpy or torch.
-        pip_install(python, [requirement(n, v) for n, v in deps.items()])
-    else:
-        say("pinned dependencies present")
+    install_pins(python, PINS, say)  # l5kit's imports need nothing beyond them (checked by CHECK below)
     if installed(python, ["l5kit"])["l5kit"] != L5KIT.split("==")[1]:
         say(f"installing {L5KIT} --no-deps")
         pip_install(python, ["--no-deps", L5KIT])
     else:
         say(f"{L5KIT} present")
-    check = subprocess.run([str(python), "-c", CHECK % (["l5kit", *deps],)], capture_output=True, text=True)
-    if check.returncode != 0:
-        raise RuntimeError(f"l5kit does not import in {venv}:\n{check.stderr}")
-    say("imports fine: " + check.stdout.strip())
+    found = import_check(python, ["-c", CHECK % (["l5kit", *PINS],)], "l5kit", venv)
+    say("imports fine: " + found.strip())
     return python
 
 

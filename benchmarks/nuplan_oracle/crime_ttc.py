@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any, Dict, List, Optional
@@ -32,21 +31,16 @@ PINS = {"commonroad-crime": "0.4.5"}  # brings commonroad-io, the drivability ch
 def make_venv(venv: Path = VENV) -> Path:
     """The crime venv's python, after creating it and installing commonroad-crime if missing (idempotent)."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
-    from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python
+    from reference_venvs import import_check, install_pins, say_to, venv_python
 
     say = say_to("crime", False)
     python = venv_python(venv, "commonroad-crime", say)
-    if mismatched(installed(python, list(PINS)), PINS):
-        say("installing " + " ".join(requirement(n, v) for n, v in PINS.items()))
-        pip_install(python, [requirement(n, v) for n, v in PINS.items()])
+    install_pins(python, PINS, say)
     versions = ("import importlib.metadata as m, json;"
                 "print(json.dumps({n: m.version(n) for n in ['commonroad-crime', 'commonroad-io', "
                 "'commonroad-drivability-checker', 'commonroad-clcs', 'numpy', 'shapely']}))")
-    done = subprocess.run([str(python), "-c", "import commonroad_crime.measure; " + versions],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"commonroad-crime does not import in {venv}:\n{done.stderr}")
-    print(f"[crime venv] imports fine: {done.stdout.strip()}", flush=True)
+    found = import_check(python, ["-c", "import commonroad_crime.measure; " + versions], "commonroad-crime", venv)
+    say(f"imports fine: {found.strip()}")
     return python
 
 

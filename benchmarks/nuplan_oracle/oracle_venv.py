@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: the venv helpers they share
-from reference_venvs import installed, mismatched, pip_install, requirement, say_to, venv_python  # noqa: E402
+from reference_venvs import import_check, install_pins, say_to, venv_python  # noqa: E402
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "nuplan"
 DEFAULT_DEVKIT = Path("/work/.mirror/motional+nuplan-devkit/repo")
@@ -109,13 +109,7 @@ def oracle_python(venv: Path = VENV, devkit: Path = DEFAULT_DEVKIT, quiet: bool 
     """The venv's python, after creating the venv, extracting the devkit and installing what is missing or differs."""
     say = say_to("nuplan", quiet)
     python = venv_python(venv, "nuplan oracle", say)
-    wrong = mismatched(installed(python, list(PINS)), PINS)
-    if wrong:
-        say("installing " + " ".join(requirement(n, PINS[n]) for n in wrong))
-        # All pins in one resolve, so no dependency pulls another numpy or shapely.
-        pip_install(python, [requirement(n, v) for n, v in PINS.items()])
-    else:
-        say("pinned dependencies present")
+    install_pins(python, PINS, say)
     source = devkit_source(devkit, venv, say)
     pth = site_packages(python) / PTH
     if not pth.exists() or pth.read_text().strip() != str(source):
@@ -123,10 +117,7 @@ def oracle_python(venv: Path = VENV, devkit: Path = DEFAULT_DEVKIT, quiet: bool 
         pth.write_text(f"{source}\n")
     else:
         say(f"{pth.name} points at {source}")
-    check = subprocess.run([str(python), "-c", CHECK, str(METRICS), *PINS], capture_output=True, text=True)
-    if check.returncode != 0:
-        raise RuntimeError(f"nuplan-devkit's metrics do not import in {venv}:\n{check.stderr}")
-    found = json.loads(check.stdout)
+    found = json.loads(import_check(python, ["-c", CHECK, str(METRICS), *PINS], "nuplan-devkit's metrics", venv))
     found["commit"] = git_commit(devkit)
     (venv / READY).write_text(json.dumps(found, indent=1))
     say(f"imports fine: devkit {found['commit'] or source}, {found['metrics']} metrics configured, "

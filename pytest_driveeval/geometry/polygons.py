@@ -105,12 +105,19 @@ def odd_crossings(px: np.ndarray, py: np.ndarray, xi: np.ndarray, yi: np.ndarray
     return (np.count_nonzero(crosses, axis=1) & 1).astype(bool)
 
 
-def outline_distance(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
-    """(P,) distance from each point (P, 2) to the edges of a closed outline (K, 2)."""
-    a = outline
-    ab = np.roll(outline, -1, axis=0) - a
+def segment_projections(points: np.ndarray, a: np.ndarray, ab: np.ndarray) \
+        -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point (P, 2) against each segment from ``a`` (S, 2) along ``ab`` (S, 2): (the fraction
+    along the segment of the point's nearest point on it (P, S), the squared distance to it (P, S),
+    the squared lengths (S,), a degenerate segment's floored so that it divides)."""
     length2 = np.maximum((ab ** 2).sum(1), 1e-18)
     ap = points[:, None, :] - a[None]
     t = np.clip((ap * ab[None]).sum(2) / length2, 0.0, 1.0)
     gap = ap - t[..., None] * ab[None]
-    return np.sqrt((gap ** 2).sum(2)).min(1)
+    return t, (gap ** 2).sum(2), length2
+
+
+def outline_distance(points: np.ndarray, outline: np.ndarray) -> np.ndarray:
+    """(P,) distance from each point (P, 2) to the edges of a closed outline (K, 2)."""
+    _, distance2, _ = segment_projections(points, outline, np.roll(outline, -1, axis=0) - outline)
+    return np.sqrt(distance2).min(1)

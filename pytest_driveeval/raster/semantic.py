@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from ..geometry.planar import arc_lengths
 from ..io.l5kit_zarr import L5Scene
 from .draw import compiled, fill_polygons, polylines
 
@@ -87,8 +88,7 @@ def active_faces(scenes: Sequence[L5Scene], n_frames: int) -> ActiveFaces:
 
 
 def _resample(line: np.ndarray, n: int) -> np.ndarray:
-    distance = np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=-1))
-    distance = np.insert(distance, 0, 0)
+    distance = arc_lengths(line)
     steps = np.linspace(distance[0], distance[-1], n)
     return np.stack([np.interp(steps, distance, line[:, 0]), np.interp(steps, distance, line[:, 1])], axis=1)
 

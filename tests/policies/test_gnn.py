@@ -309,18 +309,7 @@ def test_the_factories_build_the_shipped_configuration():
     assert critic.encoder1.observation_size == actor.encoder.observation_size
 
 
-def test_observations_of_another_shape_are_refused_with_the_shapes():
-    flat = example_flat(0)
-    small = make_actor(agent_limit=8)
-    with pytest.raises(ValueError, match=r"expected shape \(B, 155\) for K=8, F=11, found \[1, 279\]"):
-        small(flat)
-    lying = flat.clone()
-    lying[0, 2] = 10
-    with pytest.raises(ValueError, match=r"header \[K, n, F\] does not say K=12, F=11"):
-        make_actor()(lying)
-    with pytest.raises(ValueError, match=r"action: expected shape \(B, 2\), found \[1, 3\]"):
-        make_critic()(flat, torch.zeros(1, 3))
+def test_a_graph_encoder_needs_a_round():
+    # The shape and header checks, shared with the MLP, are tested for both networks in test_mlp.
     with pytest.raises(ValueError, match="rounds must be at least 1"):
         make_actor(rounds=0)
-    with pytest.raises(ValueError, match="low < high"):
-        make_actor(action_low=(1.0, 0.0), action_high=(0.0, 1.0))

@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from pytest_driveeval.policies import gnn  # noqa: E402
+from pytest_driveeval.policies import gnn, mlp  # noqa: E402
 from pytest_driveeval.policies.export import export_program  # noqa: E402
 from pytest_driveeval.policies.graph import observation_size  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
@@ -21,8 +21,6 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
-
-
 
 
 FLAT = torch.cat([example_flat(s) for s in range(6)])
@@ -95,16 +93,19 @@ def test_scripted_exported_saved_and_loaded_models_act_the_same(tmp_path):
         torch.testing.assert_close(scripted_critic(FLAT, expected), critic(FLAT, expected))
 
 
-def test_observations_of_another_shape_are_refused_with_the_shapes():
+@pytest.mark.parametrize("network", [gnn, mlp], ids=["gnn", "mlp"])
+def test_observations_of_another_shape_are_refused_with_the_shapes(network):
+    # The checks and the head are one implementation (gnn.check_flat, gnn.SquashedGaussianActor):
+    # each network is held to them.
     with pytest.raises(ValueError, match=r"expected shape \(B, 155\) for K=8, F=11, found \[6, 279\]"):
-        make_actor(agent_limit=8)(FLAT)
+        network.make_actor(agent_limit=8)(FLAT)
     lying = FLAT.clone()
     lying[0, 2] = 10
     with pytest.raises(ValueError, match=r"header \[K, n, F\] does not say K=12, F=11"):
-        make_actor()(lying)
+        network.make_actor()(lying)
     with pytest.raises(ValueError, match=r"action: expected shape \(B, 2\), found \[6, 3\]"):
-        make_critic()(FLAT, torch.zeros(6, 3))
+        network.make_critic()(FLAT, torch.zeros(6, 3))
     with pytest.raises(ValueError, match="low < high"):
-        make_actor(action_low=(1.0, 0.0), action_high=(0.0, 1.0))
+        network.make_actor(action_low=(1.0, 0.0), action_high=(0.0, 1.0))
     with pytest.raises(ValueError, match="agent_limit"):
-        make_actor(agent_limit=0)
+        network.make_actor(agent_limit=0)

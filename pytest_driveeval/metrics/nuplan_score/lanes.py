@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pytest_driveeval.geometry.planar import arc_lengths
-from pytest_driveeval.geometry.polygons import odd_crossings, outline_distance, polygon_edges
+from pytest_driveeval.geometry.polygons import odd_crossings, outline_distance, polygon_edges, segment_projections
 
 from . import kernels
 
@@ -172,12 +172,8 @@ def project(points: np.ndarray, line: np.ndarray, cumulative: np.ndarray) -> np.
                                   np.ascontiguousarray(line, dtype=np.float64), np.array([0, len(line)], np.int64),
                                   np.ascontiguousarray(cumulative, dtype=np.float64), out)
         return out
-    a, ab = line[:-1], np.diff(line, axis=0)
-    length2 = np.maximum((ab ** 2).sum(1), 1e-18)
-    ap = points[:, None, :] - a[None]
-    t = np.clip((ap * ab[None]).sum(2) / length2, 0.0, 1.0)
-    gap = ap - t[..., None] * ab[None]
-    nearest = np.argmin((gap ** 2).sum(2), axis=1)  # the first of equally near segments, as shapely
+    t, distance2, length2 = segment_projections(points, line[:-1], np.diff(line, axis=0))
+    nearest = np.argmin(distance2, axis=1)  # the first of equally near segments, as shapely
     rows = np.arange(len(points))
     return cumulative[nearest] + t[rows, nearest] * np.sqrt(length2[nearest])
 
