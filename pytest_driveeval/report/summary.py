@@ -15,6 +15,7 @@ from typing import Any
 from ..atomic import write_json_atomic, write_text_atomic
 from ..outcome import format_figure, replaced_model
 from .deltas import COMPARED, MARKDOWN_MARK, comparison_of, figure_deltas, status_text, status_tone
+from .paired import paired_table
 from .score_table import score_markdown
 
 SUMMARY_NAME = "summary.json"
@@ -165,7 +166,7 @@ def markdown_summary(summary: dict[str, Any]) -> str:
         lines.append(row)
     scores = [line for r in summary["results"] for line in score_markdown(r["nodeid"], r.get("details") or {})]
     return "\n".join(lines + comparison_sections(summary["results"]) + policy_table(summary["results"])
-                     + search_list(summary["results"]) + scores) + "\n"
+                     + paired_table(summary["results"]) + search_list(summary["results"]) + scores) + "\n"
 
 
 def _markdown_figures(record: dict[str, Any]) -> str:

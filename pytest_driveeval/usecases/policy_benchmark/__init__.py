@@ -115,7 +115,9 @@ class PolicyBenchmark(UseCase):
         # Only a judged policy's item decides the conditions; the others report their intervals.
         conditions = config.Conditions if judged else BenchmarkConditions(Confidence=config.Conditions.Confidence)
         animated = config.Artefacts.Animations != "none"
-        baselines = [spec.Baseline for spec in conditions.Beats if spec.Baseline != policy]
+        compared = [name for name in config.Compare if name != policy] if judged else []
+        baselines = list(dict.fromkeys([spec.Baseline for spec in conditions.Beats if spec.Baseline != policy]
+                                       + compared))
         where: dict | None = stays_local or None
         replay = recorder = None
         if executor is None:
@@ -137,7 +139,7 @@ class PolicyBenchmark(UseCase):
             where = executor_details(chunk_run, described.__getitem__)
             if animated:
                 replay = self._replayer(blueprint, runs[policy], model, policy, config.AgentLimit)
-        judgement = judge(runs[policy], runs, conditions, seed=config.FirstSeed)
+        judgement = judge(runs[policy], runs, conditions, seed=config.FirstSeed, compare=compared)
         mine = runs[policy]
         # This item's rates are in its judgement already; the baselines' are for the comparison plot.
         keys = [f"{outcome}_rate" for _, outcome in RATES.values()]

@@ -145,6 +145,8 @@ class PolicyBenchmarkConfig(ConditionsModel):
     StepLimit: PositiveInt | None = None
     Policies: dict[str, str] = Field(min_length=1)
     Judged: list[str] | None = None
+    #: policies a judged item is compared with, paired on its episodes, reported and never decided
+    Compare: list[str] = Field(default_factory=list)
     Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions)
     Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts)
     Perturbation: PolicyPerturbation | None = None
@@ -165,6 +167,10 @@ class PolicyBenchmarkConfig(ConditionsModel):
             if name not in self.Policies:
                 raise located_error(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
                                                         f"({', '.join(self.Policies)})")
+        for index, name in enumerate(self.Compare):
+            if name not in self.Policies:
+                raise located_error(("Compare", index), name, f"'{name}' is not one of this scenario's Policies "
+                                                         f"({', '.join(self.Policies)})")
         judged = self.judged()
         for index, beats in enumerate(self.Conditions.Beats):
             if beats.Baseline not in self.Policies:

@@ -6,6 +6,7 @@ message carries the interval and the number of episodes.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +58,13 @@ def rate_intervals(run: PolicyRun, confidence: float, seed: int) -> dict[str, di
     return {f"{outcome}_rate": interval(rate_estimate(run, outcome, confidence, seed)) for _, outcome in RATES.values()}
 
 
-def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: BenchmarkConditions, seed: int) -> Judgement:
+COMPARED_METRICS = ("goal_rate", "collision_rate")
+
+
+def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: BenchmarkConditions, seed: int,
+          compare: Sequence[str] = ()) -> Judgement:
+    """The conditions decided on ``run``; ``compare`` names policies of ``baselines`` whose paired
+    comparison on goal and collision rate (``vs_<policy>_<metric>``) is reported and decides nothing."""
     findings: list[Finding] = []
     intervals: dict[str, dict] = {}
     passed = True
@@ -86,4 +93,11 @@ def judge(run: PolicyRun, baselines: dict[str, PolicyRun], conditions: Benchmark
             passed = False
             findings.append(Finding(decision.message, figure=spec.Metric,
                                     keypath=("Evaluation", "Conditions", "Beats", index)))
+    for name in compare:
+        if name == run.policy:
+            continue
+        for metric in COMPARED_METRICS:
+            result = comparison(run, baselines[name], metric, conditions.Confidence, seed)
+            intervals[f"vs_{name}_{metric}"] = {"improvement": interval(result.improvement),
+                                                "difference": interval(result.difference)}
     return Judgement(passed, findings, intervals)

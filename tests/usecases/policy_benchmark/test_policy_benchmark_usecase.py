@@ -88,6 +88,9 @@ def test_a_passing_condition_set_passes(pytester):
     (dict(conditions="    Beats: [{Baseline: rnd}]\n"),
      "*easy.scenario.yaml:15: Evaluation.Conditions.Beats[[]0[]].Baseline: 'rnd' is not one of this scenario's "
      "Policies (mine, random, constant)*"),
+    (dict(conditions="    GoalRate: {AtLeast: 0}\n  Compare: [random, rnd]\n"),
+     "*easy.scenario.yaml:16: Evaluation.Compare[[]1[]]: 'rnd' is not one of this scenario's "
+     "Policies (mine, random, constant)*"),
 ])
 def test_bad_scenario_values_are_located(pytester, change, expected):
     pytester.makefile(".scenario.yaml", easy=scenario(**change))
@@ -191,6 +194,31 @@ def test_policies_side_by_side_with_intervals_in_the_summary_and_the_html_report
     assert all("goal 0 % [0, " in cell and "collision " in cell for cell in row[2:])
     html = (pytester.path / "report.html").read_text()
     assert "Policies by scenario" in html and "merging (b)" in html
+
+
+def test_compared_policies_are_reported_paired_and_decide_nothing(pytester):
+    # The IDM expert merges and the constant action does not: on the same seeds the expert does better
+    # on goals, and the comparison is reported beside a verdict that it does not change.
+    compare = "    CollisionRate: {AtMost: 100}\n  Compare: [constant, random]\n"
+    pytester.makefile(".scenario.yaml", bench=scenario(mine="idm_expert", episodes=16, conditions=compare))
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=3)
+    by_id = records(pytester)
+    mine = by_id["bench.scenario.yaml::policy_benchmark[mine]"]
+    intervals = mine["details"]["intervals"]
+    goal = intervals["vs_constant_goal_rate"]
+    assert goal["improvement"]["low"] > 0.5
+    own, other = mine["figures"]["goal_rate"], mine["details"]["compared"]["constant"]["goal_rate"]
+    assert goal["difference"]["point"] == pytest.approx(own - other)
+    assert {"vs_random_goal_rate", "vs_random_collision_rate", "vs_constant_collision_rate"} <= set(intervals)
+    # A baseline's item compares nothing: only a judged item does.
+    constant = by_id["bench.scenario.yaml::policy_benchmark[constant]"]
+    assert not any(k.startswith("vs_") for k in constant["details"]["intervals"])
+    markdown = (pytester.path / "driveeval-results" / "summary.md").read_text()
+    table = markdown.split("### Paired comparisons (the same seeded episodes)")[1].strip().splitlines()
+    assert len(table) == 2 + 4  # header, rule, (constant, random) x (goal, no collision)
+    row = next(line for line in table if "| constant | goal |" in line)
+    assert row.startswith("| b | mine | constant | goal | ")
+    assert f"{goal['improvement']['point']:.2f} [{goal['improvement']['low']:.2f}, " in row
 
 
 def test_progress_counts_the_episodes_ended_after_each_step():
