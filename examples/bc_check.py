@@ -27,7 +27,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # policy_training, next to this script
 
-from policy_training import BLUEPRINTS, HELD_OUT, NETWORKS, Collector, bc_loss, expert_acts  # noqa: E402
+from policy_training import (  # noqa: E402
+    BLUEPRINTS, HELD_OUT, NETWORKS, action_bounds, bc_loss, expert_states, fit_node_scaling)
 
 from pytest_driveeval.policies.mlp import parameter_count  # noqa: E402
 from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
@@ -52,19 +53,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def expert_states(blueprint, envs: int, first_seed: int, batches: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Every state the expert visits on ``batches`` batches of ``envs`` seeds, and its action there."""
-    collector = Collector(blueprint, envs, first_seed, progress_scale=0.0)
-    transitions = collector.episodes_of(expert_acts, batches)
-    obs = np.concatenate([t[0] for t in transitions])
-    labels = np.concatenate([t[2] for t in transitions])
-    return torch.from_numpy(obs), torch.from_numpy(labels)
-
-
-def clone(network: str, obs: torch.Tensor, labels: torch.Tensor, args) -> tuple[torch.nn.Module, int]:
+def clone(network: str, obs: torch.Tensor, labels: torch.Tensor, args, blueprint) -> tuple[torch.nn.Module, int]:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
-    actor = NETWORKS[network].make_actor().train()
+    actor = NETWORKS[network].make_actor(**action_bounds(blueprint)).train()
+    fit_node_scaling([actor], obs.numpy())
     optimiser = torch.optim.Adam(actor.parameters(), lr=args.lr)
     updates = args.epochs * max(1, len(obs) // args.batch)
     for _ in range(updates):
@@ -93,7 +86,7 @@ def main(argv=None) -> int:
         held_obs, held_labels = expert_states(blueprint, len(HELD_OUT), int(HELD_OUT[0]), 1)
         for network in args.networks:
             start = time.perf_counter()
-            actor, updates = clone(network, train_obs, train_labels, args)
+            actor, updates = clone(network, train_obs, train_labels, args, blueprint)
             rows.append({"blueprint": name, "network": network, "parameters": parameter_count(actor),
                          "train_states": len(train_obs), "held_out_states": len(held_obs), "updates": updates,
                          "train_mse": round(imitation_error(actor, train_obs, train_labels), 5),

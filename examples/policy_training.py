@@ -12,6 +12,8 @@ import torch
 import torch.nn.functional as F
 
 from pytest_driveeval.policies import gnn, mlp
+from pytest_driveeval.policies.gnn import NodeScaling
+from pytest_driveeval.policies.graph import HEADER
 from pytest_driveeval.policies.idm_expert import IDMExpert
 from pytest_driveeval.sim.episodes import reset
 from pytest_driveeval.usecases.policy_benchmark.evaluate import observer, run_policy
@@ -19,9 +21,38 @@ from pytest_driveeval.usecases.policy_benchmark.evaluate import observer, run_po
 AGENT_LIMIT = 12
 HELD_OUT = np.arange(0, 64)
 VALIDATION = np.arange(50000, 50064)
+# The expert's episodes that set the networks' feature scaling: seeds no run trains or is judged on.
+SCALING_SEED = 900_000
 # The only thing that differs between the runs compared: the module building actor and critic.
 NETWORKS = {"gnn": gnn, "mlp": mlp}
 BLUEPRINTS = ("highway", "merging", "intersection")
+
+
+def action_bounds(blueprint) -> dict[str, tuple[float, float]]:
+    """make_actor's action bounds for ``blueprint``: the ego's own (acceleration, steering) limits.
+    The networks' defaults are BARK-ML's (-5..4 m/s^2, +-0.2 rad), which are the highway's and the
+    merging's; the intersection lets the ego steer 0.5 rad because its left turn needs it, and an actor
+    squashed to 0.2 rad could never make the turn its expert shows it."""
+    p = blueprint.params
+    return {"action_low": (p.ego_accel[0], -p.ego_max_steer), "action_high": (p.ego_accel[1], p.ego_max_steer)}
+
+
+def fit_node_scaling(modules, obs: np.ndarray, floor: float = 0.01) -> None:
+    """Set every NodeScaling in ``modules`` to the mean and standard deviation of each node feature
+    over the nodes in use in ``obs`` (flat observations, the expert's states).  ``floor`` keeps a
+    feature that barely varies in these states (the goal's speed) from being blown up where it does."""
+    k, _, f = (int(v) for v in obs[0, :HEADER])
+    nodes = obs[:, HEADER:HEADER + k * f].reshape(len(obs), k, f).astype(np.float64)
+    in_use = np.arange(k)[None, :] < obs[:, 1:2]
+    features = nodes[in_use]
+    shift = torch.tensor(features.mean(axis=0), dtype=torch.float32)
+    scale = torch.tensor(np.maximum(features.std(axis=0), floor), dtype=torch.float32)
+    with torch.no_grad():
+        for module in modules:
+            for part in module.modules():
+                if isinstance(part, NodeScaling):
+                    part.shift.copy_(shift)
+                    part.scale.copy_(scale)
 
 
 def default_out(network: str, blueprint: str) -> Path:
@@ -128,6 +159,15 @@ class Collector:
 
 def expert_acts(obs, episodes, expert):
     return expert
+
+
+def expert_states(blueprint, envs: int, first_seed: int, batches: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every state the expert visits on ``batches`` batches of ``envs`` seeds, and its action there."""
+    collector = Collector(blueprint, envs, first_seed, progress_scale=0.0)
+    transitions = collector.episodes_of(expert_acts, batches)
+    obs = np.concatenate([t[0] for t in transitions])
+    labels = np.concatenate([t[2] for t in transitions])
+    return torch.from_numpy(obs), torch.from_numpy(labels)
 
 
 def scaled(actor, action: torch.Tensor) -> torch.Tensor:

@@ -78,12 +78,16 @@ from policy_training import (  # noqa: E402
     BLUEPRINTS,
     HELD_OUT,
     NETWORKS,
+    SCALING_SEED,
     VALIDATION,
     Collector,
     Replay,
+    action_bounds,
     bc_loss,
     default_out,
     evaluate,
+    expert_states,
+    fit_node_scaling,
     plot,
 )
 
@@ -146,8 +150,9 @@ def main(argv=None) -> int:
 
     blueprint = make_blueprint(args.blueprint)
     network = NETWORKS[args.network]
-    actor = network.make_actor().train()
-    critic = network.make_critic()
+    actor = network.make_actor(**action_bounds(blueprint)).train()
+    critic = network.make_critic(**action_bounds(blueprint))
+    fit_node_scaling([actor, critic], expert_states(blueprint, args.envs, SCALING_SEED, 1)[0].numpy())
     target = copy.deepcopy(critic).requires_grad_(False)
     obs_size = actor.encoder.observation_size
     replay = Replay(args.buffer, obs_size)

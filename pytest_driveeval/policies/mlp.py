@@ -17,10 +17,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import torch
 from torch import Tensor, nn
 
-from .gnn import ACTION_HIGH, ACTION_LOW, HEAD_HIDDEN, SquashedGaussianActor, TwinCritic, check_flat, mlp
-from .graph import HEADER, NODE_FEATURES, SEED_AGENT_LIMIT, check_agent_limit, observation_size
+from .gnn import ACTION_HIGH, ACTION_LOW, HEAD_HIDDEN, NodeScaling, SquashedGaussianActor, TwinCritic, check_flat, mlp
+from .graph import HEADER, NODE_FEATURES, SEED_AGENT_LIMIT, check_agent_limit, observation_size, split_flat
 
 __all__ = ["FlatEncoder", "MLPActor", "MLPCritic", "make_actor", "make_critic", "parameter_count"]
 
@@ -41,11 +42,14 @@ class FlatEncoder(nn.Module):
         self.num_features = num_features
         self.observation_size = observation_size(agent_limit, num_features)
         self.hidden = hidden
+        self.scaling = NodeScaling(num_features)
         self.net = nn.Sequential(mlp(self.observation_size - HEADER, hidden, hidden), nn.ReLU())
 
     def forward(self, flat: Tensor) -> Tensor:
         check_flat(flat, self.agent_limit, self.num_features, self.observation_size)
-        return self.net(flat[:, 3:])  # HEADER, spelled out: TorchScript reads no module globals
+        nodes, adjacency, mask = split_flat(flat, self.agent_limit, self.num_features)
+        scaled = self.scaling(nodes, mask).flatten(1)
+        return self.net(torch.cat([scaled, adjacency.flatten(1)], dim=1))
 
 
 class MLPActor(SquashedGaussianActor):
