@@ -109,8 +109,8 @@ def show_episode(config: PolicyBenchmarkConfig, ctx: Any, name: str, seed: int, 
             f"{name} seed {seed}, {changed}: {outcome}")
     findings = [Finding(f"seed {seed} under {changed}: {verdict.reason}", frame=steps,
                         keypath=("Evaluation", "Perturbation", "FailOn"))] if verdict.failed else []
-    summary = f"'{name}' on {config.Blueprint.Name}, seed {seed} under {changed}: {outcome} after {steps} steps"
-    details = {"policy": name, "blueprint": config.Blueprint.Name, "seed": seed, "outcome": outcome, "steps": steps,
+    summary = f"'{name}' on {config.Blueprint.label}, seed {seed} under {changed}: {outcome} after {steps} steps"
+    details = {"policy": name, "blueprint": config.Blueprint.label, "seed": seed, "outcome": outcome, "steps": steps,
                "return": float(done.returns[0]), "perturbation": perturbation.to_json(), "fail_on": list(fail_on)}
     return Outcome("policy_benchmark", FAILED if verdict.failed else PASSED, summary,
                    figures={"episode_steps": steps, "episode_return": float(done.returns[0])}, findings=findings,
