@@ -138,3 +138,36 @@ def test_a_robustness_search_perturbs_the_ego_start(pytester):
     assert mine["status"] == "failed", result.stdout.str()[-2000:]
     assert mine["figures"]["search_failures"] > 0 and mine["figures"]["search_examples"] > 8
     assert any(k in mine["figures"] for k in ("minimal_lateral", "minimal_heading"))
+
+
+def test_the_observation_holds_the_obstacles_present_and_an_exported_actor_drives(tmp_path):
+    import numpy as np
+
+    from pytest_driveeval.policies.graph import decode
+    from pytest_driveeval.policies.loading import load_model
+    from pytest_driveeval.sim.commonroad_scene import commonroad_scene
+    from pytest_driveeval.sim.episodes import reset
+    from pytest_driveeval.usecases.policy_benchmark.evaluate import observer, run_policy
+
+    # The goal's time interval moved to steps 50..60, so the episode outlives the recording (steps 0..40).
+    late = tmp_path / "late.xml"
+    text = TUTORIAL.read_text()
+    goal = text.index("<goalState>")
+    late.write_text(text[:goal] + text[goal:].replace("<intervalStart>35</intervalStart>",
+                                                      "<intervalStart>50</intervalStart>", 1)
+                    .replace("<intervalEnd>40</intervalEnd>", "<intervalEnd>60</intervalEnd>", 1))
+    scene = commonroad_scene(late, 100)
+    assert scene.max_steps == 60
+    episodes = reset(scene, np.array([0]), 12)
+    observe = observer(episodes, 12)
+    counts = {}
+    for k in range(1, 46):
+        episodes.step(np.zeros((1, 2)))
+        counts[k] = int(decode(observe(episodes)).count[0])
+    # The ego, the parked car and the two recorded cars until step 40; then the parked car alone.
+    assert counts[10] == counts[40] == 4 and counts[41] == counts[45] == 2, counts
+    assert not episodes.done.any()
+
+    run = run_policy(scene, np.arange(4), load_model(str(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2")),
+                     "gnn")
+    assert run.outcome.shape == (4,) and np.all((run.outcome >= 1) & (run.outcome <= 4))
