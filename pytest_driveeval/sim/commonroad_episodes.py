@@ -10,7 +10,9 @@ statistics and pictures work on it unchanged.  What differs:
   obstacle; the graph observation keeps the nearest ``agent_limit``), and ``size`` is (A, 2), one box
   per agent;
 * at step ``k`` the obstacles are where the recording has them at time step ``t0 + k``, present or not
-  (see sim.commonroad_scene), whatever the ego does: replay, not reaction;
+  (see sim.commonroad_scene), whatever the ego does: replay, not reaction; with a scene's
+  ``traffic="reactive"`` the recorded cars instead drive their recorded paths by IDM
+  (sim.commonroad_reactive), from the same snapshot as the ego, as blueprint traffic does;
 * the goal is CommonRoad's (commonroad_geometry.goal_reached on the ego's box centre, heading, speed
   and time step); the step limit the goal's time interval's end.
 
@@ -32,6 +34,8 @@ from pytest_driveeval.geometry import box_corners, oriented_boxes_overlap
 from pytest_driveeval.io.commonroad_geometry import goal_reached
 from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, classify,
                                                        off_road, step_reward)
+from pytest_driveeval.sim.agents import TrafficModel
+from pytest_driveeval.sim.commonroad_reactive import ReactiveObstacles
 from pytest_driveeval.sim.dynamics import KinematicBicycle
 from pytest_driveeval.sim.episodes import PERTURBATION_COLUMNS, StepResult
 from pytest_driveeval.sim.state import AgentState
@@ -60,7 +64,7 @@ class CommonRoadEpisodes:
     traffic = None  # no simulated traffic: the obstacles replay
 
     def __init__(self, scene: Any, seeds: np.ndarray, agent_limit: int,
-                 perturbation: np.ndarray | None = None):
+                 perturbation: np.ndarray | None = None, traffic_model: Any = None):
         p = scene.params
         self.blueprint = scene
         self.seeds = seeds
@@ -92,6 +96,11 @@ class CommonRoadEpisodes:
         self.speed = np.empty((e_n, 1 + n))
         self._valid = np.empty((e_n, 1 + n), bool)
         self.xy[:, 0], self.yaw[:, 0], self.speed[:, 0], self._valid[:, 0] = ego_xy, heading, ego_speed, True
+        self._reactive = None
+        if scene.traffic == "reactive":
+            self.traffic_model = traffic_model or TrafficModel()
+            self._reactive = ReactiveObstacles(scene, e_n, self.traffic_model)
+            self._reactive.start(np.zeros(e_n, np.int64))
         self._place_obstacles(np.zeros(e_n, np.int64))
         self._ego = AgentState(ego_xy - self._half_wheelbase(heading), heading, ego_speed)
 
@@ -102,12 +111,21 @@ class CommonRoadEpisodes:
         self.outcome = np.zeros(e_n, np.int8)
         self.returns = np.zeros(e_n)
 
-    def _place_obstacles(self, k: np.ndarray) -> None:
+    def _obstacles_at(self, k: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(xy (E, N, 2), yaw, speed, valid (E, N)) of the obstacles at steps ``k`` (E,): the recording's,
+        the reacting cars' own where traffic is reactive."""
         scene = self.blueprint
-        self.xy[:, 1:] = scene.xy[k]
-        self.yaw[:, 1:] = scene.yaw[k]
-        self.speed[:, 1:] = scene.speed[k]
-        self._valid[:, 1:] = scene.valid[k]
+        xy, yaw, speed, valid = scene.xy[k], scene.yaw[k], scene.speed[k], scene.valid[k]
+        moving = self._reactive
+        if moving is not None and len(moving.movers):
+            cols = moving.movers
+            xy[:, cols], yaw[:, cols] = moving.poses()
+            speed[:, cols], valid[:, cols] = moving.v, moving.present
+        return xy, yaw, speed, valid
+
+    def _place_obstacles(self, k: np.ndarray, obstacles: tuple[np.ndarray, ...] | None = None) -> None:
+        self.xy[:, 1:], self.yaw[:, 1:], self.speed[:, 1:], self._valid[:, 1:] = (
+            obstacles if obstacles is not None else self._obstacles_at(k))
 
     def _half_wheelbase(self, yaw: np.ndarray) -> np.ndarray:
         # The bicycle's pose is the rear axle; the box (and CommonRoad's position) is its centre.
@@ -127,13 +145,17 @@ class CommonRoadEpisodes:
     def done(self) -> np.ndarray:
         return self.outcome != RUNNING
 
-    def judge(self, xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray, k: np.ndarray):
+    def judge(self, xy: np.ndarray, yaw: np.ndarray, speed: np.ndarray, k: np.ndarray,
+              obstacles: tuple[np.ndarray, ...] | None = None):
         """(goal, collision, off road), each (E,), of ego box centres ``xy`` (E, 2), headings and speeds
-        (E,) at steps ``k`` (E,) against the recording there."""
+        (E,) at steps ``k`` (E,) against the ``obstacles`` (xy, yaw, speed, valid), by default the
+        recording's at ``k``."""
         scene = self.blueprint
         ego_size = self.size[0]
-        hit = oriented_boxes_overlap(xy[:, None], yaw[:, None], ego_size, scene.xy[k], scene.yaw[k], self.size[1:])
-        collision = np.any(hit & scene.valid[k], axis=-1)
+        o_xy, o_yaw, _, o_valid = obstacles if obstacles is not None else (
+            scene.xy[k], scene.yaw[k], None, scene.valid[k])
+        hit = oriented_boxes_overlap(xy[:, None], yaw[:, None], ego_size, o_xy, o_yaw, self.size[1:])
+        collision = np.any(hit & o_valid, axis=-1)
         grid = scene.road.drivable
         left = off_road(box_corners(xy, yaw, ego_size), grid.mask, grid.origin, grid.resolution)
         goal = np.asarray(goal_reached(scene.problem, xy[:, 0], xy[:, 1], yaw, speed, scene.t0 + k), bool)
@@ -152,7 +174,12 @@ class CommonRoadEpisodes:
         ego = self._bicycle.step(self._ego, (actions[:, 0], actions[:, 1]))
         centre = ego.xy + self._half_wheelbase(ego.yaw)
         steps = self.steps + active
-        goal, collision, left = self.judge(centre, ego.yaw, ego.speed, steps)
+        if self._reactive is not None:
+            # Traffic moves from the same snapshot as the ego, as in the blueprints.
+            self._reactive.advance(self.xy, self.yaw, self.speed, self._valid, self.size, self.blueprint.dt, active)
+            self._reactive.start(steps)
+        obstacles = self._obstacles_at(steps)
+        goal, collision, left = self.judge(centre, ego.yaw, ego.speed, steps, obstacles)
         outcome = classify(goal, collision, left, steps >= self.blueprint.max_steps)
         reward = step_reward(outcome, active)
 
@@ -162,7 +189,7 @@ class CommonRoadEpisodes:
         self.xy[:, 0] = np.where(run, centre, self.xy[:, 0])
         self.yaw[:, 0] = self._ego.yaw
         self.speed[:, 0] = self._ego.speed
-        self._place_obstacles(steps)
+        self._place_obstacles(steps, obstacles)
         self.steps = steps
         ended = np.where(active, outcome, RUNNING)
         self.outcome = np.where(active, outcome, self.outcome).astype(np.int8)

@@ -117,6 +117,8 @@ class CommonRoadScene:
     goal_heading: float
     goal_speed: float
     goal_outlines: tuple[np.ndarray, ...]  # the goal positions' outlines, for pictures
+    recorded_paths: tuple[np.ndarray, ...] = ()  # per obstacle, (T, 2) its box centres over its whole recording
+    traffic: str = "replay"  # or "reactive" (sim.commonroad_reactive)
 
     @property
     def dt(self) -> float:
@@ -130,7 +132,7 @@ class CommonRoadScene:
         """The engine's ``reset`` for this scene (sim.commonroad_episodes)."""
         from pytest_driveeval.sim.commonroad_episodes import CommonRoadEpisodes
 
-        return CommonRoadEpisodes(self, seeds, agent_limit, perturbation)
+        return CommonRoadEpisodes(self, seeds, agent_limit, perturbation, traffic_model)
 
 
 @lru_cache(maxsize=8)
@@ -188,6 +190,17 @@ def _box(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
     raise TypeError(f"not a CommonRoad shape: {type(shape).__name__}")
 
 
+def _centres(obstacle: Obstacle, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(xy (T, 2), yaw (T,)) of the obstacle's box at its trajectory's states ``i``."""
+    traj = obstacle.trajectory
+    heading = np.nan_to_num(traj.orientation[i], nan=0.0)
+    _, offset, turn = _box(obstacle.shape)
+    c, s = np.cos(heading), np.sin(heading)
+    x = traj.x[i] + c * offset[0] - s * offset[1]
+    y = traj.y[i] + s * offset[0] + c * offset[1]
+    return np.stack([x, y], axis=-1), heading + turn
+
+
 def _replay(obstacle: Obstacle, times: np.ndarray):
     """(xy (T, 2), yaw (T,), speed (T,), valid (T,)) of the obstacle's box at ``times``."""
     traj = obstacle.trajectory
@@ -198,12 +211,8 @@ def _replay(obstacle: Obstacle, times: np.ndarray):
         i = times - int(traj.t[0])
         valid = (i >= 0) & (i < len(traj))
         i = np.clip(i, 0, len(traj) - 1)
-    heading = np.nan_to_num(traj.orientation[i], nan=0.0)
-    size, offset, turn = _box(obstacle.shape)
-    c, s = np.cos(heading), np.sin(heading)
-    x = traj.x[i] + c * offset[0] - s * offset[1]
-    y = traj.y[i] + s * offset[0] + c * offset[1]
-    return np.stack([x, y], axis=-1), heading + turn, np.nan_to_num(traj.velocity[i], nan=0.0), valid, size
+    xy, yaw = _centres(obstacle, i)
+    return xy, yaw, np.nan_to_num(traj.velocity[i], nan=0.0), valid, _box(obstacle.shape)[0]
 
 
 def _centre_line_middle(outline_left: np.ndarray, outline_right: np.ndarray) -> tuple[np.ndarray, float]:
@@ -257,11 +266,16 @@ def _step_limit(problem: PlanningProblem) -> int:
     return max(int(math.floor(max(ends))) - problem.initial.time_step, 1)
 
 
-def commonroad_scene(path: str | os.PathLike, problem_id: int | str, **params) -> CommonRoadScene:
-    """The scene of planning problem ``problem_id`` in the CommonRoad file ``path``; ``params``: the
+def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: str = "replay",
+                     **params) -> CommonRoadScene:
+    """The scene of planning problem ``problem_id`` in the CommonRoad file ``path``, its obstacles
+    replayed (``traffic="replay"``) or driving their recorded paths by IDM (``"reactive"``,
+    sim.commonroad_reactive); ``params``: the
     fields of :class:`CommonRoadParams` (not ``dt``).  Raises CommonRoadError for a file or problem
     that does not make a scene, ParameterError for a bad parameter, OSError for an unreadable file."""
     check_params(params)
+    if traffic not in ("replay", "reactive"):
+        raise ValueError(f"traffic must be replay or reactive, got {traffic!r}")
     scenario = read_cached(path)
     problem = planning_problem(scenario, problem_id)
     init = problem.initial
@@ -283,4 +297,5 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, **params) -
     return CommonRoadScene(name, p, _road(scenario, p.resolution), scenario, problem, init.time_step,
                            tuple(l.polygon for l in scenario.lanelets.values()),
                            np.array([o.id for o in obstacles], np.int64), sizes, xy, yaw, speed, valid.astype(bool),
-                           centre, heading, goal_speed, outlines)
+                           centre, heading, goal_speed, outlines,
+                           tuple(_centres(o, np.arange(len(o.trajectory)))[0] for o in obstacles), traffic)

@@ -176,3 +176,48 @@ def test_bad_scenes_are_refused_naming_what():
         commonroad_scene(TUTORIAL, 100, start_heading=(0.1, -0.1))
     with pytest.raises(OSError):
         commonroad_scene(TUTORIAL.with_name("absent.xml"), 100)
+
+
+def test_reactive_traffic_drives_the_recorded_paths_and_brakes_for_the_ego():
+    replay, reactive = scene_of(TUTORIAL), scene_of(TUTORIAL, traffic="reactive")
+    brake = lambda e: np.tile([-5.0, 0.0], (e.num_episodes, 1))  # noqa: E731
+    assert run(reset(replay, np.array([0, 5]), 12), brake)[-1][3].tolist() == [COLLISION] * 2
+    # The car cutting in behind (42) now brakes for the ego; the ego is on its goal lanelet in time.
+    assert run(reset(reactive, np.array([0, 5]), 12), brake)[-1][3].tolist() == [GOAL] * 2
+    # With nothing ahead of it, obstacle 44 (22 m/s, its fastest recorded speed) drives its recording.
+    frames = run(reset(reactive, np.array([0]), 12), keep_speed)
+    j = list(reactive.obstacle_ids).index(44)
+    np.testing.assert_allclose(np.array([f[0][0, 1 + j] for f in frames]), reactive.xy[1:len(frames) + 1, j],
+                               atol=1e-9)
+
+
+def test_reactive_episodes_depend_on_their_seed_only():
+    scene = scene_of(TUTORIAL, traffic="reactive")
+
+    def brake_some(episodes):
+        return np.stack([np.where(episodes.seeds % 2 == 1, -5.0, 0.5), np.zeros(episodes.num_episodes)], axis=1)
+
+    alone = run(reset(scene, np.array([9]), 12), brake_some)
+    mixed = run(reset(scene, np.array([4, 9, 0]), 12), brake_some)
+    for a, m in zip(alone, mixed):
+        for x, y in zip(a, m):
+            np.testing.assert_array_equal(x[0], y[1])
+
+
+@pytest.mark.parametrize("name", SHARED)
+def test_reactive_obstacles_appear_at_their_first_recorded_step_where_recorded(shared_data, name):
+    scene = scene_of(shared_data / "commonroad" / f"{name}.xml", traffic="reactive")
+    episodes = reset(scene, np.array([0]), 12)
+    seen = np.zeros(len(scene.obstacle_ids), bool)
+    for k in range(scene.max_steps + 1):
+        for j, ident in enumerate(scene.obstacle_ids):
+            obstacle = scene.scenario.obstacles[int(ident)]
+            first = int(obstacle.trajectory.t[0]) - scene.t0
+            if obstacle.role == "dynamic" and not seen[j]:
+                assert episodes.valid[0, 1 + j] == (k >= first), (ident, k)
+                if episodes.valid[0, 1 + j]:
+                    seen[j] = True
+                    np.testing.assert_allclose(episodes.xy[0, 1 + j], scene.xy[max(k, 0), j], atol=1e-6)
+        if episodes.done.all():
+            break
+        episodes.step(np.array([[0.0, 0.0]]))

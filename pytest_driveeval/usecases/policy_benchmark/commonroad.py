@@ -48,7 +48,7 @@ def scene_for(config: Any, ctx: Any, params: dict) -> Any:
             problem = ids[0]
         elif "problem" not in ctx.case.params and problem not in read_cached(path).planning_problems:
             key = "PlanningProblem"
-        return commonroad_scene(path, problem, **params)
+        return commonroad_scene(path, problem, traffic=spec.Traffic or "replay", **params)
     except OSError as exc:
         raise DataError(f"{_where(ctx, key)}: CommonRoad scenario {display_path(path)} cannot be read: "
                         f"{exc.strerror or exc}") from None

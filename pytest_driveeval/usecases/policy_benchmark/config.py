@@ -9,7 +9,7 @@
         # or a CommonRoad scenario (sim.commonroad_scene), relative to this file:
         # CommonRoad: ../../fixtures/commonroad/ZAM_Tutorial-1_2_T-1.xml
         # PlanningProblem: 100        # default: one item per planning problem of the file
-        # Traffic: replay             # the recorded obstacles (reactive: not yet)
+        # Traffic: replay             # the recorded obstacles; reactive: their recorded paths at IDM speed
         # Params: {start_lateral: [-0.3, 0.3]}   # CommonRoadParams: the ego's size, seeded start offsets
       Episodes: 128                   # seeds FirstSeed .. FirstSeed + Episodes - 1
       FirstSeed: 0
@@ -76,7 +76,8 @@ def episode_bytes(agents: int) -> float:
 class BlueprintSpec(Section):
     """A blueprint by ``Name``, or a CommonRoad scenario file by ``CommonRoad`` (relative to the
     scenario file, as model paths are) with ``PlanningProblem`` (default: one item per planning
-    problem of the file) and ``Traffic`` (``replay``: the recorded obstacles).  ``Params``: the
+    problem of the file) and ``Traffic`` (``replay``: the recorded obstacles, the default; ``reactive``:
+    the recorded cars on their recorded paths at the speed IDM gives them).  ``Params``: the
     blueprint's own parameters, or sim.commonroad_scene.CommonRoadParams for a CommonRoad scene."""
 
     Name: Literal["highway", "merging", "intersection"] | None = None
@@ -102,9 +103,6 @@ class BlueprintSpec(Section):
             for key in ("PlanningProblem", "Traffic"):
                 if getattr(self, key) is not None:
                     raise located_error(key, getattr(self, key), "only for a CommonRoad scenario")
-        elif self.Traffic == "reactive":
-            raise located_error("Traffic", self.Traffic, "reactive traffic in CommonRoad scenes is not implemented "
-                                                         "yet; the obstacles replay their recording (replay)")
         try:
             if self.CommonRoad is None:
                 make_blueprint(self.Name, **self.Params)

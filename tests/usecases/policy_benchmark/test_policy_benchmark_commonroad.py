@@ -106,7 +106,8 @@ def test_bad_files_and_problems_are_item_errors_naming_the_yaml_line_and_the_ele
 
 @pytest.mark.parametrize("change, expected", [
     ("    Name: merging\n", "*Blueprint.Name*either Name*or CommonRoad*"),
-    ("    Traffic: reactive\n", "*Blueprint.Traffic*reactive traffic*not implemented*"),
+    ("    Traffic: reckless\n", "*Blueprint.Traffic*'replay' or 'reactive'*"),
+    ("    PlanningProblem: 100\n    Name: merging\n", "*Blueprint.Name*either Name*or CommonRoad*"),
     ("    Params: {gap: [1, 2]}\n", "*Blueprint.Params.gap*does not apply to a CommonRoad scene*"),
     ("    Params: {dt: 0.2}\n", "*Blueprint.Params.dt*timeStepSize*"),
 ])
