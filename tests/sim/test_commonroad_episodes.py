@@ -221,3 +221,19 @@ def test_reactive_obstacles_appear_at_their_first_recorded_step_where_recorded(s
         if episodes.done.all():
             break
         episodes.step(np.array([[0.0, 0.0]]))
+
+
+@pytest.mark.parametrize("name", SHARED)
+def test_constructed_goal_states_of_the_shared_scenarios_reach_the_goal(shared_data, name):
+    scene = scene_of(shared_data / "commonroad" / f"{name}.xml")
+    goal = scene.problem.goals[0]
+    centre, heading = scene.goal_centre, scene.goal_heading  # a goal position's centre (the first)
+    speed = scene.goal_speed
+    k = (int(np.ceil(goal.time.start)) if goal.time is not None else 0) - scene.t0
+    assert judged(scene, centre, heading, speed, k)[0] is True
+    if goal.time is not None and goal.time.start > scene.t0:
+        assert judged(scene, centre, heading, speed, k - 1)[0] is False
+    if goal.velocity is not None:
+        assert judged(scene, centre, heading, goal.velocity.end + 1.0, k)[0] is False
+    far = scene.road.bounds[2:] + 50.0
+    assert judged(scene, far, heading, speed, k)[2] is True
