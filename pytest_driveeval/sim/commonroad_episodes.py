@@ -56,7 +56,6 @@ def start_offsets(params: Any, seeds: np.ndarray) -> np.ndarray:
     return out
 
 
-
 class CommonRoadEpisodes:
     """A batch of episodes of one CommonRoad scene; start it with ``sim.episodes.reset(scene, seeds)``."""
 
