@@ -102,9 +102,6 @@ class PolicyBenchmark(UseCase):
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
         model = ctx.fixtures["driveeval_model"]
         executor, source, stays_local = self._executor(config, ctx, model)
-        if executor is not None and config.Blueprint.CommonRoad is not None:
-            executor, source, stays_local = None, None, {"executor": "local", "summary": (
-                "ran locally: CommonRoad scenes run in-process only (no Ray chunks yet)")}
         if config.Perturbation is not None:
             from pytest_driveeval.search.item import run_item
             from pytest_driveeval.usecases.policy_benchmark.robustness import policy_searchable

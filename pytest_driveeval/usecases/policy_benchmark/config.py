@@ -216,8 +216,6 @@ class PolicyBenchmarkConfig(ConditionsModel):
 
     def _fits_commonroad(self) -> None:
         """What a CommonRoad scene cannot do yet, refused at its key."""
-        if self.Executor is not None:
-            raise located_error("Executor", None, "CommonRoad scenes run in-process only (no Ray chunks yet)")
         for name, spec in self.Policies.items():
             if spec == "idm_expert":
                 raise located_error(("Policies", name), spec, "idm_expert reads a blueprint's lanes and traffic "

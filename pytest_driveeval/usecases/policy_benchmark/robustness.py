@@ -68,10 +68,10 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
                           perturbation=perturbation_rows(perturbations))
 
     def run_chunked(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation]) -> PolicyRun:
-        from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, episode_chunks, merged,
-                                                                        run_episode_chunk)
+        from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, chunk_blueprint,
+                                                                        episode_chunks, merged, run_episode_chunk)
 
-        work = episode_chunks(name, source, blueprint.name, config.blueprint_params(), case_seeds,
+        work = episode_chunks(name, source, *chunk_blueprint(blueprint, config.blueprint_params()), case_seeds,
                               config.AgentLimit, executor.ChunkSize or DEFAULT_CHUNK_SIZE,
                               perturbation_rows(perturbations))
         chunk_run = ledger.run(ctx, executor, work, run_episode_chunk)

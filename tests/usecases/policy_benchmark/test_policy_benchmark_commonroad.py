@@ -172,3 +172,18 @@ def test_the_observation_holds_the_obstacles_present_and_an_exported_actor_drive
     run = run_policy(scene, np.arange(4), load_model(str(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2")),
                      "gnn")
     assert run.outcome.shape == (4,) and np.all((run.outcome >= 1) & (run.outcome <= 4))
+
+
+def test_chunks_of_seeds_give_the_figures_of_one_batch(pytester):
+    """Executor chunks (here Kind local with a ChunkSize: the chunks a Ray run would send) rebuild the
+    scene from the file's path, planning problem and traffic; merged, they are the one batch's."""
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    plain = scenario(episodes=10, extra="\n    Traffic: reactive\n  StepLimit: 38")
+    pytester.makefile(".scenario.yaml", cr=plain)
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=2)
+    one_batch = {k: (r["figures"], r["details"]["episode_outcomes"]) for k, r in records(pytester).items()}
+    pytester.makefile(".scenario.yaml", cr=plain + "  Executor: {Kind: local, ChunkSize: 3}\n")
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=2)
+    chunked = records(pytester)
+    assert {k: (r["figures"], r["details"]["episode_outcomes"]) for k, r in chunked.items()} == one_batch
+    assert all("executor" in r["details"] for r in chunked.values())
