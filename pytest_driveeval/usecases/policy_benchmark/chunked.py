@@ -1,8 +1,9 @@
 """A policy benchmark's episodes as chunks of seeds on Ray workers (issue 15).
 
 Each chunk names what its worker needs and nothing live: the blueprint by name and
-parameters (a CommonRoad scene by its file's absolute path, planning problem and traffic), the chunk's seeds (and perturbation rows, for a search), and the policy by its
-loading spec with the folder a relative path resolves against; the worker loads the policy
+parameters (a CommonRoad scene by its file's absolute path, planning problem and traffic),
+the chunk's seeds (and perturbation rows, for a search), and the policy by its loading
+spec with the folder a relative path resolves against; the worker loads the policy
 with the safe loaders and runs :func:`run_policy` on its seeds.  An episode depends on its
 own seed alone (every baseline, and a model called on a batch whose rows do not mix, which
 is what a policy is), so the merged arrays are those of one batch of every seed, bit for bit.

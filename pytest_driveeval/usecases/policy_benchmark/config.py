@@ -40,8 +40,9 @@
                                       # replaces each key it gives); default: local, one batch
 
 One item per policy (and, for a CommonRoad file without PlanningProblem, per
-planning problem: ``policy_benchmark[policy-problem<id>]``).  A judged policy's item decides the conditions and runs
-the baselines it is compared with on the same seeds; the other items report
+planning problem: ``policy_benchmark[<policy>-problem<id>]``).  A judged
+policy's item decides the conditions and runs the baselines it is compared
+with on the same seeds; the other items report
 their figures and intervals (the table of policies) and pass.  With a
 ``Perturbation`` section every item instead searches the episodes' seeds and
 the perturbations within the ranges for an episode of its policy that ends in
