@@ -45,7 +45,6 @@ from pytest_driveeval.sim.commonroad_scene import CommonRoadScene, commonroad_sc
 from pytest_driveeval.sim.episodes import reset  # noqa: E402
 
 SHARED = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", ROOT.parent / "shared" / "data")) / "commonroad"
-FALLBACK = Path("/work/shared/data/commonroad")
 CANDIDATES = ("USA_US101-3_3_T-1.xml", "USA_Lanker-1_1_T-1.xml")
 FIXTURE = ROOT / "fixtures" / "commonroad" / "ZAM_Tutorial-1_2_T-1.xml"
 SMOKE_HELP = "every part at tiny sizes in seconds: checks the script runs, measures nothing"
@@ -54,10 +53,9 @@ SMOKE_HELP = "every part at tiny sizes in seconds: checks the script runs, measu
 def scene_path(given: str | None) -> Path:
     if given:
         return Path(given)
-    for folder in (SHARED, FALLBACK):
-        for name in CANDIDATES:
-            if (folder / name).is_file():
-                return folder / name
+    for name in CANDIDATES:
+        if (SHARED / name).is_file():
+            return SHARED / name
     return FIXTURE
 
 
