@@ -42,7 +42,7 @@ def render_episode_gif(
     xy: np.ndarray,               # (T, A, 2), agent 0 the ego
     yaw: np.ndarray,              # (T, A)
     valid: np.ndarray,            # (T, A) bool
-    size_lw: Sequence[float],     # vehicle (length, width)
+    size_lw: Sequence[float],     # vehicle (length, width), or (A, 2): one per agent
     road: Sequence[np.ndarray],   # drivable polygons (N_i, 2)
     goal_corners: np.ndarray,     # (4, 2)
     agent_limit: int = 12,
@@ -57,7 +57,7 @@ def render_episode_gif(
 
     shown = frames_to_show(len(xy), max_frames, always=[len(xy) - 1])  # the end is what the verdict is about
     scale = pixels / meters
-    corners = box_corners(xy, yaw, np.broadcast_to(np.asarray(size_lw, float)[:2], xy.shape))
+    corners = box_corners(xy, yaw, np.broadcast_to(np.asarray(size_lw, float)[..., :2], xy.shape))
     images = []
     for t in shown:
         px = pixel_mapper(xy[t, 0], scale, pixels)

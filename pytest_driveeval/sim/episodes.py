@@ -232,7 +232,8 @@ class Episodes:
 def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_limit: int = 12,
           traffic_model: TrafficModel | None = None, perturbation: np.ndarray | None = None) -> Episodes:
     """Start one episode per seed; ``agent_limit`` counts the ego (rows beyond an
-    episode's vehicles are padding, ``valid`` False).  ``perturbation``: (E, 6)
+    episode's vehicles are padding, ``valid`` False).  ``blueprint`` may also be a
+    CommonRoad scene (sim.commonroad_scene), which starts its own kind of episodes.  ``perturbation``: (E, 6)
     rows of :data:`PERTURBATION_COLUMNS`, one per seed, or None."""
     if isinstance(blueprint, str):
         blueprint = make_blueprint(blueprint)
@@ -243,6 +244,10 @@ def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_l
         raise ValueError(f"agent_limit must be an integer >= 1 (the ego counts), got {agent_limit!r}")
     if perturbation is not None:
         perturbation = _checked_perturbation(perturbation, len(seeds))
+    # A scene that steps its own episodes (sim.commonroad_scene: obstacles replayed from a recording).
+    start = getattr(blueprint, "start_episodes", None)
+    if start is not None:
+        return start(seeds, int(agent_limit), traffic_model, perturbation)
     return Episodes(blueprint, seeds, int(agent_limit), traffic_model or TrafficModel(), perturbation)
 
 

@@ -139,6 +139,9 @@ class Road:
     ``ends[l]``: the lane ends at its last point and its vehicles must leave
     it before (a merge); other lanes simply run off the map there.
     ``areas``: extra drivable polygons (a junction box) beside the lanes.
+    ``lanes_drivable``: the lanes' outlines are drivable; False when ``areas``
+    give the whole drivable area (a CommonRoad scene's lanelets, whose widths
+    vary along them: a lane's one width would reach past them).
     """
 
     lanes: tuple[Lane, ...]
@@ -147,6 +150,7 @@ class Road:
     ends: tuple[bool, ...] = ()
     areas: tuple[np.ndarray, ...] = ()
     resolution: float = 0.1
+    lanes_drivable: bool = True
     drivable: DrivableGrid = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -163,8 +167,10 @@ class Road:
             raise ValueError(f"road.ends must hold one flag per lane, got {ends}")
         object.__setattr__(self, "ends", ends)
         object.__setattr__(self, "areas", tuple(np.asarray(a, dtype=np.float64) for a in self.areas))
-        object.__setattr__(self, "drivable", _rasterise([l.outline() for l in self.lanes] + list(self.areas),
-                                                        self.resolution, pad=5.0))
+        outlines = [l.outline() for l in self.lanes] if self.lanes_drivable else []
+        if not outlines and not self.areas:
+            raise ValueError("a road whose lanes are not drivable needs areas")
+        object.__setattr__(self, "drivable", _rasterise(outlines + list(self.areas), self.resolution, pad=5.0))
         self._build_segments()
 
     def _build_segments(self):

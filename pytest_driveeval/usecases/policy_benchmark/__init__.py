@@ -57,7 +57,13 @@ class PolicyBenchmark(UseCase):
         return regression.episode_units(outcome)
 
     def cases(self, scenario) -> list[Case]:
-        return [Case(f"{self.name}[{policy}]", params={"policy": policy}) for policy in scenario.config.Policies]
+        from pytest_driveeval.usecases.policy_benchmark.commonroad import planning_problems
+
+        problems = planning_problems(scenario)
+        if problems is None:
+            return [Case(f"{self.name}[{policy}]", params={"policy": policy}) for policy in scenario.config.Policies]
+        return [Case(f"{self.name}[{policy}-problem{problem}]", params={"policy": policy, "problem": problem})
+                for problem in problems for policy in scenario.config.Policies]
 
     def load_model(self, ctx: RunContext, spec: str | None) -> Any:
         from pytest_driveeval.usecases.policy_benchmark.chunked import PolicySource
@@ -87,7 +93,12 @@ class PolicyBenchmark(UseCase):
 
         policy = ctx.case.params["policy"]
         params = config.blueprint_params()
-        blueprint = make_blueprint(config.Blueprint.Name, **params)
+        if config.Blueprint.CommonRoad is None:
+            blueprint = make_blueprint(config.Blueprint.Name, **params)
+        else:
+            from pytest_driveeval.usecases.policy_benchmark.commonroad import scene_for
+
+            blueprint = scene_for(config, ctx, params)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
         model = ctx.fixtures["driveeval_model"]
         executor, source, stays_local = self._executor(config, ctx, model)
@@ -147,10 +158,10 @@ class PolicyBenchmark(UseCase):
                  else rate_intervals(r, conditions.Confidence, config.FirstSeed) for name, r in runs.items()}
         artefacts = write_artefacts(ctx, mine, recorder, rates, config, replay=replay)
         figures = mine.figures()
-        summary = (f"'{policy}' on {config.Blueprint.Name}: goal {figures['goal_rate']:.1f} %, collision "
+        summary = (f"'{policy}' on {blueprint.name}: goal {figures['goal_rate']:.1f} %, collision "
                    f"{figures['collision_rate']:.1f} %, off road {figures['off_road_rate']:.1f} % of "
                    f"{figures['episodes']} episodes")
-        details = {"policy": policy, "judged": judged, "blueprint": config.Blueprint.Name,
+        details = {"policy": policy, "judged": judged, "blueprint": blueprint.name,
                    "intervals": judgement.intervals,
                    "compared": {name: r.figures() for name, r in runs.items() if name != policy},
                    "episode_outcomes": regression.episode_outcomes(mine.seeds, mine.outcome_names())}

@@ -85,7 +85,14 @@ def episode_gif(path: Path, recorder: EpisodeRecorder, row: int, agent_limit: in
 
     episodes = recorder.episodes
     xy, yaw, valid = recorder.episode(row)
-    road = episodes.blueprint.road
+    scene = episodes.blueprint
+    lanelets = getattr(scene, "lanelet_outlines", None)
+    if lanelets is not None:  # a CommonRoad scene: its lanelets, its goal's first shape, each obstacle's box
+        goal = (scene.goal_outlines[0] if scene.goal_outlines
+                else box_corners(episodes.goal_centre[row], episodes.goal_heading[row], np.array([2.0, 2.0])))
+        return render_episode_gif(path, xy, yaw, valid, episodes.size, list(lanelets), goal,
+                                  agent_limit=agent_limit, title=title)
+    road = scene.road
     goal = box_corners(episodes.goal_centre[row], episodes.goal_heading[row], episodes.goal_size[row])
     return render_episode_gif(path, xy, yaw, valid, episodes.size, [lane.outline() for lane in road.lanes]
                               + list(road.areas), goal, agent_limit=agent_limit, title=title)

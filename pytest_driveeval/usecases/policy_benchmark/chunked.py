@@ -1,8 +1,9 @@
 """A policy benchmark's episodes as chunks of seeds on Ray workers (issue 15).
 
 Each chunk names what its worker needs and nothing live: the blueprint by name and
-parameters, the chunk's seeds (and perturbation rows, for a search), and the policy by its
-loading spec with the folder a relative path resolves against; the worker loads the policy
+parameters (a CommonRoad scene by its file's absolute path, planning problem and traffic),
+the chunk's seeds (and perturbation rows, for a search), and the policy by its loading
+spec with the folder a relative path resolves against; the worker loads the policy
 with the safe loaders and runs :func:`run_policy` on its seeds.  An episode depends on its
 own seed alone (every baseline, and a model called on a batch whose rows do not mix, which
 is what a policy is), so the merged arrays are those of one batch of every seed, bit for bit.
@@ -20,8 +21,8 @@ from pytest_driveeval.usecases.executor import run_item_chunks
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun, run_policy
 
-__all__ = ["DEFAULT_CHUNK_SIZE", "EpisodeChunk", "EpisodeResults", "PolicySource", "episode_chunks",
-           "run_episode_chunk", "run_policies_chunked"]
+__all__ = ["COMMONROAD", "DEFAULT_CHUNK_SIZE", "EpisodeChunk", "EpisodeResults", "PolicySource", "chunk_blueprint",
+           "episode_chunks", "run_episode_chunk", "run_policies_chunked"]
 
 #: episodes per task unless the Executor section says otherwise: ~0.3 s of the shipped GNN's
 #: merging episodes, against ~20 ms of loading the policy and building the blueprint on the worker
@@ -69,11 +70,34 @@ class EpisodeResults:
     steps: np.ndarray
 
 
-def run_episode_chunk(chunk: EpisodeChunk) -> EpisodeResults:
-    """A chunk's episodes, on whichever process runs it (torch on one thread: run_policy sees to it)."""
+#: EpisodeChunk.blueprint of a CommonRoad scene; its params are commonroad_scene's, with the file's
+#: absolute ``path``, the ``problem`` id and the ``traffic``
+COMMONROAD = "commonroad"
+
+
+def chunk_blueprint(blueprint: Any, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """What a chunk names to rebuild ``blueprint`` on a worker: a blueprint's name and parameters, or
+    a CommonRoad scene's file, planning problem and traffic with its parameters."""
+    if getattr(blueprint, "problem", None) is None:
+        return blueprint.name, params
+    return COMMONROAD, {**params, "path": str(Path(blueprint.scenario.path).resolve()),
+                        "problem": int(blueprint.problem.id), "traffic": blueprint.traffic}
+
+
+def _rebuilt(name: str, params: dict[str, Any]) -> Any:
+    if name == COMMONROAD:
+        from pytest_driveeval.sim.commonroad_scene import commonroad_scene
+
+        p = dict(params)
+        return commonroad_scene(p.pop("path"), p.pop("problem"), p.pop("traffic"), **p)
     from pytest_driveeval.sim.blueprints import make_blueprint
 
-    blueprint = make_blueprint(chunk.blueprint, **dict(chunk.params))
+    return make_blueprint(name, **params)
+
+
+def run_episode_chunk(chunk: EpisodeChunk) -> EpisodeResults:
+    """A chunk's episodes, on whichever process runs it (torch on one thread: run_policy sees to it)."""
+    blueprint = _rebuilt(chunk.blueprint, dict(chunk.params))
     rows = None if chunk.perturbation is None else np.array(chunk.perturbation, dtype=np.float64)
     done = run_policy(blueprint, np.array(chunk.seeds, dtype=np.int64), chunk.source.load(), chunk.policy,
                       agent_limit=chunk.agent_limit, perturbation=rows)
@@ -104,7 +128,7 @@ def run_policies_chunked(ctx: Any, executor: ExecutorSpec, blueprint: Any, param
     work: list[EpisodeChunk] = []
     spans: dict[str, slice] = {}
     for name, source in sources.items():
-        chunks = episode_chunks(name, source, blueprint.name, params, seeds, agent_limit, size)
+        chunks = episode_chunks(name, source, *chunk_blueprint(blueprint, params), seeds, agent_limit, size)
         spans[name] = slice(len(work), len(work) + len(chunks))
         work += chunks
     run = run_item_chunks(ctx, executor, work, run_episode_chunk, "chunks")

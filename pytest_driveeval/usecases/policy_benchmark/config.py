@@ -6,6 +6,11 @@
       Blueprint:
         Name: merging                 # highway | merging | intersection
         Params: {gap: [7, 17]}        # the blueprint's own parameters, as in make_blueprint()
+        # or a CommonRoad scenario (sim.commonroad_scene), relative to this file:
+        # CommonRoad: ../../fixtures/commonroad/ZAM_Tutorial-1_2_T-1.xml
+        # PlanningProblem: 100        # default: one item per planning problem of the file
+        # Traffic: replay             # the recorded obstacles; reactive: their recorded paths at IDM speed
+        # Params: {start_lateral: [-0.3, 0.3]}   # CommonRoadParams: the ego's size, seeded start offsets
       Episodes: 128                   # seeds FirstSeed .. FirstSeed + Episodes - 1
       FirstSeed: 0
       Strata: 8                       # seed groups the bootstrap resamples within
@@ -34,8 +39,10 @@
                                       # Ray tasks (pytest_driveeval.execute; --driveeval-executor
                                       # replaces each key it gives); default: local, one batch
 
-One item per policy.  A judged policy's item decides the conditions and runs
-the baselines it is compared with on the same seeds; the other items report
+One item per policy (and, for a CommonRoad file without PlanningProblem, per
+planning problem: ``policy_benchmark[<policy>-problem<id>]``).  A judged
+policy's item decides the conditions and runs the baselines it is compared
+with on the same seeds; the other items report
 their figures and intervals (the table of policies) and pass.  With a
 ``Perturbation`` section every item instead searches the episodes' seeds and
 the perturbations within the ranges for an episode of its policy that ends in
@@ -68,15 +75,42 @@ def episode_bytes(agents: int) -> float:
 
 
 class BlueprintSpec(Section):
-    Name: Literal["highway", "merging", "intersection"]
+    """A blueprint by ``Name``, or a CommonRoad scenario file by ``CommonRoad`` (relative to the
+    scenario file, as model paths are) with ``PlanningProblem`` (default: one item per planning
+    problem of the file) and ``Traffic`` (``replay``: the recorded obstacles, the default; ``reactive``:
+    the recorded cars on their recorded paths at the speed IDM gives them).  ``Params``: the
+    blueprint's own parameters, or sim.commonroad_scene.CommonRoadParams for a CommonRoad scene."""
+
+    Name: Literal["highway", "merging", "intersection"] | None = None
+    CommonRoad: str | None = Field(None, min_length=1)
+    PlanningProblem: int | None = None
+    Traffic: Literal["replay", "reactive"] | None = None
     Params: dict[str, Any] = Field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        """How summaries name it: the blueprint, or the CommonRoad file's name."""
+        if self.CommonRoad is None:
+            return str(self.Name)
+        return self.CommonRoad.replace("\\", "/").rsplit("/", 1)[-1].removesuffix(".xml")
 
     @model_validator(mode="after")
     def _params_fit_the_blueprint(self):
         from pytest_driveeval.sim.blueprints import ParameterError, make_blueprint
 
+        if (self.Name is None) == (self.CommonRoad is None):
+            raise located_error("Name", self.Name, "give either Name (a blueprint) or CommonRoad (a scenario file)")
+        if self.CommonRoad is None:
+            for key in ("PlanningProblem", "Traffic"):
+                if getattr(self, key) is not None:
+                    raise located_error(key, getattr(self, key), "only for a CommonRoad scenario")
         try:
-            make_blueprint(self.Name, **self.Params)
+            if self.CommonRoad is None:
+                make_blueprint(self.Name, **self.Params)
+            else:
+                from pytest_driveeval.sim.commonroad_scene import check_params
+
+                check_params(self.Params)
         except ParameterError as exc:
             # Point at the parameter's own line, not at the Blueprint mapping.
             message = str(exc).split(": ", 2)[-1]
@@ -163,6 +197,8 @@ class PolicyBenchmarkConfig(ConditionsModel):
             raise located_error("AgentLimit", self.AgentLimit,
                            "the agent limit counts the ego, so it is at least 1")
         self._fits_in_memory()
+        if self.Blueprint.CommonRoad is not None:
+            self._fits_commonroad()
         for index, name in enumerate(self.Judged or ()):
             if name not in self.Policies:
                 raise located_error(("Judged", index), name, f"'{name}' is not one of this scenario's Policies "
@@ -184,6 +220,18 @@ class PolicyBenchmarkConfig(ConditionsModel):
                                     f"'{beats.Baseline}' is judged ({why}), and a policy cannot be its own "
                                     "baseline: compare with another policy, or leave it out of Judged")
         return self
+
+    def _fits_commonroad(self) -> None:
+        """What a CommonRoad scene cannot do yet, refused at its key."""
+        for name, spec in self.Policies.items():
+            if spec == "idm_expert":
+                raise located_error(("Policies", name), spec, "idm_expert reads a blueprint's lanes and traffic "
+                                                              "model; it does not drive CommonRoad scenes yet")
+        for key in ("AgentsSpeedScale", "GapScale"):
+            if self.Perturbation is not None and getattr(self.Perturbation, key) is not None:
+                raise located_error(("Perturbation", key), getattr(self.Perturbation, key),
+                                    "a CommonRoad scene replays its recorded obstacles: only the ego's start "
+                                    "(Lateral, Longitudinal, Heading, SpeedScale) can be perturbed")
 
     def _fits_in_memory(self) -> None:
         agents, episodes = self.AgentLimit, self.Episodes

@@ -68,10 +68,10 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
                           perturbation=perturbation_rows(perturbations))
 
     def run_chunked(case_seeds: np.ndarray, perturbations: Sequence[EpisodePerturbation]) -> PolicyRun:
-        from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, episode_chunks, merged,
-                                                                        run_episode_chunk)
+        from pytest_driveeval.usecases.policy_benchmark.chunked import (DEFAULT_CHUNK_SIZE, chunk_blueprint,
+                                                                        episode_chunks, merged, run_episode_chunk)
 
-        work = episode_chunks(name, source, blueprint.name, config.blueprint_params(), case_seeds,
+        work = episode_chunks(name, source, *chunk_blueprint(blueprint, config.blueprint_params()), case_seeds,
                               config.AgentLimit, executor.ChunkSize or DEFAULT_CHUNK_SIZE,
                               perturbation_rows(perturbations))
         chunk_run = ledger.run(ctx, executor, work, run_episode_chunk)
@@ -109,8 +109,8 @@ def show_episode(config: PolicyBenchmarkConfig, ctx: Any, name: str, seed: int, 
             f"{name} seed {seed}, {changed}: {outcome}")
     findings = [Finding(f"seed {seed} under {changed}: {verdict.reason}", frame=steps,
                         keypath=("Evaluation", "Perturbation", "FailOn"))] if verdict.failed else []
-    summary = f"'{name}' on {config.Blueprint.Name}, seed {seed} under {changed}: {outcome} after {steps} steps"
-    details = {"policy": name, "blueprint": config.Blueprint.Name, "seed": seed, "outcome": outcome, "steps": steps,
+    summary = f"'{name}' on {config.Blueprint.label}, seed {seed} under {changed}: {outcome} after {steps} steps"
+    details = {"policy": name, "blueprint": config.Blueprint.label, "seed": seed, "outcome": outcome, "steps": steps,
                "return": float(done.returns[0]), "perturbation": perturbation.to_json(), "fail_on": list(fail_on)}
     return Outcome("policy_benchmark", FAILED if verdict.failed else PASSED, summary,
                    figures={"episode_steps": steps, "episode_return": float(done.returns[0])}, findings=findings,

@@ -1,0 +1,62 @@
+"""A policy_benchmark scenario's ``Blueprint: {CommonRoad: file.xml, PlanningProblem: id}``: which
+items it makes and the scene each item runs (sim.commonroad_scene).
+
+The file is read when the items are collected, to make one item per planning problem when the
+scenario names none; a file that cannot be read then still makes its items (one per policy), and
+each fails with the reader's error when it runs, so the scenario's other items run.  Errors name
+the scenario file and the line of the key at fault (``CommonRoad``, or ``PlanningProblem`` for a
+planning problem the file does not have), then the CommonRoad file and its element.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from pytest_driveeval.errors import DataError, display_path
+from pytest_driveeval.io.commonroad import CommonRoadError
+
+__all__ = ["planning_problems", "scene_for"]
+
+
+def planning_problems(scenario: Any) -> list[int] | None:
+    """The planning problems to make items for, or None: one item per policy (a blueprint, a named
+    planning problem, or a file that does not read, whose items report why when they run)."""
+    from pytest_driveeval.sim.commonroad_scene import read_cached
+
+    spec = scenario.config.Blueprint
+    if spec.CommonRoad is None or spec.PlanningProblem is not None:
+        return None
+    try:
+        return sorted(read_cached(scenario.resolve(spec.CommonRoad)).planning_problems) or None
+    except (OSError, CommonRoadError):
+        return None
+
+
+def scene_for(config: Any, ctx: Any, params: dict) -> Any:
+    """The item's CommonRoad scene; a DataError naming the YAML line, the file and the element."""
+    from pytest_driveeval.sim.commonroad_scene import commonroad_scene, read_cached
+
+    spec = config.Blueprint
+    path = ctx.scenario.resolve(spec.CommonRoad)
+    problem = ctx.case.params.get("problem", spec.PlanningProblem)
+    key = "CommonRoad"
+    try:
+        if problem is None:
+            ids = sorted(read_cached(path).planning_problems)
+            if len(ids) != 1:
+                raise CommonRoadError(f"{display_path(path)} holds {len(ids)} planning problems "
+                                      f"({', '.join(map(str, ids)) or 'none'}): name one in PlanningProblem")
+            problem = ids[0]
+        elif "problem" not in ctx.case.params and problem not in read_cached(path).planning_problems:
+            key = "PlanningProblem"
+        return commonroad_scene(path, problem, traffic=spec.Traffic or "replay", **params)
+    except OSError as exc:
+        raise DataError(f"{_where(ctx, key)}: CommonRoad scenario {display_path(path)} cannot be read: "
+                        f"{exc.strerror or exc}") from None
+    except CommonRoadError as exc:
+        raise DataError(f"{_where(ctx, key)}: {exc}") from None
+
+
+def _where(ctx: Any, key: str) -> str:
+    line = ctx.scenario.line_of("Evaluation", "Blueprint", key)
+    place = display_path(ctx.scenario.path)
+    return f"{place}:{line}: Evaluation.Blueprint.{key}" if line else f"{place}: Evaluation.Blueprint.{key}"

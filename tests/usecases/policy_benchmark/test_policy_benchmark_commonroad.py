@@ -1,0 +1,189 @@
+"""policy_benchmark on a CommonRoad scenario: items per planning problem, results independent of
+xdist, a GIF of lanelets and obstacles, and bad input as item errors naming the YAML line, the file
+and the element."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+from conftest import REPO_ROOT
+
+pytest.importorskip("torch")
+pytest.importorskip("scipy")
+
+TUTORIAL = REPO_ROOT / "fixtures" / "commonroad" / "ZAM_Tutorial-1_2_T-1.xml"
+
+SCENARIO = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: policy_benchmark
+  UseCaseFormatVersion: 0.1.0
+  Blueprint:
+    CommonRoad: {path}{extra}
+  Episodes: {episodes}
+  Policies:
+    mine: constant
+    random: random
+  Judged: [mine]
+  Conditions:
+    GoalRate: {{AtLeast: 50}}
+    Beats: [{{Baseline: random, Metric: goal_rate}}]
+  Artefacts: {{Animations: {animations}}}
+"""
+
+
+def scenario(name="cr", path="zam.xml", extra="", episodes=12, animations="failing") -> str:
+    return SCENARIO.format(name=name, path=path, extra=extra, episodes=episodes, animations=animations)
+
+
+def records(pytester) -> dict:
+    data = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())
+    return {r["nodeid"]: r for r in data["results"]}
+
+
+def two_problems(pytester) -> None:
+    """The tutorial with a second planning problem (id 101, its initial state 5 m further on)."""
+    text = TUTORIAL.read_text()
+    start, end = text.index("<planningProblem"), text.index("</planningProblem>") + len("</planningProblem>")
+    second = text[start:end].replace('id="100"', 'id="101"', 1).replace("<x>15.0</x>", "<x>20.0</x>", 1)
+    assert 'id="101"' in second
+    (pytester.path / "zam.xml").write_text(text[:end] + "\n" + second + text[end:])
+
+
+def test_one_item_per_policy_and_planning_problem_results_the_same_with_two_workers(pytester):
+    two_problems(pytester)
+    pytester.makefile(".scenario.yaml", cr=scenario(animations="all"))
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=4)
+    serial = {k: (r["status"], r["figures"], r["details"]["intervals"]) for k, r in records(pytester).items()}
+    assert set(serial) == {f"cr.scenario.yaml::policy_benchmark[{p}-problem{i}]" for p in ("mine", "random")
+                           for i in (100, 101)}
+    mine = records(pytester)["cr.scenario.yaml::policy_benchmark[mine-problem101]"]
+    assert mine["figures"]["goal_rate"] == 100.0 and mine["details"]["blueprint"].endswith("problem 101")
+    gifs = list((pytester.path / "driveeval-results").rglob("*mine-problem100*/episode_seed_0.gif"))
+    assert len(gifs) == 1 and gifs[0].stat().st_size > 1000
+    pytester.runpytest("-q", "-n", "2")
+    assert {k: (r["status"], r["figures"], r["details"]["intervals"]) for k, r in records(pytester).items()} == serial
+
+
+def test_a_named_planning_problem_makes_one_item_per_policy(pytester):
+    two_problems(pytester)
+    pytester.makefile(".scenario.yaml", cr=scenario(extra="\n    PlanningProblem: 101"))
+    pytester.runpytest("-q").assert_outcomes(passed=2)
+    assert set(records(pytester)) == {"cr.scenario.yaml::policy_benchmark[mine]",
+                                      "cr.scenario.yaml::policy_benchmark[random]"}
+
+
+NOT_COMMONROAD = "<?xml version='1.0'?>\n<scenario id='1'/>\n"
+FUTURE = TUTORIAL.read_text().replace('commonRoadVersion="2020a"', 'commonRoadVersion="2031x"')
+
+
+@pytest.mark.parametrize("files, extra, expected", [
+    ({}, "", r"*bad.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: CommonRoad scenario *absent.xml cannot be "
+             r"read: No such file*"),
+    ({"absent.xml": NOT_COMMONROAD}, "",
+     "*bad.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: *absent.xml:2: <scenario id=\"1\">: not a "
+     "CommonRoad file*"),
+    ({"absent.xml": FUTURE}, "", "*bad.scenario.yaml:7: *absent.xml:*<commonRoad*unknown commonRoadVersion '2031x'*"),
+    ({"absent.xml": TUTORIAL.read_text()}, "\n    PlanningProblem: 7",
+     "*bad.scenario.yaml:8: Evaluation.Blueprint.PlanningProblem: *absent.xml: no planning problem with id 7 "
+     "(the file has: 100)*"),
+])
+def test_bad_files_and_problems_are_item_errors_naming_the_yaml_line_and_the_element(pytester, files, extra,
+                                                                                      expected):
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    for name, text in files.items():
+        (pytester.path / name).write_text(text)
+    pytester.makefile(".scenario.yaml", bad=scenario(name="bad", path="absent.xml", extra=extra),
+                      good=scenario(name="good"))
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=2, failed=2)
+    result.stdout.fnmatch_lines([expected])
+    assert all(r["status"] == "passed" for k, r in records(pytester).items() if k.startswith("good"))
+
+
+@pytest.mark.parametrize("change, expected", [
+    ("    Name: merging\n", "*Blueprint.Name*either Name*or CommonRoad*"),
+    ("    Traffic: reckless\n", "*Blueprint.Traffic*'replay' or 'reactive'*"),
+    ("    PlanningProblem: 100\n    Name: merging\n", "*Blueprint.Name*either Name*or CommonRoad*"),
+    ("    Params: {gap: [1, 2]}\n", "*Blueprint.Params.gap*does not apply to a CommonRoad scene*"),
+    ("    Params: {dt: 0.2}\n", "*Blueprint.Params.dt*timeStepSize*"),
+])
+def test_bad_blueprint_keys_are_located(pytester, change, expected):
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    pytester.makefile(".scenario.yaml", cr=scenario().replace("    CommonRoad: zam.xml\n",
+                                                              "    CommonRoad: zam.xml\n" + change))
+    result = pytester.runpytest("-q")
+    result.stdout.fnmatch_lines([expected])
+    assert result.ret != 0
+
+
+def test_idm_expert_is_refused_at_its_policy_line(pytester):
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    pytester.makefile(".scenario.yaml", cr=scenario().replace("    random: random\n",
+                                                              "    random: random\n    idm: idm_expert\n"))
+    result = pytester.runpytest("-q")
+    result.stdout.fnmatch_lines(["*cr.scenario.yaml:12: Evaluation.Policies.idm*idm_expert*CommonRoad*"])
+
+
+def test_a_robustness_search_perturbs_the_ego_start(pytester):
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    text = scenario(episodes=4, extra="\n    PlanningProblem: 100").split("  Judged")[0] + (
+        "  Perturbation:\n    Lateral: [-2.5, 2.5]\n    Heading: [-0.2, 0.2]\n    Examples: 64\n    Batch: 8\n")
+    pytester.makefile(".scenario.yaml", cr=text)
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    mine = records(pytester)["cr.scenario.yaml::policy_benchmark[mine]"]
+    # Keeping speed and heading passes unperturbed (the demo) and fails from a start moved far enough.
+    assert mine["status"] == "failed", result.stdout.str()[-2000:]
+    assert mine["figures"]["search_failures"] > 0 and mine["figures"]["search_examples"] > 8
+    assert any(k in mine["figures"] for k in ("minimal_lateral", "minimal_heading"))
+
+
+def test_the_observation_holds_the_obstacles_present_and_an_exported_actor_drives(tmp_path):
+    import numpy as np
+
+    from pytest_driveeval.policies.graph import decode
+    from pytest_driveeval.policies.loading import load_model
+    from pytest_driveeval.sim.commonroad_scene import commonroad_scene
+    from pytest_driveeval.sim.episodes import reset
+    from pytest_driveeval.usecases.policy_benchmark.evaluate import observer, run_policy
+
+    # The goal's time interval moved to steps 50..60, so the episode outlives the recording (steps 0..40).
+    late = tmp_path / "late.xml"
+    text = TUTORIAL.read_text()
+    goal = text.index("<goalState>")
+    late.write_text(text[:goal] + text[goal:].replace("<intervalStart>35</intervalStart>",
+                                                      "<intervalStart>50</intervalStart>", 1)
+                    .replace("<intervalEnd>40</intervalEnd>", "<intervalEnd>60</intervalEnd>", 1))
+    scene = commonroad_scene(late, 100)
+    assert scene.max_steps == 60
+    episodes = reset(scene, np.array([0]), 12)
+    observe = observer(episodes, 12)
+    counts = {}
+    for k in range(1, 46):
+        episodes.step(np.zeros((1, 2)))
+        counts[k] = int(decode(observe(episodes)).count[0])
+    # The ego, the parked car and the two recorded cars until step 40; then the parked car alone.
+    assert counts[10] == counts[40] == 4 and counts[41] == counts[45] == 2, counts
+    assert not episodes.done.any()
+
+    run = run_policy(scene, np.arange(4), load_model(str(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2")),
+                     "gnn")
+    assert run.outcome.shape == (4,) and np.all((run.outcome >= 1) & (run.outcome <= 4))
+
+
+def test_chunks_of_seeds_give_the_figures_of_one_batch(pytester):
+    """Executor chunks (here Kind local with a ChunkSize: the chunks a Ray run would send) rebuild the
+    scene from the file's path, planning problem and traffic; merged, they are the one batch's."""
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    plain = scenario(episodes=10, extra="\n    Traffic: reactive\n  StepLimit: 38")
+    pytester.makefile(".scenario.yaml", cr=plain)
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=2)
+    one_batch = {k: (r["figures"], r["details"]["episode_outcomes"]) for k, r in records(pytester).items()}
+    pytester.makefile(".scenario.yaml", cr=plain + "  Executor: {Kind: local, ChunkSize: 3}\n")
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=2)
+    chunked = records(pytester)
+    assert {k: (r["figures"], r["details"]["episode_outcomes"]) for k, r in chunked.items()} == one_batch
+    assert all("executor" in r["details"] for r in chunked.values())
