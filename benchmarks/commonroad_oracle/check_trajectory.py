@@ -20,7 +20,9 @@ nothing from pytest_driveeval.  The input JSON::
   ``off_road_shapely``: the box not covered by the union of ``lanelet.polygon.shapely_object``;
   ``corner_off_road``: some corner of the box outside that union (the rule pytest_driveeval rasterises);
   ``corner_edge_distance``: the smallest distance of a box corner to the union's boundary, m (how near
-  the edge a verdict is).
+  the edge a verdict is); ``outside_area``: the box's area outside that union, m² (hairline gaps
+  between lanelets whose shared bounds differ slightly in the file show as a few mm²);
+  ``off_road_dc_buffered``: the drivability checker's enclosure in its lanelet polygons buffered by 1 mm.
 
     ~/.cache/driveeval-bench/crime/bin/python check_trajectory.py input.json
 """
@@ -65,6 +67,8 @@ def check(request: Dict[str, Any]) -> Dict[str, Any]:
     length, width = float(request["length"]), float(request["width"])
     checker = create_collision_checker(scenario)
     road_dc = create_road_polygons(scenario, method="lanelet_polygons")
+    # its option that closes the hairline gaps between lanelets whose shared bound differs in the file
+    road_dc_buffered = create_road_polygons(scenario, method="lanelet_polygons", buffer=1, buf_width=1e-3)
     road = unary_union([ll.polygon.shapely_object for ll in scenario.lanelet_network.lanelets])
     edge = road.boundary
     shapes_at: Dict[int, List[Any]] = {}
@@ -72,7 +76,8 @@ def check(request: Dict[str, Any]) -> Dict[str, Any]:
     for traj in request["trajectories"]:
         verdicts: Dict[str, List[Any]] = {k: [] for k in ("goal", "collision", "collision_shapely", "off_road",
                                                          "off_road_shapely", "corner_off_road",
-                                                         "corner_edge_distance")}
+                                                         "corner_edge_distance", "outside_area",
+                                                         "off_road_dc_buffered")}
         for t, x, y, yaw, v in zip(traj["time_step"], traj["x"], traj["y"], traj["orientation"], traj["velocity"]):
             t = int(t)
             state = CustomState(time_step=t, position=np.array([x, y], dtype=float), orientation=float(yaw),
@@ -86,7 +91,9 @@ def check(request: Dict[str, Any]) -> Dict[str, Any]:
             verdicts["collision_shapely"].append(any(ego.intersects(s) for s in shapes_at[t]))
             # answers [enclosed, ...]: [True, False] inside the road, [False, False] far outside it
             verdicts["off_road"].append(not obb_enclosure_polygons_static(road_dc, ego_obb)[0])
+            verdicts["off_road_dc_buffered"].append(not obb_enclosure_polygons_static(road_dc_buffered, ego_obb)[0])
             verdicts["off_road_shapely"].append(not road.covers(ego))
+            verdicts["outside_area"].append(float(ego.difference(road).area))
             corners = [Point(p) for p in list(ego.exterior.coords)[:4]]
             verdicts["corner_off_road"].append(not all(road.covers(p) for p in corners))
             verdicts["corner_edge_distance"].append(min(edge.distance(p) for p in corners))
