@@ -5,10 +5,14 @@ vehicle models, which is why the package reads CommonRoad XML itself and commonr
 here, at ``~/.cache/driveeval-bench/commonroad``, never in the package's requirements. Run it as a
 script or call ``oracle_python()``: both are idempotent and print what they did. ``read_scenario``
 runs read_scenario.py in the venv and returns its JSON.
+
+``check_trajectories`` runs check_trajectory.py in the other venv, the crime venv of
+benchmarks/nuplan_oracle/crime_ttc.py, which has the drivability checker (``checker_python``).
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import subprocess
 import sys
@@ -20,6 +24,7 @@ from reference_venvs import import_check, install_pins, say_to, venv_python  # n
 
 VENV = Path.home() / ".cache" / "driveeval-bench" / "commonroad"
 READER = Path(__file__).with_name("read_scenario.py")
+CHECKER = Path(__file__).with_name("check_trajectory.py")
 READY = "oracle-ready.json"  # written after the import check passes; existing_python() looks for it
 PINS = {"commonroad-io": "2026.1"}
 CHECK = ("import json, importlib.metadata as m;"
@@ -59,6 +64,38 @@ def read_scenario(path: Path, goal_states: list[dict] | None = None, points: lis
     if done.returncode != 0:
         raise RuntimeError(f"{READER.name} failed on {path}:\n{done.stderr[-4000:]}")
     return json.loads(done.stdout)
+
+
+def _crime_ttc():
+    spec = importlib.util.spec_from_file_location(
+        "crime_ttc", Path(__file__).resolve().parents[1] / "nuplan_oracle" / "crime_ttc.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def checker_python(make: bool = False) -> Path | None:
+    """The crime venv's python (commonroad-io 2024.3 with the drivability checker): made when ``make``,
+    else the existing one or None (for skips)."""
+    crime = _crime_ttc()
+    return crime.make_venv() if make else crime.existing_python()
+
+
+def check_trajectories(path: Path, problem_id: int, length: float, width: float, trajectories: list[dict],
+                       python: Path | None = None, timeout: float = 1800) -> list[dict]:
+    """check_trajectory.py's verdicts per time step on ``trajectories`` ({"name", "time_step", "x", "y",
+    "orientation", "velocity"} lists each, x and y the box centre) of an ego box ``length`` x ``width``."""
+    python = python or checker_python(make=True)
+    request = {"scenario": str(path), "planning_problem": int(problem_id), "length": float(length),
+               "width": float(width), "trajectories": trajectories}
+    with tempfile.TemporaryDirectory() as tmp:
+        file = Path(tmp) / "request.json"
+        file.write_text(json.dumps(request))
+        done = subprocess.run([str(python), str(CHECKER), str(file)], capture_output=True, text=True,
+                              timeout=timeout)
+    if done.returncode != 0:
+        raise RuntimeError(f"{CHECKER.name} failed on {path}:\n{done.stderr[-4000:]}")
+    return json.loads(done.stdout)["trajectories"]
 
 
 if __name__ == "__main__":

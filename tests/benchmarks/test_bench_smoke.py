@@ -48,6 +48,9 @@ SMOKED = {
 # Scripts with no smoke run, and why; tests/raster/test_l5kit_oracle.py runs l5kit's where its venv exists,
 # the nuPlan score comparison test nuplan-devkit's, tests/io/test_commonroad_oracle.py commonroad-io's.
 NOT_SMOKED = {
+    "commonroad_oracle/check_trajectory.py": "imports the drivability checker: runs inside the crime venv only",
+    "commonroad_oracle/compare_trajectories.py": "an agreement table against the crime venv, no timing; "
+                                                 "tests/io/test_commonroad_trajectory_oracle.py runs it",
     "commonroad_oracle/oracle_venv.py": "creates commonroad-io's venv: pip installs, minutes",
     "commonroad_oracle/read_scenario.py": "imports commonroad-io: runs inside its venv only",
     "l5kit_oracle/compare_rasters.py": "compares with l5kit itself, in its own venv",
