@@ -1,5 +1,6 @@
 """The shipped models are torch.export programs (.pt2) that give the outputs their TorchScript
-versions gave on real inputs (kept by examples/export_models.py when it converted them), and a
+versions gave on real inputs (kept by examples/export_models.py when it converted them; the merging GNN,
+trained as a program after that, is held to the outputs it gave when it shipped), and a
 TorchScript file a user has still loads, without a deprecation warning they did not cause."""
 from __future__ import annotations
 
