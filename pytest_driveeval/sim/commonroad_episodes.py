@@ -37,7 +37,7 @@ from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD
 from pytest_driveeval.sim.agents import TrafficModel
 from pytest_driveeval.sim.commonroad_reactive import ReactiveObstacles
 from pytest_driveeval.sim.dynamics import KinematicBicycle
-from pytest_driveeval.sim.episodes import PERTURBATION_COLUMNS, StepResult
+from pytest_driveeval.sim.episodes import PERTURBATION_COLUMNS, StepResult, checked_actions
 from pytest_driveeval.sim.state import AgentState
 
 __all__ = ["CommonRoadEpisodes", "start_offsets"]
@@ -162,13 +162,7 @@ class CommonRoadEpisodes:
 
     def step(self, actions: np.ndarray) -> StepResult:
         """Advance every running episode by one step; ``actions`` (E, 2) = (acceleration, steering angle)."""
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_episodes, 2):
-            raise ValueError(f"actions must be ({self.num_episodes}, 2) (acceleration, steering), "
-                             f"got shape {actions.shape}")
-        if not np.all(np.isfinite(actions)):
-            bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
-            raise ValueError(f"actions must be finite; episodes {bad.tolist()} got {actions[bad].tolist()}")
+        actions = checked_actions(actions, self.num_episodes)
         active = self.outcome == RUNNING
         ego = self._bicycle.step(self._ego, (actions[:, 0], actions[:, 1]))
         centre = ego.xy + self._half_wheelbase(ego.yaw)

@@ -64,7 +64,7 @@ from pytest_driveeval.sim.blueprints import Blueprint, make_blueprint
 from pytest_driveeval.sim.dynamics import KinematicBicycle
 from pytest_driveeval.sim.state import AgentState
 
-__all__ = ["NO_PERTURBATION", "PERTURBATION_COLUMNS", "Episodes", "StepResult", "reset"]
+__all__ = ["NO_PERTURBATION", "PERTURBATION_COLUMNS", "Episodes", "StepResult", "checked_actions", "reset"]
 
 #: the columns of ``reset``'s per-episode perturbation rows (the fields of strategies.EpisodePerturbation)
 PERTURBATION_COLUMNS = ("lateral", "longitudinal", "heading", "speed_scale", "agents_speed_scale", "gap_scale")
@@ -182,13 +182,7 @@ class Episodes:
 
     def step(self, actions: np.ndarray) -> StepResult:
         """Advance every running episode by one step; ``actions`` (E, 2) = (acceleration, steering angle)."""
-        actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (self.num_episodes, 2):
-            raise ValueError(f"actions must be ({self.num_episodes}, 2) (acceleration, steering), "
-                             f"got shape {actions.shape}")
-        if not np.all(np.isfinite(actions)):
-            bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
-            raise ValueError(f"actions must be finite; episodes {bad.tolist()} got {actions[bad].tolist()}")
+        actions = checked_actions(actions, self.num_episodes)
         bp, road = self.blueprint, self.blueprint.road
         active = self.outcome == RUNNING
 
@@ -227,6 +221,18 @@ class Episodes:
         self.returns = self.returns + reward
         return StepResult(reward, self.outcome != RUNNING, ended == GOAL, ended == COLLISION, ended == OFF_ROAD,
                           ended == STEP_LIMIT)
+
+
+def checked_actions(actions: np.ndarray, episodes: int) -> np.ndarray:
+    """``actions`` as (E, 2) float64 (acceleration, steering), or a ValueError naming what is wrong
+    and, for a value that is not finite, which episodes."""
+    actions = np.asarray(actions, dtype=np.float64)
+    if actions.shape != (episodes, 2):
+        raise ValueError(f"actions must be ({episodes}, 2) (acceleration, steering), got shape {actions.shape}")
+    if not np.all(np.isfinite(actions)):
+        bad = np.flatnonzero(~np.all(np.isfinite(actions), axis=1))
+        raise ValueError(f"actions must be finite; episodes {bad.tolist()} got {actions[bad].tolist()}")
+    return actions
 
 
 def reset(blueprint: Blueprint | str, seeds: Sequence[int] | np.ndarray, agent_limit: int = 12,
