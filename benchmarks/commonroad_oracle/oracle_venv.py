@@ -54,15 +54,24 @@ def read_scenario(path: Path, goal_states: list[dict] | None = None, points: lis
     """What commonroad-io reads from ``path`` (read_scenario.py's JSON), with its goal check on ``goal_states``
     ({"planning_problem": id, "x", "y", "orientation", "velocity", "time_step"} each) and its lanelet
     lookup at ``points`` ([x, y] each)."""
-    python = python or oracle_python(quiet=True)
+    return _run(python or oracle_python(quiet=True), READER, path, timeout,
+                lambda put: [str(path), "--states", put("states", goal_states or []),
+                             "--points", put("points", points or [])])
+
+
+def _run(python: Path, script: Path, path: Path, timeout: float, arguments) -> dict:
+    """``script``'s JSON answer, run by ``python`` with ``arguments(put)``, where ``put(name, value)``
+    writes ``value`` as a JSON file for it and gives its path; an error with its stderr if it fails."""
     with tempfile.TemporaryDirectory() as tmp:
-        states, at = Path(tmp) / "states.json", Path(tmp) / "points.json"
-        states.write_text(json.dumps(goal_states or []))
-        at.write_text(json.dumps(points or []))
-        done = subprocess.run([str(python), str(READER), str(path), "--states", str(states), "--points", str(at)],
-                              capture_output=True, text=True, timeout=timeout)
+        def put(name: str, value) -> str:
+            file = Path(tmp) / f"{name}.json"
+            file.write_text(json.dumps(value))
+            return str(file)
+
+        done = subprocess.run([str(python), str(script), *arguments(put)], capture_output=True, text=True,
+                              timeout=timeout)
     if done.returncode != 0:
-        raise RuntimeError(f"{READER.name} failed on {path}:\n{done.stderr[-4000:]}")
+        raise RuntimeError(f"{script.name} failed on {path}:\n{done.stderr[-4000:]}")
     return json.loads(done.stdout)
 
 
@@ -85,17 +94,10 @@ def check_trajectories(path: Path, problem_id: int, length: float, width: float,
                        python: Path | None = None, timeout: float = 1800) -> list[dict]:
     """check_trajectory.py's verdicts per time step on ``trajectories`` ({"name", "time_step", "x", "y",
     "orientation", "velocity"} lists each, x and y the box centre) of an ego box ``length`` x ``width``."""
-    python = python or checker_python(make=True)
     request = {"scenario": str(path), "planning_problem": int(problem_id), "length": float(length),
                "width": float(width), "trajectories": trajectories}
-    with tempfile.TemporaryDirectory() as tmp:
-        file = Path(tmp) / "request.json"
-        file.write_text(json.dumps(request))
-        done = subprocess.run([str(python), str(CHECKER), str(file)], capture_output=True, text=True,
-                              timeout=timeout)
-    if done.returncode != 0:
-        raise RuntimeError(f"{CHECKER.name} failed on {path}:\n{done.stderr[-4000:]}")
-    return json.loads(done.stdout)["trajectories"]
+    return _run(python or checker_python(make=True), CHECKER, path, timeout,
+                lambda put: [put("request", request)])["trajectories"]
 
 
 if __name__ == "__main__":

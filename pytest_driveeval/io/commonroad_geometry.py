@@ -19,7 +19,7 @@ from ..geometry.polygons import outline_distance
 from .commonroad_types import (Circle, CommonRoadScenario, GoalState, Obstacle, PlanningProblem, Polygon, Rectangle,
                                Shape)
 
-__all__ = ["goal_reached", "in_shape", "in_outline", "on_road", "lanelets_at", "obstacle_outline"]
+__all__ = ["goal_reached", "in_shape", "in_outline", "on_road", "lanelets_at", "obstacle_outline", "shape_outline"]
 
 # Points this close to an outline count as on it: commonroad-io's shapely test includes the boundary,
 # which a crossing-number test only half does.
@@ -119,23 +119,28 @@ def lanelets_at(scenario: CommonRoadScenario, x, y) -> list[list[int]]:
     return found
 
 
+def shape_outline(shape: Shape, circle_vertices: int = 32) -> np.ndarray:
+    """(K, 2) outline of a shape in its own frame (placed by its center and orientation): a rectangle's
+    4 corners counter-clockwise from rear right, a circle's ``circle_vertices``-gon through its rim, a
+    polygon's vertices."""
+    if isinstance(shape, Rectangle):
+        hl, hw = 0.5 * shape.length, 0.5 * shape.width
+        local = np.array([[-hl, -hw], [hl, -hw], [hl, hw], [-hl, hw]])
+        c, s = math.cos(shape.orientation), math.sin(shape.orientation)
+        return local @ np.array([[c, s], [-s, c]]) + shape.center
+    if isinstance(shape, Circle):
+        a = np.linspace(0.0, 2.0 * math.pi, circle_vertices, endpoint=False)
+        return shape.center + shape.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
+    return shape.vertices
+
+
 def obstacle_outline(obstacle: Obstacle, time_step: int, circle_vertices: int = 32) -> np.ndarray:
     """(K, 2) outline of the obstacle's shape at its state of ``time_step``: the shape (placed by its own
     center and orientation, zero for the files seen) turned by the state's orientation and moved to its
     position.  A rectangle gives its 4 corners counter-clockwise from rear right; a circle a
     ``circle_vertices``-gon through its rim."""
     state = obstacle.trajectory.at(time_step)
-    shape = obstacle.shape
-    if isinstance(shape, Rectangle):
-        hl, hw = 0.5 * shape.length, 0.5 * shape.width
-        local = np.array([[-hl, -hw], [hl, -hw], [hl, hw], [-hl, hw]])
-        c, s = math.cos(shape.orientation), math.sin(shape.orientation)
-        local = local @ np.array([[c, s], [-s, c]]) + shape.center
-    elif isinstance(shape, Circle):
-        a = np.linspace(0.0, 2.0 * math.pi, circle_vertices, endpoint=False)
-        local = shape.center + shape.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
-    else:
-        local = shape.vertices
+    local = shape_outline(obstacle.shape, circle_vertices)
     heading = 0.0 if math.isnan(state.orientation) else state.orientation
     c, s = math.cos(heading), math.sin(heading)
     return local @ np.array([[c, s], [-s, c]]) + np.array([state.x, state.y])

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from pytest_driveeval.geometry.planar import arc_lengths
 from pytest_driveeval.sim.agents import TrafficModel, idm_advance, idm_free, idm_interaction
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 
@@ -53,8 +54,7 @@ class ReactiveObstacles:
             if obstacle.role != "dynamic":
                 continue
             path = scene.recorded_paths[j]
-            seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
-            along = np.concatenate([[0.0], np.cumsum(seg)])  # arclength of each recorded state
+            along = arc_lengths(path)  # of each recorded state
             if len(path) < 2 or along[-1] < _MIN_PATH:
                 continue
             lanes.append(Lane(_thinned(path, along), float(scene.obstacle_size[j, 1]), str(ident)))

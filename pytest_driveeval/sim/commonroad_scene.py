@@ -51,7 +51,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from pytest_driveeval.geometry.planar import arc_lengths
 from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem, read_commonroad
+from pytest_driveeval.io.commonroad_geometry import shape_outline
 from pytest_driveeval.io.commonroad_types import (Circle, CommonRoadScenario, Obstacle, PlanningProblem, Polygon,
                                                   Rectangle, Shape)
 from pytest_driveeval.sim.blueprints.base import BlueprintParams, ParameterError, positive, span
@@ -219,22 +221,10 @@ def _centre_line_middle(outline_left: np.ndarray, outline_right: np.ndarray) -> 
     centre = 0.5 * (outline_left + outline_right)
     seg = np.diff(centre, axis=0)
     length = np.linalg.norm(seg, axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(length)])
+    cum = arc_lengths(centre)
     k = int(np.clip(np.searchsorted(cum, 0.5 * cum[-1]) - 1, 0, len(seg) - 1))
     t = (0.5 * cum[-1] - cum[k]) / max(length[k], 1e-12)
     return centre[k] + t * seg[k], float(math.atan2(seg[k, 1], seg[k, 0]))
-
-
-def _shape_outline(shape: Shape) -> np.ndarray:
-    if isinstance(shape, Rectangle):
-        hl, hw = 0.5 * shape.length, 0.5 * shape.width
-        c, s = math.cos(shape.orientation), math.sin(shape.orientation)
-        local = np.array([[-hl, -hw], [hl, -hw], [hl, hw], [-hl, hw]])
-        return local @ np.array([[c, s], [-s, c]]) + shape.center
-    if isinstance(shape, Circle):
-        a = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
-        return shape.center + shape.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
-    return shape.vertices
 
 
 def _goal(scenario: CommonRoadScenario, problem: PlanningProblem) -> tuple[np.ndarray, float, float, tuple]:
@@ -243,12 +233,12 @@ def _goal(scenario: CommonRoadScenario, problem: PlanningProblem) -> tuple[np.nd
     outlines: list[np.ndarray] = []
     placed = False
     for goal in problem.goals:
-        outlines += [_shape_outline(s) for s in goal.shapes] + list(goal.lanelet_polygons)
+        outlines += [shape_outline(s, circle_vertices=24) for s in goal.shapes] + list(goal.lanelet_polygons)
         if placed or not goal.has_position:
             continue
         placed = True
         if goal.shapes:
-            centre, heading = np.mean(_shape_outline(goal.shapes[0]), axis=0), init.orientation
+            centre, heading = np.mean(shape_outline(goal.shapes[0], circle_vertices=24), axis=0), init.orientation
         else:
             ll = scenario.lanelets[goal.lanelets[0]]
             centre, heading = _centre_line_middle(ll.left, ll.right)
