@@ -108,7 +108,7 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
     # Straight from the stored rows into the packed columns: a dense (frames x tracks)
     # table per scene first (thousands of tracks) cost more than unrolling the scene.
     # What the numpy paths cost per stored row more than the compiled ones: the track table
-    # (sorting ids, argmax over strided label probabilities) and the scatter below.
+    # (indexing the ids, an argmax over the strided label probabilities) and the scatter below.
     compiled = jit.wanted(sum(len(s.agents) for s in scenes) * 0.12e-6)
     if compiled:
         from pytest_driveeval.sim.logreplay import logarrays_jit
