@@ -186,6 +186,53 @@ def _concat_ranges(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np
     return rows, owner
 
 
+class TrackTable(NamedTuple):
+    """A scene's tracks, from its rows' track ids (R rows, A distinct ids)."""
+
+    track_ids: np.ndarray  # (A,) the distinct ids, sorted
+    track: np.ndarray  # (R,) int64, each row's index into track_ids
+    first: np.ndarray  # (A,) int64, each track's first frame
+    last: np.ndarray  # (A,) int64, and its last
+    label: np.ndarray  # (A,) int64, the most frequent per-row argmax of label_probabilities (first on ties)
+    repeated_frame: int  # the earliest frame in which a track id occurs twice, -1 if none
+
+
+# Ids up to this many times the row count are indexed through a lookup table, not a sort.
+# Logged ids are small and dense (a scene's ids run up to about a tenth of its rows).
+DENSE_IDS = 8
+
+
+def track_table(ids: np.ndarray, frame: np.ndarray, probabilities: np.ndarray, num_frames: int) -> TrackTable:
+    """The track table of rows with these ids, frames (nondecreasing) and label probabilities."""
+    if ids.size and int(ids.max()) < DENSE_IDS * ids.size:
+        present = np.zeros(int(ids.max()) + 1, bool)
+        present[ids] = True
+        track_ids = np.flatnonzero(present).astype(ids.dtype)
+        track = (np.cumsum(present) - 1)[ids]
+    else:
+        track_ids, track = np.unique(ids, return_inverse=True)
+        track = track.astype(np.int64)
+    num_tracks = track_ids.size
+    first = np.full(num_tracks, num_frames, np.int64)
+    np.minimum.at(first, track, frame)
+    last = np.full(num_tracks, -1, np.int64)
+    np.maximum.at(last, track, frame)
+    return TrackTable(track_ids, track, first, last, _track_labels(probabilities, track, num_tracks),
+                      _repeated_frame(frame, track, num_frames, num_tracks))
+
+
+def _repeated_frame(frame: np.ndarray, track: np.ndarray, num_frames: int, num_tracks: int) -> int:
+    key = frame * num_tracks + track
+    if num_frames * num_tracks <= 64 * max(frame.size, 1 << 16):  # a bitmap of (frame, track) pairs
+        seen = np.zeros(num_frames * num_tracks, bool)
+        seen[key] = True
+        if np.count_nonzero(seen) == key.size:
+            return -1
+    ordered = np.sort(key)
+    repeated = ordered[1:][ordered[1:] == ordered[:-1]]
+    return int(repeated[0] // num_tracks) if repeated.size else -1
+
+
 def _track_labels(probabilities: np.ndarray, column: np.ndarray, num_tracks: int) -> np.ndarray:
     # A dense (T, A, 17) copy would dominate agent_tensor's cost and a track's class
     # rarely changes, so keep one label per track: the most frequent per-row argmax.
@@ -253,9 +300,12 @@ class L5Scene:
         start, end = self.frames["traffic_light_faces_index_interval"][t]
         return self.traffic_light_faces[start:end]
 
-    def agent_rows(self) -> AgentRows:
+    def agent_rows(self, tables=track_table) -> AgentRows:
         """The scene's agent rows, frame by frame in stored order, with each row's
-        track (an index into the sorted track ids) and place in its frame."""
+        track (an index into the sorted track ids) and place in its frame.
+
+        ``tables`` computes the :class:`TrackTable` (a compiled equal of :func:`track_table`
+        may be passed: the io layer itself stays free of numba)."""
         intervals = self.frames["agent_index_interval"].astype(np.int64)
         counts = intervals[:, 1] - intervals[:, 0]
         if _is_partition(intervals, len(self.agents)):  # the usual layout: no gather copy needed
@@ -264,28 +314,13 @@ class L5Scene:
             rows, frame = _concat_ranges(intervals[:, 0], intervals[:, 1])
             agents = self.agents[rows]
         rank = np.arange(frame.size) - np.repeat(np.cumsum(counts) - counts, counts)
-        # Rows come frame by frame, so a stable sort by track id keeps each track's frames in order;
-        # the same sort gives the distinct ids and each row's index among them (np.unique's result
-        # without its own sort).
-        ids = agents["track_id"]
-        by_track = np.argsort(ids, kind="stable")
-        sorted_ids = ids[by_track]
-        same = sorted_ids[1:] == sorted_ids[:-1]
-        starts = np.flatnonzero(np.concatenate(([True], ~same))) if ids.size else np.zeros(0, np.int64)
-        track_ids = sorted_ids[starts]
-        track = np.empty(ids.size, np.int64)
-        track[by_track] = np.cumsum(np.concatenate(([False], ~same))) if ids.size else 0
-        ordered = frame[by_track]
-        same = np.flatnonzero(same)
-        if same.size and (ordered[same + 1] == ordered[same]).any():
-            first_dup = same[ordered[same + 1] == ordered[same]][0]
+        table = tables(agents["track_id"], frame, agents["label_probabilities"], self.num_frames)
+        if table.repeated_frame >= 0:
             raise L5FormatError(f"{self.source}: scene {self.index}: a track id occurs twice in one frame "
-                                f"(first at frame {int(ordered[first_dup])})")
-        ends = np.append(starts[1:], track.size)[:starts.size]  # none for a scene without agents
+                                f"(first at frame {table.repeated_frame})")
         return AgentRows(
-            frame=frame, rank=rank, track=track, track_ids=track_ids,
-            first=ordered[starts], last=ordered[ends - 1],
-            label=_track_labels(agents["label_probabilities"], track, track_ids.size),
+            frame=frame, rank=rank, track=table.track, track_ids=table.track_ids, first=table.first,
+            last=table.last, label=table.label,
             centroid=_field(agents, "centroid"), yaw=_field(agents, "yaw"), extent=_field(agents, "extent"),
             velocity=_field(agents, "velocity"),
         )

@@ -19,6 +19,7 @@ from pytest_driveeval.io.l5kit_zarr import (
     L5Dataset,
     L5FormatError,
     label_index,
+    track_table,
     write_l5_zarr,
 )
 
@@ -285,3 +286,89 @@ def test_writer_refuses_to_clobber(tmp_path):
         write_l5_zarr(tmp_path / "s.zarr", *arrays)
     write_l5_zarr(tmp_path / "s.zarr", *arrays, overwrite=True)
     assert L5Dataset.open(tmp_path / "s.zarr").num_scenes == 0
+
+
+def track_table_by_rows(ids, frame, probabilities, num_frames):
+    """The track table written row by row, as its docstring defines it."""
+    track_ids = sorted(set(ids.tolist()))
+    where = {t: i for i, t in enumerate(track_ids)}
+    track = [where[t] for t in ids.tolist()]
+    first = [num_frames] * len(track_ids)
+    last = [-1] * len(track_ids)
+    votes = np.zeros((len(track_ids), probabilities.shape[1]), np.int64)
+    seen, repeated = set(), []
+    for r, (a, f) in enumerate(zip(track, frame.tolist())):
+        first[a], last[a] = min(first[a], f), max(last[a], f)
+        votes[a, int(np.argmax(probabilities[r]))] += 1
+        if (a, f) in seen:
+            repeated.append(f)
+        seen.add((a, f))
+    return (np.array(track_ids, ids.dtype), np.array(track, np.int64), np.array(first, np.int64),
+            np.array(last, np.int64), votes.argmax(axis=1), min(repeated, default=-1))
+
+
+def random_rows(seed: int, sparse: bool, repeat: bool):
+    """Rows frame by frame with ids dense or sparse (the lookup table or the sort), label
+    probabilities with ties and NaNs, and optionally an id twice in one frame."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 12, 30)
+    frame = np.repeat(np.arange(counts.size), counts)
+    pool = rng.choice(2**40 if sparse else 60, 40, replace=False).astype(np.uint64)
+    ids = np.concatenate([rng.choice(pool, c, replace=False) for c in counts]).astype(np.uint64)
+    if repeat:
+        r = int(np.flatnonzero(np.diff(frame) == 0)[len(frame) // 3])
+        ids[r + 1] = ids[r]
+    probabilities = rng.integers(0, 3, (frame.size, 17)).astype(np.float32)  # many ties
+    probabilities[rng.random(frame.size) < 0.1, rng.integers(0, 17)] = np.nan
+    return ids, frame, probabilities, counts.size
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+@pytest.mark.parametrize("repeat", [False, True])
+@pytest.mark.parametrize("seed", range(4))
+def test_track_table_is_its_row_by_row_definition(seed, sparse, repeat):
+    rows = random_rows(seed, sparse, repeat)
+    got, expected = track_table(*rows), track_table_by_rows(*rows)
+    assert (got.repeated_frame >= 0) == repeat
+    for name, a, b in zip(got._fields, got, expected):
+        assert np.array_equal(a, b) and np.asarray(a).dtype == np.asarray(b).dtype, name
+
+
+def test_a_track_id_twice_in_one_frame_names_the_frame(tmp_path):
+    from pytest_driveeval.synth.scenegen import generate_scenes
+
+    scenes, frames, agents, faces = generate_scenes(1, 20, seed=0)
+    a0, a1 = frames["agent_index_interval"][7]
+    assert a1 - a0 >= 2
+    agents["track_id"][a0 + 1] = agents["track_id"][a0]
+    write_l5_zarr(tmp_path / "s.zarr", scenes, frames, agents, faces)
+    scene = L5Dataset.open(tmp_path / "s.zarr").scene(0)
+    with pytest.raises(L5FormatError, match=r"s\.zarr: scene 0: a track id occurs twice in one frame \(first at frame 7\)"):
+        scene.agent_rows()
+
+
+def test_chunks_decoded_into_evicted_buffers_read_the_same(tmp_path):
+    # More chunks than the cache keeps, read forwards, backwards and at random: each chunk is
+    # decoded into the buffer of one evicted before it.
+    from pytest_driveeval.synth.scenegen import generate_scenes
+
+    arrays = generate_scenes(6, 30, seed=2)
+    write_l5_zarr(tmp_path / "s.zarr", *arrays, chunk_sizes={"agents": 37, "frames": 11})
+    ds = L5Dataset.open(tmp_path / "s.zarr")
+    agents = ds.read_array("agents")
+    assert agents.tobytes() == arrays.agents.tobytes() and len(agents) > 20 * 37
+    rng = np.random.default_rng(0)
+    for start in [*range(0, len(agents), 29), *range(len(agents) - 1, 0, -53), *rng.integers(0, len(agents), 40)]:
+        stop = min(len(agents), int(start) + int(rng.integers(1, 120)))
+        assert ds.read_array("agents", int(start), stop).tobytes() == arrays.agents[start:stop].tobytes()
+
+
+def test_a_corrupt_chunk_read_after_evictions_is_named(tmp_path):
+    from pytest_driveeval.synth.scenegen import generate_scenes
+
+    write_l5_zarr(tmp_path / "s.zarr", *generate_scenes(6, 30, seed=2), chunk_sizes={"agents": 37})
+    (tmp_path / "s.zarr" / "agents" / "15").write_bytes(b"\x02\x01garbage" * 8)
+    ds = L5Dataset.open(tmp_path / "s.zarr")
+    ds.read_array("agents", 0, 14 * 37)  # fills the cache, so chunk 15 is decoded into an evicted buffer
+    with pytest.raises(L5FormatError, match=r"agents/15: corrupt chunk 15 of array 'agents'"):
+        ds.read_array("agents", 15 * 37, 16 * 37)

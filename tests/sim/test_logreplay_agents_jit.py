@@ -121,6 +121,21 @@ def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
     _assert_same_bits(compiled, {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}})
 
 
+
+@pytest.mark.parametrize("sparse", [False, True])
+@pytest.mark.parametrize("repeat", [False, True])
+def test_compiled_track_table_is_the_numpy_one(sparse, repeat):
+    from pytest_driveeval.io.l5kit_zarr import track_table as numpy_track_table
+    from pytest_driveeval.sim.logreplay import logarrays_jit
+    from tests.io.test_l5kit_zarr import random_rows
+
+    for seed in range(6):
+        rows = random_rows(seed, sparse, repeat)
+        got, expected = logarrays_jit.track_table(*rows), numpy_track_table(*rows)
+        for name, a, b in zip(got._fields, got, expected):
+            assert np.array_equal(a, b) and np.asarray(a).dtype == np.asarray(b).dtype, (seed, name)
+        assert (got.repeated_frame >= 0) == repeat
+
 WITHOUT_NUMBA = """
 import sys
 sys.modules["numba"] = None  # import numba fails: the numpy path
