@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from .bag_files import BagError, storage_files, storage_for
+from .bag_sqlite import read_into_buffers
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2
 from .tf import TFBuffer, TransformError
 
@@ -101,6 +102,7 @@ class Bag:
         try:
             self._reader = Reader(storage)
             self._reader.open()
+            read_into_buffers(self._reader)
         except Exception as exc:  # rosbags/apsw/yaml all raise their own types
             raise BagError(f"{self.path}: cannot open bag ({storage_files(self.path)}): "
                            f"{type(exc).__name__}: {exc}{_sqlite_hint(exc)}") from exc
