@@ -23,6 +23,7 @@ import numpy as np
 from .bag_files import BagError, storage_files, storage_for
 from .bag_sqlite import read_into_buffers
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2
+from .pointcloud2_cdr import read_pointcloud2_cdr, standard_layout
 from .tf import TFBuffer, TransformError
 
 if TYPE_CHECKING:
@@ -239,9 +240,15 @@ class Bag:
 
         A topic without a single message is a BagError: there is nothing to evaluate."""
         count = 0
+        plain = standard_layout(self.typestore, default_typestore())
+        longest = getattr(self.typestore, "max_sequence_length", 2**32 - 1)
         for index, conn, _, raw in self.raw_messages(topic, POINTCLOUD2, **window):
-            msg = self._deserialize(raw, conn, index)
-            stamp_ns, frame_id = _stamp_ns(msg.header.stamp), msg.header.frame_id
+            msg = read_pointcloud2_cdr(raw, longest) if plain else None
+            if msg is not None:
+                stamp_ns, frame_id = msg.sec * 1_000_000_000 + msg.nanosec, msg.frame_id
+            else:  # big-endian CDR, or something rosbags will name
+                msg = self._deserialize(raw, conn, index)
+                stamp_ns, frame_id = _stamp_ns(msg.header.stamp), msg.header.frame_id
             where = f"{self.path}: {topic} message #{index} (stamp {_secs(stamp_ns)}, frame {frame_id!r})"
             try:
                 points = decode_pointcloud2(msg, where=where)
