@@ -76,7 +76,7 @@ class PageReader:
         self.page = 65536 if size == 1 else size
         self.usable = self.page - head[20]  # minus the bytes reserved at each page's end
         self.root, self.column, self.min_pages = root, column, min_pages
-        self._interior: dict[int, bytes] = {}
+        self._interior: dict[int, tuple[bytes, tuple[int, ...], int]] = {}  # page, cell offsets, header
         self._spare = np.empty(max(self.page - self.usable, 1), dtype=np.uint8)
         self._links = np.empty(0, dtype=">u4")
 
@@ -142,39 +142,44 @@ class PageReader:
         """The leaf page holding ``rowid`` and its cell's offset there."""
         number = self.root
         for _ in range(32):  # deeper than any real b-tree
-            page = self._interior.get(number) or self._page(number)
-            if page is None:
-                return None
-            h = 100 if number == 1 else 0
-            kind, cells = page[h], struct.unpack(">H", page[h + 3:h + 5])[0]
-            if kind == _TABLE_LEAF:
-                ptrs = struct.unpack(f">{cells}H", page[h + 8:h + 8 + 2 * cells])
-                lo, hi = 0, cells
-                while lo < hi:  # cells are sorted by rowid
-                    mid = (lo + hi) // 2
-                    pos = _varint(page, ptrs[mid])[1]
-                    key = _varint(page, pos)[0]
-                    if key < rowid:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                return (page, ptrs[lo]) if lo < cells else None
-            if kind != _TABLE_INTERIOR:
-                return None
-            if len(self._interior) >= _MAX_CACHED:
-                self._interior.clear()
-            self._interior[number] = page
-            ptrs = struct.unpack(f">{cells}H", page[h + 12:h + 12 + 2 * cells])
-            lo, hi = 0, cells
+            known = self._interior.get(number)
+            if known is None:
+                page = self._page(number)
+                if page is None:
+                    return None
+                h = 100 if number == 1 else 0
+                kind, cells = page[h], struct.unpack(">H", page[h + 3:h + 5])[0]
+                if kind == _TABLE_LEAF:
+                    return self._leaf_cell(page, h, cells, rowid)
+                if kind != _TABLE_INTERIOR:
+                    return None
+                if len(self._interior) >= _MAX_CACHED:
+                    self._interior.clear()
+                known = self._interior[number] = (
+                    page, struct.unpack(f">{cells}H", page[h + 12:h + 12 + 2 * cells]), h)
+            page, ptrs, h = known
+            lo, hi = 0, len(ptrs)
             while lo < hi:  # first cell whose key (largest rowid on its left) >= rowid
                 mid = (lo + hi) // 2
                 if _varint(page, ptrs[mid] + 4)[0] < rowid:
                     lo = mid + 1
                 else:
                     hi = mid
-            at = ptrs[lo] if lo < cells else h + 8  # else the right-most pointer
+            at = ptrs[lo] if lo < len(ptrs) else h + 8  # else the right-most pointer
             number = struct.unpack(">I", page[at:at + 4])[0]
         return None
+
+    @staticmethod
+    def _leaf_cell(page: bytes, h: int, cells: int, rowid: int) -> tuple[bytes, int] | None:
+        ptrs = struct.unpack(f">{cells}H", page[h + 8:h + 8 + 2 * cells])
+        lo, hi = 0, cells
+        while lo < hi:  # cells are sorted by rowid
+            mid = (lo + hi) // 2
+            if _varint(page, _varint(page, ptrs[mid])[1])[0] < rowid:
+                lo = mid + 1
+            else:
+                hi = mid
+        return (page, ptrs[lo]) if lo < cells else None
 
     def _read_chain(self, first: int, out: np.ndarray, done: int) -> bool:
         """Overflow pages first, first+1, ... into out[done:]; False unless each link says so."""

@@ -70,6 +70,20 @@ def test_blobs_read_from_pages_are_sqlites_bytes(tmp_path, page_size):
     assert read >= 2
 
 
+def test_rows_are_found_through_a_deep_b_tree(tmp_path):
+    path = tmp_path / "m.db3"
+    make_db(path, [20_000 if i % 37 == 0 else i % 50 for i in range(3000)], page_size=512)
+    con = sqlite3.connect(path)
+    (depth,) = con.execute("SELECT max(length(path) - length(replace(path, '/', ''))) FROM dbstat "
+                           "WHERE name = 'messages' AND pagetype = 'leaf'").fetchone()
+    con.close()
+    assert depth >= 3  # root, interior pages, leaves
+    pages = reader(path, min_pages=2)
+    read = [pages.read(rowid, length) for rowid, length, _ in sqlite_rows(path)]
+    for got, (_, length, data) in zip(read, sqlite_rows(path)):
+        assert (got is not None) == (length == 20_000) and (got is None or got.tobytes() == data)
+
+
 def test_reserved_bytes_at_each_page_end_are_skipped(tmp_path):
     path = tmp_path / "m.db3"
     make_db(path, SIZES, 1024, reserve=32)
