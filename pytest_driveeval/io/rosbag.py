@@ -175,7 +175,10 @@ class Bag:
     def raw_messages(self, topic: str, msgtype: str | None = None,
                      start_ns: int | None = None, stop_ns: int | None = None
                      ) -> Iterator[tuple[int, Any, int, bytes]]:
-        """(index, connection, log_time_ns, cdr bytes), streamed in log-time order.
+        """(index, connection, log_time_ns, serialized message), streamed in log-time order.
+
+        The message is ``bytes``, or for sqlite3 storage a read-only memoryview over a
+        buffer of its own (``bag_sqlite``): either can be kept, and compares by value.
 
         Reading the whole topic, fewer messages than the bag lists is a BagError:
         rows deleted from a .db3, or a chunk lost from a file, would otherwise

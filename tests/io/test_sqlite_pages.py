@@ -9,7 +9,7 @@ import pytest
 
 from pytest_driveeval.io import sqlite_pages
 from pytest_driveeval.io.pointcloud2 import XYZI_FIELDS, XYZIRC_FIELDS, encode_pointcloud2, make_cloud
-from pytest_driveeval.io.rosbag import Bag, BagError, BagWriter, iter_pointclouds
+from pytest_driveeval.io.rosbag import POINTCLOUD2, Bag, BagError, BagWriter, default_typestore, iter_pointclouds
 from pytest_driveeval.io.sqlite_pages import PageReader
 
 apsw = pytest.importorskip("apsw")
@@ -168,3 +168,35 @@ def test_a_truncated_bag_of_large_clouds_still_names_the_file(tmp_path):
     f.write_bytes(raw[: len(raw) * 3 // 4])
     with pytest.raises(BagError, match=r"bag.*\.db3.*malformed"):
         list(iter_pointclouds(tmp_path / "bag", "/points"))
+
+
+def test_equal_log_times_come_in_rosbags_order(tmp_path):
+    from rosbags.rosbag2 import Reader
+
+    with BagWriter(tmp_path / "bag") as w:
+        for i in range(12):  # log times 0, 0, 0, 1, 1, 1, ... written out of order
+            cloud = make_cloud(5_000 if i % 2 else 5, rng=np.random.default_rng(i))
+            w.write("/points", encode_pointcloud2(cloud, f"f{i}", 10**18 + i), log_time_ns=10**18 + (11 - i) // 3)
+    with Reader(tmp_path / "bag") as ref:
+        expected = [bytes(raw) for _, _, raw in ref.messages()]
+    with Bag(tmp_path / "bag") as bag:
+        assert [bytes(raw) for *_, raw in bag.raw_messages("/points")] == expected
+        assert [f.frame_id for f in bag.pointclouds("/points")] == ["f9", "f10", "f11", "f6", "f7", "f8", "f3",
+                                                                   "f4", "f5", "f0", "f1", "f2"]
+
+
+@pytest.mark.parametrize("mode", ["message", "file"])
+def test_compressed_sqlite_bags_read_the_same_clouds(tmp_path, mode):
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+    clouds = [make_cloud(40_000, rng=np.random.default_rng(i)) for i in range(3)]
+    ts = default_typestore()
+    w = Writer(tmp_path / "bag", version=8)
+    w.set_compression(CompressionMode[mode.upper()], CompressionFormat.ZSTD)
+    with w:
+        conn = w.add_connection("/points", POINTCLOUD2, typestore=ts)
+        for i, c in enumerate(clouds):
+            w.write(conn, 10**18 + i, ts.serialize_cdr(encode_pointcloud2(c, "lidar", 10**18 + i), POINTCLOUD2))
+    frames = list(iter_pointclouds(tmp_path / "bag", "/points"))
+    assert len(frames) == 3 and all(np.array_equal(f.points, c) for f, c in zip(frames, clouds))
