@@ -41,7 +41,8 @@ def _preadv():
     return fn
 
 
-_PREADV = _preadv() if os.name == "posix" else None
+# 64-bit POSIX only: there off_t is 64 bits, as the signature above says.
+_PREADV = _preadv() if os.name == "posix" and ctypes.sizeof(ctypes.c_void_p) == 8 else None
 
 
 def _varint(buf: bytes, pos: int) -> tuple[int, int]:
@@ -56,6 +57,7 @@ def _varint(buf: bytes, pos: int) -> tuple[int, int]:
 
 
 def _serial_size(t: int) -> int:
+    """Bytes a record column of serial type ``t`` takes."""
     if t < 12:
         return (0, 1, 2, 3, 4, 6, 8, 8, 0, 0, 0, 0)[t]
     return (t - 12) // 2
@@ -128,6 +130,8 @@ class PageReader:
             if p >= pos + header:
                 return None  # fewer columns than expected
             t, p = _varint(page, p)
+            if t in (10, 11):
+                return None  # reserved serial types: SQLite calls the record corrupt
             if col < self.column:
                 offset += _serial_size(t)
         if t < 12 or t % 2:
