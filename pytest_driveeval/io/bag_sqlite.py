@@ -23,8 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from .sqlite_pages import PageReader
-
 __all__ = ["read_into_buffers"]
 
 
@@ -56,7 +54,7 @@ def _messages(storage: Any, connections: Collection[Any], start: int | None = No
               stop: int | None = None) -> Iterator[tuple[Any, int, memoryview]]:
     """Sqlite3Reader.messages with the same rows and order, each blob in a fresh array."""
     ids = tuple({c.id for c in connections})
-    query = ["SELECT topics.id, messages.timestamp, messages.rowid, length(messages.data)",
+    query = ["SELECT topics.id, messages.timestamp, messages.rowid",
              "FROM messages JOIN topics ON messages.topic_id=topics.id",
              f"WHERE topics.id IN ({','.join('?' * len(ids))})"]
     args: list[int] = list(ids)
@@ -69,34 +67,18 @@ def _messages(storage: Any, connections: Collection[Any], start: int | None = No
     query.append("ORDER BY messages.timestamp, messages.rowid")
     connmap = {c.id: c for c in storage.connections}
     db = storage.dbconn
-    pages = _page_reader(storage)
     blob = None
     try:
-        for cid, stamp, rowid, length in db.execute(" ".join(query), args):
-            buf = pages.read(rowid, length) if pages is not None and length else None
-            if buf is None:
-                if blob is None:
-                    blob = db.blob_open("main", "messages", "data", rowid, False)
-                else:
-                    blob.reopen(rowid)
-                buf = np.empty(blob.length(), dtype=np.uint8)
-                blob.read_into(buf)
+        for cid, stamp, rowid in db.execute(" ".join(query), args):
+            if blob is None:
+                blob = db.blob_open("main", "messages", "data", rowid, False)
+            else:
+                blob.reopen(rowid)
+            buf = np.empty(blob.length(), dtype=np.uint8)
+            blob.read_into(buf)
             buf.flags.writeable = False
             yield connmap[cid], stamp, memoryview(buf)
     finally:
         if blob is not None:
             blob.close()
-        if pages is not None:
-            pages.close()
 
-
-def _page_reader(storage: Any) -> PageReader | None:
-    """Reads the messages' blobs many pages at a time, where the file lets it."""
-    db = storage.dbconn
-    try:
-        (root,) = db.execute("SELECT rootpage FROM sqlite_master WHERE type='table' AND name='messages'"
-                             ).fetchone()
-        column = [row[1] for row in db.execute("PRAGMA table_info(messages)")].index("data")
-        return PageReader(storage.path, root, column)
-    except Exception:  # anything unusual about the file: SQLite reads it, and says what is wrong
-        return None

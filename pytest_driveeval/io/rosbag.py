@@ -4,7 +4,7 @@ Messages are streamed one at a time straight from the storage cursor, so
 memory stays flat however long the bag is: a decoded point cloud is a view
 over its own serialized message and is released with it.  From sqlite3
 storage each message is copied once, from the OS page cache into its own
-buffer (``bag_sqlite``, ``sqlite_pages``), and a PointCloud2's header and
+buffer (``bag_sqlite``), and a PointCloud2's header and
 layout are read from its CDR bytes directly (``pointcloud2_cdr``).
 
 Every failure surfaces as :class:`BagError` naming the bag path and, where it
