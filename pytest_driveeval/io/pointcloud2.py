@@ -79,6 +79,23 @@ def fields_dtype(fields: Iterable[Any], point_step: int, is_bigendian: bool = Fa
         raise PointCloud2Error(f"{where}: invalid field layout: {exc}") from None
 
 
+_DTYPES: dict[tuple, np.dtype] = {}  # a topic's clouds all share one layout
+
+
+def _layout_dtype(fields: Any, point_step: int, is_bigendian: bool, where: str) -> np.dtype:
+    """fields_dtype, built once per layout: it costs more than viewing a small cloud."""
+    try:
+        key = (point_step, is_bigendian, *((f.name, f.offset, f.datatype, f.count) for f in fields))
+        dtype = _DTYPES.get(key)
+    except TypeError:  # unhashable field values: no cache
+        return fields_dtype(fields, point_step, is_bigendian, where)
+    if dtype is None:
+        dtype = fields_dtype(fields, point_step, is_bigendian, where)
+        if len(_DTYPES) < 256:
+            _DTYPES[key] = dtype
+    return dtype
+
+
 def decode_pointcloud2(msg: Any, where: str = "PointCloud2") -> np.ndarray:
     """Structured (height*width,) array viewing ``msg.data`` (copy only if rows are padded).
 
@@ -87,7 +104,7 @@ def decode_pointcloud2(msg: Any, where: str = "PointCloud2") -> np.ndarray:
     """
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
-    dtype = fields_dtype(msg.fields, point_step, bool(msg.is_bigendian), where)
+    dtype = _layout_dtype(msg.fields, point_step, bool(msg.is_bigendian), where)
     data = msg.data
     buf = data if isinstance(data, np.ndarray) else np.frombuffer(data, dtype=np.uint8)
     buf = buf.reshape(-1).view(np.uint8)

@@ -2,7 +2,10 @@
 
 Messages are streamed one at a time straight from the storage cursor, so
 memory stays flat however long the bag is: a decoded point cloud is a view
-over its own serialized message and is released with it.
+over its own serialized message and is released with it.  From sqlite3
+storage each message is copied once, from the OS page cache into its own
+buffer (``bag_sqlite``), and a PointCloud2's header and
+layout are read from its CDR bytes directly (``pointcloud2_cdr``).
 
 Every failure surfaces as :class:`BagError` naming the bag path and, where it
 applies, the topic and message index.  What is opened, and the checks before
@@ -21,7 +24,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from .bag_files import BagError, storage_files, storage_for
+from .bag_sqlite import read_into_buffers
 from .pointcloud2 import PointCloud2Error, decode_pointcloud2
+from .pointcloud2_cdr import read_pointcloud2_cdr, standard_layout
 from .tf import TFBuffer, TransformError
 
 if TYPE_CHECKING:
@@ -101,6 +106,7 @@ class Bag:
         try:
             self._reader = Reader(storage)
             self._reader.open()
+            read_into_buffers(self._reader)
         except Exception as exc:  # rosbags/apsw/yaml all raise their own types
             raise BagError(f"{self.path}: cannot open bag ({storage_files(self.path)}): "
                            f"{type(exc).__name__}: {exc}{_sqlite_hint(exc)}") from exc
@@ -172,7 +178,10 @@ class Bag:
     def raw_messages(self, topic: str, msgtype: str | None = None,
                      start_ns: int | None = None, stop_ns: int | None = None
                      ) -> Iterator[tuple[int, Any, int, bytes]]:
-        """(index, connection, log_time_ns, cdr bytes), streamed in log-time order.
+        """(index, connection, log_time_ns, serialized message), streamed in log-time order.
+
+        The message is ``bytes``, or for sqlite3 storage a read-only memoryview over a
+        buffer of its own (``bag_sqlite``): either can be kept, and compares by value.
 
         Reading the whole topic, fewer messages than the bag lists is a BagError:
         rows deleted from a .db3, or a chunk lost from a file, would otherwise
@@ -237,9 +246,15 @@ class Bag:
 
         A topic without a single message is a BagError: there is nothing to evaluate."""
         count = 0
+        plain = standard_layout(self.typestore, default_typestore())
+        longest = getattr(self.typestore, "max_sequence_length", 2**32 - 1)
         for index, conn, _, raw in self.raw_messages(topic, POINTCLOUD2, **window):
-            msg = self._deserialize(raw, conn, index)
-            stamp_ns, frame_id = _stamp_ns(msg.header.stamp), msg.header.frame_id
+            msg = read_pointcloud2_cdr(raw, longest) if plain else None
+            if msg is not None:
+                stamp_ns, frame_id = msg.sec * 1_000_000_000 + msg.nanosec, msg.frame_id
+            else:  # big-endian CDR, or something rosbags will name
+                msg = self._deserialize(raw, conn, index)
+                stamp_ns, frame_id = _stamp_ns(msg.header.stamp), msg.header.frame_id
             where = f"{self.path}: {topic} message #{index} (stamp {_secs(stamp_ns)}, frame {frame_id!r})"
             try:
                 points = decode_pointcloud2(msg, where=where)

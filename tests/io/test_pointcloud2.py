@@ -24,6 +24,22 @@ def test_a_consistent_cloud_decodes():
     assert decode_pointcloud2(cloud_msg())["x"].tolist() == [0, 3, 6, 9, 12, 15]
 
 
+def test_a_layout_seen_before_decodes_the_same_and_its_errors_name_each_message():
+    """Each layout's dtype is built once (pointcloud2._DTYPES); what decides the dtype is in the key."""
+    first, again = cloud_msg(), cloud_msg()
+    assert decode_pointcloud2(first).dtype is decode_pointcloud2(again).dtype
+    again.is_bigendian = True
+    assert decode_pointcloud2(again)["x"].dtype == ">f4" and decode_pointcloud2(first)["x"].dtype == "<f4"
+    again.is_bigendian, again.fields = False, [Field("x", 0, 7), Field("y", 4, 7), Field("z", 8, 7, 2)]
+    with pytest.raises(PointCloud2Error, match="exceeds point_step"):
+        decode_pointcloud2(again)
+    for index in (5, 6):  # a bad layout is refused every time, naming its message
+        bad = cloud_msg()
+        bad.fields = [Field("x", 0, 7), Field("x", 4, 7)]
+        with pytest.raises(PointCloud2Error, match=rf"^b\.db3 /p message #{index}: duplicate field name 'x'"):
+            decode_pointcloud2(bad, where=f"b.db3 /p message #{index}")
+
+
 def test_more_rows_than_height_are_counted():
     msg = cloud_msg(height=3)
     msg.height = 2  # the data holds a third row
