@@ -390,15 +390,16 @@ def step(episodes, actions: np.ndarray):
     steer = np.clip(actions[:, 1], -bicycle.max_steer, bicycle.max_steer)
     tan_steer = np.tan(steer)
 
-    ego = episodes._ego
+    ego = episodes._ego  # at the start its yaw and speed are strided views: one layout, one compilation
+    ego_xy, ego_yaw, ego_speed = (np.ascontiguousarray(v) for v in (ego.xy, ego.yaw, ego.speed))
     e_xy, e_yaw, e_speed = np.empty((e_n, 2)), np.empty(e_n), np.empty(e_n)
     xy, yaw, speed = np.empty((e_n, a_n, 2)), np.empty(shape), np.empty(shape)
     steps, outcome, returns = episodes.steps.copy(), episodes.outcome.copy(), episodes.returns.copy()
     reward, ended = np.empty(e_n), np.empty(e_n, np.int8)
     grid = road.drivable
     _finish(c, g, a0, u0, heading0, grid.mask, grid.origin, episodes.goal_centre, episodes.goal_heading,
-            episodes.goal_size, episodes.goal_heading_tol, episodes.goal_speed_bounds, active, ego.xy, ego.yaw,
-            ego.speed, np.ascontiguousarray(actions[:, 0]), steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
+            episodes.goal_size, episodes.goal_heading_tol, episodes.goal_speed_bounds, active, ego_xy, ego_yaw,
+            ego_speed, np.ascontiguousarray(actions[:, 0]), steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
             episodes.xy, episodes.yaw, episodes.speed, n_speed, steps, outcome, returns,
             e_xy, e_yaw, e_speed, xy, yaw, speed, reward, ended)
     new = dict(lane=n_lane, s=n_s, d=n_d, speed=n_speed, desired_speed=traffic.desired_speed, change_offset=n_offset,
