@@ -226,10 +226,10 @@ def main() -> None:
                 r = measure_ours(name, e, args.steps, args.batches, not args.no_graph, path == "numba")
                 if path == paths[0]:
                     ours[name, e] = r
-                print(f"  ours {name:13s} E={e:4d} {path}: {r['live_per_s']:>9,.0f} live agent-steps/s "
+                print(f"  ours {name:13s} E={e:4d}: {r['live_per_s']:>9,.0f} live agent-steps/s "
                       f"({r['slots_per_s']:>9,.0f} slots/s; simulator alone {r['sim_live_per_s']:>9,.0f})  "
-                      f"{r['sim_ms']:5.2f} + {r['graph_ms']:5.2f} ms/step sim + graph  ended {r['ended']:.0%}"
-                      + (f"  numba/numpy x{ours[name, e]['live_per_s'] / r['live_per_s']:.1f}" if path != paths[0] else ""),
+                      f"{r['sim_ms']:5.2f} + {r['graph_ms']:5.2f} ms/step sim + graph  ended {r['ended']:.0%}  {path}"
+                      + (f", numba x{ours[name, e]['live_per_s'] / r['live_per_s']:.1f}" if path != paths[0] else ""),
                       flush=True)
         per_agent = {e: ours[name, e]["live_per_s"] for e in args.episodes}
         if 16 in per_agent and 256 in per_agent:
