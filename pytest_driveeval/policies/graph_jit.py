@@ -131,7 +131,7 @@ def observer(ranges, agent_limit: int, radius: float | None = None, self_loops: 
     def observe(xy, yaw, speed, valid, goal_xy, goal_speed):
         if isinstance(xy, np.ndarray) and episodes_jit.wanted(_SAVED_PER_CALL + _SAVED_PER_EPISODE * len(xy)):
             xy, yaw, speed = (np.ascontiguousarray(v, dtype=np.float64) for v in (xy, yaw, speed))
-            goal_xy, goal_speed = np.ascontiguousarray(goal_xy, np.float64), np.ascontiguousarray(goal_speed, np.float64)
+            goal_xy, goal_speed = (np.ascontiguousarray(v, dtype=np.float64) for v in (goal_xy, goal_speed))
             valid = np.ascontiguousarray(valid, dtype=np.bool_)
             e_n = len(xy)
             if (xy.ndim == 3 and xy.shape[1] >= 1 and xy.shape[2] == 2 and yaw.shape == speed.shape == valid.shape
