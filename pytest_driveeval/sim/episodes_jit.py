@@ -78,7 +78,7 @@ def supported(road, model) -> bool:
 def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goal_size, goal_tol, goal_speed,
             active, ego_xy, ego_yaw, ego_speed, accel, steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
             old_xy, old_yaw, old_speed, n_speed, steps, outcome, returns,
-            e_xy, e_yaw, e_speed, xy, yaw, speed, reward, ended):
+            e_xy, e_yaw, e_speed, xy, yaw, speed, reward, flags):
     """The rest of Episodes.step: the ego's bicycle, the traffic's poses (Road.pose), the outcome
     and the reward; ended episodes keep everything.  ``atan``: np.arctan2 of traffic_kernel's pair."""
     e_n, a_n = n_lane.shape
@@ -92,7 +92,10 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
             for i in range(a_n):
                 xy[e, i, 0], xy[e, i, 1] = old_xy[e, i, 0], old_xy[e, i, 1]
                 yaw[e, i], speed[e, i] = old_yaw[e, i], old_speed[e, i]
-            reward[e], ended[e] = 0.0, _RUNNING
+            reward[e] = 0.0
+            flags[0, e] = True
+            for k in range(1, 5):
+                flags[k, e] = False
             continue
         # KinematicBicycle.step (max_decel, max_accel, max_speed in g[2:5]).
         acc = clip(accel[e], -g[2], g[3])
@@ -164,13 +167,17 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
         else:
             out = _RUNNING
         r = 1.0 if out == _GOAL else (-1.0 if out == _COLLISION or out == _OFF_ROAD else 0.01)
-        reward[e], ended[e], outcome[e] = r, out, out
+        reward[e], outcome[e] = r, out
+        flags[0, e] = out != _RUNNING
+        for k in range(1, 5):
+            flags[k, e] = out == k
         returns[e] = returns[e] + r
 
 
 def step(episodes, actions: np.ndarray):
-    """``Episodes.step``'s work on ``episodes`` (its private state replaced, never written into);
-    returns (reward, ended) (E,) each, ``ended`` the outcome of episodes that ended on this step."""
+    """``Episodes.step``'s work on ``episodes``, whose arrays are read, never written: the new traffic
+    fields, ego state, poses (xy, yaw, speed), (steps, outcome, returns), the reward (E,) and flags
+    (5, E) bool: done, then ended on this step by goal, collision, off-road, step limit."""
     global _compiled
     if not _compiled:
         compile_all(("_max", "_min", "clip", "_free", "_interaction", "traffic_kernel"), vars(traffic_jit))
@@ -201,7 +208,7 @@ def step(episodes, actions: np.ndarray):
              traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed, active,
              n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
     atan = np.arctan2(atan_y, atan_x)
-    steer = np.clip(actions[:, 1], -bicycle.max_steer, bicycle.max_steer)
+    steer = np.minimum(np.maximum(actions[:, 1], -bicycle.max_steer), bicycle.max_steer)  # np.clip, finite values
     tan_steer = np.tan(steer)
 
     ego = episodes._ego  # at the start its yaw and speed are strided views: one layout, one compilation
@@ -209,13 +216,13 @@ def step(episodes, actions: np.ndarray):
     e_xy, e_yaw, e_speed = np.empty((e_n, 2)), np.empty(e_n), np.empty(e_n)
     xy, yaw, speed = np.empty((e_n, a_n, 2)), np.empty(shape), np.empty(shape)
     steps, outcome, returns = episodes.steps.copy(), episodes.outcome.copy(), episodes.returns.copy()
-    reward, ended = np.empty(e_n), np.empty(e_n, np.int8)
+    reward, flags = np.empty(e_n), np.empty((5, e_n), np.bool_)
     grid = road.drivable
     _finish(c, g, a0, u0, heading0, grid.mask, grid.origin, episodes.goal_centre, episodes.goal_heading,
             episodes.goal_size, episodes.goal_heading_tol, episodes.goal_speed_bounds, active, ego_xy, ego_yaw,
             ego_speed, np.ascontiguousarray(actions[:, 0]), steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
             episodes.xy, episodes.yaw, episodes.speed, n_speed, steps, outcome, returns,
-            e_xy, e_yaw, e_speed, xy, yaw, speed, reward, ended)
+            e_xy, e_yaw, e_speed, xy, yaw, speed, reward, flags)
     new = dict(lane=n_lane, s=n_s, d=n_d, speed=n_speed, desired_speed=traffic.desired_speed, change_offset=n_offset,
                change_time=n_time, yield_to=n_yield, valid=n_valid)
-    return new, (e_xy, e_yaw, e_speed), (xy, yaw, speed), (steps, outcome, returns), reward, ended
+    return new, (e_xy, e_yaw, e_speed), (xy, yaw, speed), (steps, outcome, returns), reward, flags

@@ -32,10 +32,10 @@ def states(name, episodes_n, agents, steps=40):
     (3, 1, 12, 50.0, True), (4, 12, 1, 50.0, False)])
 def test_compiled_observation_is_torchs_bit_for_bit(name, episodes_n, agents, limit, radius, self_loops):
     episodes_jit.start()
-    ranges = None
+    ranges = observe = None
     for now in states(name, episodes_n, agents):
         ranges = ranges or ObservationRanges.from_bounding_box(*now.map_bounds)
-        observe = graph_jit.observer(ranges, limit, radius, self_loops)
+        observe = observe or graph_jit.observer(ranges, limit, radius, self_loops)  # its buffers reused
         got = observe(now.xy, now.yaw, now.speed, now.valid, now.goal_centre, now.goal_speed)
         expected = encode(graph_observation(now.xy, now.yaw, now.speed, now.valid, now.goal_centre,
                                             now.goal_speed, ranges, agent_limit=limit, radius=radius,
