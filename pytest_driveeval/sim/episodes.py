@@ -143,8 +143,8 @@ class Episodes:
         self.steps = np.zeros(e_n, np.int64)
         self.outcome = np.zeros(e_n, np.int8)
         self.returns = np.zeros(e_n)
-        self._compilable = episodes_jit.supported(blueprint.road, traffic_model) and not self._bicycle.allow_reverse
-        self._jit_constants = None
+        self._compilable = episodes_jit.supported(blueprint.road, traffic_model, self._bicycle)
+        self._jit_constants: episodes_jit.Constants | None = None
 
     def _perturb(self, rows: np.ndarray, xy: np.ndarray, heading: np.ndarray, speed: np.ndarray,
                  desired: np.ndarray, valid: np.ndarray) -> None:
@@ -231,7 +231,10 @@ class Episodes:
 
     def _step_compiled(self, actions: np.ndarray) -> StepResult:
         """The same step by :mod:`.episodes_jit`'s kernels, bit for bit."""
-        traffic, ego, (xy, yaw, speed), (steps, outcome, returns), reward, flags = episodes_jit.step(self, actions)
+        if self._jit_constants is None:
+            self._jit_constants = episodes_jit.constants(self.blueprint, self.traffic_model, self._bicycle, self.size)
+        traffic, ego, (xy, yaw, speed), (steps, outcome, returns), reward, flags = episodes_jit.step(
+            self, self._ego, self._jit_constants, actions)
         self._traffic = Traffic(**traffic)
         self._ego = AgentState(*ego)
         self.xy, self.yaw, self.speed = xy, yaw, speed

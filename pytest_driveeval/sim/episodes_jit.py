@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from typing import NamedTuple
 
 import numpy as np
 
 from pytest_driveeval.sim import traffic_jit
 from pytest_driveeval.sim.traffic_jit import HALF_LENGTH, HALF_WIDTH, clip
 
-__all__ = ["AVAILABLE", "START_SECONDS", "start", "step", "supported", "wanted"]
+__all__ = ["AVAILABLE", "START_SECONDS", "Constants", "constants", "start", "step", "supported", "wanted"]
 
 
 def _installed() -> bool:
@@ -70,9 +71,9 @@ def compile_all(names: tuple[str, ...], namespace: dict) -> None:
         namespace[name] = njit(cache=True, nogil=True, boundscheck=False)(namespace[name])
 
 
-def supported(road, model) -> bool:
-    """Whether the compiled step computes what the numpy one does for this road and traffic model."""
-    return AVAILABLE and road._straight and model.delta == 4.0
+def supported(road, model, bicycle) -> bool:
+    """Whether the compiled step computes what the numpy one does for this road, traffic model and ego."""
+    return AVAILABLE and road.straight_lanes is not None and model.delta == 4.0 and not bicycle.allow_reverse
 
 
 def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goal_size, goal_tol, goal_speed,
@@ -145,8 +146,8 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
             lx, ly = hl * corners[k][0], hw * corners[k][1]
             px = cx + ca * lx - sa * ly
             py = cy + sa * lx + ca * ly
-            ix = int(np.floor((px - origin[0]) / g[5]))
-            iy = int(np.floor((py - origin[1]) / g[5]))
+            ix = int(np.floor((px - origin[0]) / g[6]))
+            iy = int(np.floor((py - origin[1]) / g[6]))
             if not (ix >= 0 and ix < nx and iy >= 0 and iy < ny and mask[ix, iy]):
                 left = True
         # episode_outcomes.in_goal.
@@ -162,7 +163,7 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
             out = _OFF_ROAD
         elif goal:
             out = _GOAL
-        elif steps[e] >= g[6]:
+        elif steps[e] >= g[7]:
             out = _STEP_LIMIT
         else:
             out = _RUNNING
@@ -174,28 +175,34 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
         returns[e] = returns[e] + r
 
 
-def step(episodes, actions: np.ndarray):
-    """``Episodes.step``'s work on ``episodes``, whose arrays are read, never written: the new traffic
-    fields, ego state, poses (xy, yaw, speed), (steps, outcome, returns), the reward (E,) and flags
-    (5, E) bool: done, then ended on this step by goal, collision, off-road, step limit."""
+class Constants(NamedTuple):
+    """What a batch of episodes steps with, worked out once (see :func:`constants`)."""
+
+    traffic: np.ndarray  # traffic_jit.CONSTANTS
+    ego: np.ndarray  # dt, wheelbase, max_decel, max_accel, max_speed, max_steer, grid resolution, max_steps
+    lanes: tuple[np.ndarray, ...]  # each lane's start (L, 2), direction (L, 2), heading (L,), first lane of its heading
+
+
+def constants(blueprint, traffic_model, bicycle, size: np.ndarray) -> Constants:
+    start, direction, heading = blueprint.road.straight_lanes
+    same = np.array([int(np.flatnonzero(heading == h)[0]) for h in heading], dtype=np.int64)
+    ego = np.array([bicycle.dt, bicycle.wheelbase, bicycle.max_decel, bicycle.max_accel, bicycle.max_speed,
+                    bicycle.max_steer, blueprint.road.drivable.resolution, blueprint.max_steps], dtype=np.float64)
+    return Constants(traffic_jit.constants(traffic_model, size, blueprint.dt), ego, (start, direction, heading, same))
+
+
+def step(episodes, ego, consts: Constants, actions: np.ndarray):
+    """``Episodes.step``'s work on ``episodes`` (the ego's state ``ego``), whose arrays are read, never
+    written: the new traffic fields, ego state, poses (xy, yaw, speed), (steps, outcome, returns), the
+    reward (E,) and flags (5, E) bool: done, then ended on this step by goal, collision, off-road, step limit."""
     global _compiled
     if not _compiled:
         compile_all(("_max", "_min", "clip", "_free", "_interaction", "traffic_kernel"), vars(traffic_jit))
         compile_all(("clip", "_finish"), globals())
         _compiled = True
-    road, model, traffic, bicycle = episodes.blueprint.road, episodes.traffic_model, episodes.traffic, episodes._bicycle
+    road, traffic = episodes.blueprint.road, episodes.traffic
     e_n, a_n = traffic.lane.shape
-    consts = episodes._jit_constants
-    if consts is None:
-        c = traffic_jit.constants(model, episodes.size, episodes.blueprint.dt)
-        g = np.array([bicycle.dt, bicycle.wheelbase, bicycle.max_decel, bicycle.max_accel, bicycle.max_speed,
-                      road.drivable.resolution, episodes.blueprint.max_steps], dtype=np.float64)
-        lanes = (np.ascontiguousarray(road._a[:, 0]), np.ascontiguousarray(road._u[:, 0]),
-                 np.ascontiguousarray(road._heading[:, 0]))
-        consts = episodes._jit_constants = (c, g, lanes)
-    c, g, (a0, u0, heading0) = consts
-    if bicycle.allow_reverse:
-        raise NotImplementedError("the compiled step drives the blueprints' forward-only bicycle")
+    c, g, (a0, u0, heading0, same_heading) = consts
     active = episodes.outcome == _RUNNING
 
     shape = (e_n, a_n)
@@ -203,15 +210,15 @@ def step(episodes, actions: np.ndarray):
     n_s, n_d, n_speed, n_offset, n_time = (np.empty(shape) for _ in range(5))
     n_valid = np.empty(shape, np.bool_)
     atan_y, atan_x = np.empty(shape), np.empty(shape)
-    traffic_jit.traffic_kernel(c, a0, u0, heading0, road.widths, road.lengths, road.end_s, road.left_of, road.right_of,
+    traffic_jit.traffic_kernel(c, a0, u0, heading0, same_heading, road.widths, road.lengths, road.end_s, road.left_of, road.right_of,
              traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
              traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed, active,
              n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
     atan = np.arctan2(atan_y, atan_x)
-    steer = np.minimum(np.maximum(actions[:, 1], -bicycle.max_steer), bicycle.max_steer)  # np.clip, finite values
+    steer = np.minimum(np.maximum(actions[:, 1], -g[5]), g[5])  # np.clip, for finite values
     tan_steer = np.tan(steer)
 
-    ego = episodes._ego  # at the start its yaw and speed are strided views: one layout, one compilation
+    # At the start the ego's yaw and speed are strided views: one layout, one compilation.
     ego_xy, ego_yaw, ego_speed = (np.ascontiguousarray(v) for v in (ego.xy, ego.yaw, ego.speed))
     e_xy, e_yaw, e_speed = np.empty((e_n, 2)), np.empty(e_n), np.empty(e_n)
     xy, yaw, speed = np.empty((e_n, a_n, 2)), np.empty(shape), np.empty(shape)

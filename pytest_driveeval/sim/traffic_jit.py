@@ -66,7 +66,7 @@ def _interaction(c, v, lead_v, gap):
     return q * q
 
 
-def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_of, lane, s, d, tspeed, desired, offset,
+def traffic_kernel(c, a0, u0, heading0, same_heading, widths, lengths, end_s, left_of, right_of, lane, s, d, tspeed, desired, offset,
              ctime, yield_to, valid, xy, yaw, speed, active, n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid,
              atan_y, atan_x):
     """agents.step_traffic for the active episodes, up to the arctan2 of the new headings
@@ -81,6 +81,7 @@ def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_o
     occ = np.zeros((a_n, l_n), np.bool_)
     wish = np.zeros((a_n, l_n), np.bool_)
     looked = np.empty(3, np.int64)
+    cos_l, sin_l = np.empty(l_n), np.empty(l_n)
     accel = np.empty(3)
     best = np.empty(a_n)
     side = np.empty(a_n, np.int64)
@@ -99,6 +100,10 @@ def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_o
         for j in range(a_n):
             vehicle = valid[e, j] and j > 0
             present = vehicle or j == 0
+            if not present:  # padding, or gone: it occupies nothing and wishes nothing
+                for l in range(l_n):
+                    occ[j, l], wish[j, l] = False, False
+                continue
             target = -1
             if vehicle:
                 es = end_s[lane[e, j]]
@@ -109,9 +114,13 @@ def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_o
                 ry = xy[e, j, 1] - a0[l, 1]
                 ps[j, l] = rx * u0[l, 0] + ry * u0[l, 1]
                 pd[j, l] = u0[l, 0] * ry - u0[l, 1] * rx
-                rel = yaw[e, j] - heading0[l]
-                cos_rel = np.cos(rel)
-                along, across = abs(cos_rel), abs(np.sin(rel))
+                if same_heading[l] == l:  # lanes of one heading share the cosine and sine
+                    rel = yaw[e, j] - heading0[l]
+                    cos_l[l], sin_l[l] = np.cos(rel), np.sin(rel)
+                else:
+                    cos_l[l], sin_l[l] = cos_l[same_heading[l]], sin_l[same_heading[l]]
+                cos_rel = cos_l[l]
+                along, across = abs(cos_rel), abs(sin_l[l])
                 clearance = abs(pd[j, l]) - 0.5 * widths[l] - (across * hl + along * hw)
                 half[j, l] = along * hl + across * hw
                 v_al[j, l] = speed[e, j] * cos_rel
@@ -134,7 +143,7 @@ def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_o
             free = _free(c, v, desired[e, i])
             for k in range(3):
                 exists = looked[k] >= 0
-                if k > 0 and not exists:
+                if k > 0 and not (exists and ctime[e, i] >= c[_READY]):  # no change: accel[k] is not used
                     accel[k] = 0.0
                     continue
                 lk = looked[k] if exists else 0
@@ -144,21 +153,23 @@ def traffic_kernel(c, a0, u0, heading0, widths, lengths, end_s, left_of, right_o
                 yielded_arg = 0
                 letting = False
                 safe = True
+                # Only agents that occupy or wish to enter lane lk can lead or follow there; the terms
+                # are computed where the numpy path uses them, which leaves its values as they are.
                 for j in range(a_n):
+                    occupies, wishes = occ[j, lk], k == 0 and wish[j, lk]
+                    if not (occupies or wishes):
+                        continue
                     ahead_by = ps[j, lk] - self_s
                     gap = abs(ahead_by) - half[j, lk] - self_half
-                    ahead = ahead_by >= 0.0 and j != i
-                    lead = _interaction(c, v, v_al[j, lk], gap)
-                    if ahead and occ[j, lk]:
-                        strongest = _max(strongest, lead)
-                    if k == 0:
-                        lets = wish[j, lk] and ahead and (
-                            free - c[_A] * lead >= -c[_IMPOSED] or yield_to[e, i] == j)
-                        y = lead if lets else 0.0
-                        if y > yielded_max:
-                            yielded_max, yielded_arg = y, j
-                        letting = letting or lets
-                    elif ahead_by < 0.0 and occ[j, lk]:
+                    if ahead_by >= 0.0 and j != i:
+                        lead = _interaction(c, v, v_al[j, lk], gap)
+                        if occupies:
+                            strongest = _max(strongest, lead)
+                        if wishes and (free - c[_A] * lead >= -c[_IMPOSED] or yield_to[e, i] == j):
+                            letting = True
+                            if lead > yielded_max:
+                                yielded_max, yielded_arg = lead, j
+                    elif k > 0 and safe and ahead_by < 0.0 and occupies:
                         follow = free_al[j, lk] - c[_A] * _interaction(c, v_al[j, lk], self_v, gap)
                         if follow < -c[_IMPOSED]:
                             safe = False
