@@ -210,10 +210,11 @@ def step(episodes, ego, consts: Constants, actions: np.ndarray):
     n_s, n_d, n_speed, n_offset, n_time = (np.empty(shape) for _ in range(5))
     n_valid = np.empty(shape, np.bool_)
     atan_y, atan_x = np.empty(shape), np.empty(shape)
-    traffic_jit.traffic_kernel(c, a0, u0, heading0, same_heading, road.widths, road.lengths, road.end_s, road.left_of, road.right_of,
-             traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
-             traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed, active,
-             n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
+    traffic_jit.traffic_kernel(
+        c, a0, u0, heading0, same_heading, road.widths, road.lengths, road.end_s, road.left_of, road.right_of,
+        traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
+        traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed, active,
+        n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
     atan = np.arctan2(atan_y, atan_x)
     steer = np.minimum(np.maximum(actions[:, 1], -g[5]), g[5])  # np.clip, for finite values
     tan_steer = np.tan(steer)

@@ -66,9 +66,9 @@ def _interaction(c, v, lead_v, gap):
     return q * q
 
 
-def traffic_kernel(c, a0, u0, heading0, same_heading, widths, lengths, end_s, left_of, right_of, lane, s, d, tspeed, desired, offset,
-             ctime, yield_to, valid, xy, yaw, speed, active, n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid,
-             atan_y, atan_x):
+def traffic_kernel(c, a0, u0, heading0, same_heading, widths, lengths, end_s, left_of, right_of,
+                   lane, s, d, tspeed, desired, offset, ctime, yield_to, valid, xy, yaw, speed, active,
+                   n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x):
     """agents.step_traffic for the active episodes, up to the arctan2 of the new headings
     (its arguments go to ``atan_y``, ``atan_x``); the others keep their state."""
     e_n, a_n = lane.shape
