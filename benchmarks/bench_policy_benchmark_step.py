@@ -111,9 +111,11 @@ def lane_keeper(episodes: Episodes) -> np.ndarray:
     return np.stack([accel, steer], axis=1)
 
 
-def measure_ours(name: str, episodes_n: int, steps: int, batches: int, with_graph: bool, compiled: bool) -> dict:
-    # numba is loaded by then, so wanted() says yes unless AVAILABLE is off: the switch for the numpy paths.
+def measure_ours(name: str, episodes_n: int, steps: int, batches: int, with_graph: bool,
+                 compiled: bool = True) -> dict:
+    # With numba loaded wanted() says yes unless AVAILABLE is off: the switch for the numpy paths.
     episodes_jit.AVAILABLE = compiled and numba_installed
+    episodes_jit.start()
     warm = reset(make_blueprint(name, **FILL[name]), np.arange(2), AGENTS)
     warm.step(lane_keeper(warm))
     if with_graph:

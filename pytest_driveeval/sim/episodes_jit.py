@@ -1,18 +1,28 @@
 """The policy benchmark's step compiled with numba: ``Episodes.step``'s path when numba is installed.
 
 Two kernels per step, each one pass over the episodes, instead of some two
-hundred numpy calls: :mod:`.traffic_jit` is :func:`~pytest_driveeval.sim.agents.step_traffic`
+hundred small numpy calls, whose dispatch was what a step of 16 episodes cost:
+:func:`~.traffic_jit.traffic_kernel` is :func:`~pytest_driveeval.sim.agents.step_traffic`
 up to the heading of a lane change, :func:`_finish` moves the ego (the
 kinematic bicycle), places the traffic on its lanes and judges the outcome as
 ``Episodes.step`` does.  Between them numpy computes the lane change's
 ``arctan2``, and before them the steering's ``tan``: numpy's float64 ``tan``
 and ``arctan2`` are SIMD code on some machines (SVML) that differs from the C
-library's in the last bit, so those two stay numpy's.  Everything else is the
-numpy path's float64 expressions in the same order (numba compiles without
-fastmath, so no fused multiply-adds), and the episodes come out bit for bit.
+library's in the last bit, so those two stay numpy's.  ``cos`` and ``sin`` are
+the C library's in both paths.  Everything else is the numpy path's float64
+expressions in the same order (numba compiles without fastmath, so no fused
+multiply-adds), and the episodes come out bit for bit (tests/sim/test_episodes_jit.py).
 
-Only straight roads (two points per lane, all the blueprints') and IDM's
-default exponent 4 are compiled; :func:`supported` says when.
+Only straight roads (one segment per lane, all the blueprints'), IDM's default
+exponent 4 and a forward-only ego are compiled; :func:`supported` says when.
+
+When: importing numba and starting its compiler costs a process about half a
+second, more than a few short episodes save.  :func:`wanted` takes the compiled
+paths once numba is loaded anyway, or once the numpy paths have cost the
+process that much more than the compiled ones would have (the rent-or-buy rule
+of sim.logreplay.jit and metrics.nuplan_score.kernels; a separate account, as
+sim may not import sim.logreplay).  The graph observation's kernels
+(policies.graph_jit) share this account.
 """
 from __future__ import annotations
 
@@ -184,6 +194,7 @@ class Constants(NamedTuple):
 
 
 def constants(blueprint, traffic_model, bicycle, size: np.ndarray) -> Constants:
+    """The :class:`Constants` of episodes of ``blueprint`` (a road :func:`supported` takes)."""
     start, direction, heading = blueprint.road.straight_lanes
     same = np.array([int(np.flatnonzero(heading == h)[0]) for h in heading], dtype=np.int64)
     ego = np.array([bicycle.dt, bicycle.wheelbase, bicycle.max_decel, bicycle.max_accel, bicycle.max_speed,
