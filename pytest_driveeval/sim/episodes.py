@@ -235,7 +235,9 @@ class Episodes:
             self._jit_constants = episodes_jit.constants(self.blueprint, self.traffic_model, self._bicycle, self.size)
         traffic, ego, (xy, yaw, speed), (steps, outcome, returns), reward, flags = episodes_jit.step(
             self, self._ego, self._jit_constants, actions)
-        self._traffic = Traffic(**traffic)
+        # Traffic's frozen __init__ sets each field through object.__setattr__: a tenth of a compiled step.
+        self._traffic = object.__new__(Traffic)
+        self._traffic.__dict__.update(traffic)
         self._ego = AgentState(*ego)
         self.xy, self.yaw, self.speed = xy, yaw, speed
         self.steps, self.outcome, self.returns = steps, outcome, returns

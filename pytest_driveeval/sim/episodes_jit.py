@@ -87,7 +87,7 @@ def supported(road, model, bicycle) -> bool:
 
 
 def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goal_size, goal_tol, goal_speed,
-            active, ego_xy, ego_yaw, ego_speed, accel, steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
+            ego_xy, ego_yaw, ego_speed, accel, steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
             old_xy, old_yaw, old_speed, n_speed, steps, outcome, returns,
             e_xy, e_yaw, e_speed, xy, yaw, speed, reward, flags):
     """The rest of Episodes.step: the ego's bicycle, the traffic's poses (Road.pose), the outcome
@@ -98,7 +98,7 @@ def _finish(c, g, a0, u0, heading0, mask, origin, goal_centre, goal_heading, goa
     dt, wheelbase = g[0], g[1]
     corners = ((1.0, 1.0), (1.0, -1.0), (-1.0, -1.0), (-1.0, 1.0))  # geometry.boxes' order
     for e in range(e_n):
-        if not active[e]:
+        if outcome[e] != _RUNNING:  # ended before this step (outcome is written below, once per episode)
             e_xy[e, 0], e_xy[e, 1], e_yaw[e], e_speed[e] = ego_xy[e, 0], ego_xy[e, 1], ego_yaw[e], ego_speed[e]
             for i in range(a_n):
                 xy[e, i, 0], xy[e, i, 1] = old_xy[e, i, 0], old_xy[e, i, 1]
@@ -214,7 +214,6 @@ def step(episodes, ego, consts: Constants, actions: np.ndarray):
     road, traffic = episodes.blueprint.road, episodes.traffic
     e_n, a_n = traffic.lane.shape
     c, g, (a0, u0, heading0, same_heading) = consts
-    active = episodes.outcome == _RUNNING
 
     shape = (e_n, a_n)
     n_lane, n_yield = np.empty(shape, np.int64), np.empty(shape, np.int64)
@@ -224,8 +223,8 @@ def step(episodes, ego, consts: Constants, actions: np.ndarray):
     traffic_jit.traffic_kernel(
         c, a0, u0, heading0, same_heading, road.widths, road.lengths, road.end_s, road.left_of, road.right_of,
         traffic.lane, traffic.s, traffic.d, traffic.speed, traffic.desired_speed, traffic.change_offset,
-        traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed, active,
-        n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
+        traffic.change_time, traffic.yield_to, traffic.valid, episodes.xy, episodes.yaw, episodes.speed,
+        episodes.outcome, n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x)
     atan = np.arctan2(atan_y, atan_x)
     steer = np.minimum(np.maximum(actions[:, 1], -g[5]), g[5])  # np.clip, for finite values
     tan_steer = np.tan(steer)
@@ -238,7 +237,7 @@ def step(episodes, ego, consts: Constants, actions: np.ndarray):
     reward, flags = np.empty(e_n), np.empty((5, e_n), np.bool_)
     grid = road.drivable
     _finish(c, g, a0, u0, heading0, grid.mask, grid.origin, episodes.goal_centre, episodes.goal_heading,
-            episodes.goal_size, episodes.goal_heading_tol, episodes.goal_speed_bounds, active, ego_xy, ego_yaw,
+            episodes.goal_size, episodes.goal_heading_tol, episodes.goal_speed_bounds, ego_xy, ego_yaw,
             ego_speed, np.ascontiguousarray(actions[:, 0]), steer, tan_steer, n_lane, n_s, n_d, n_valid, atan,
             episodes.xy, episodes.yaw, episodes.speed, n_speed, steps, outcome, returns,
             e_xy, e_yaw, e_speed, xy, yaw, speed, reward, flags)

@@ -67,9 +67,9 @@ def _interaction(c, v, lead_v, gap):
 
 
 def traffic_kernel(c, a0, u0, heading0, same_heading, widths, lengths, end_s, left_of, right_of,
-                   lane, s, d, tspeed, desired, offset, ctime, yield_to, valid, xy, yaw, speed, active,
+                   lane, s, d, tspeed, desired, offset, ctime, yield_to, valid, xy, yaw, speed, outcome,
                    n_lane, n_s, n_d, n_speed, n_offset, n_time, n_yield, n_valid, atan_y, atan_x):
-    """agents.step_traffic for the active episodes, up to the arctan2 of the new headings
+    """agents.step_traffic for the running episodes (``outcome`` 0), up to the arctan2 of the new headings
     (its arguments go to ``atan_y``, ``atan_x``); the others keep their state."""
     e_n, a_n = lane.shape
     l_n = len(widths)
@@ -89,7 +89,7 @@ def traffic_kernel(c, a0, u0, heading0, same_heading, widths, lengths, end_s, le
     acc0 = np.empty(a_n)
     hl, hw = c[_HL], c[_HW]
     for e in range(e_n):
-        if not active[e]:
+        if outcome[e] != 0:  # ended: keeps its state
             for i in range(a_n):
                 n_lane[e, i], n_s[e, i], n_d[e, i], n_speed[e, i] = lane[e, i], s[e, i], d[e, i], tspeed[e, i]
                 n_offset[e, i], n_time[e, i], n_yield[e, i] = offset[e, i], ctime[e, i], yield_to[e, i]
