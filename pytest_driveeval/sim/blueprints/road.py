@@ -214,6 +214,15 @@ class Road:
         return len(self.lanes)
 
     @property
+    def straight_lanes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Each lane's start (L, 2), unit direction (L, 2) and heading (L,) when every lane is one
+        straight segment (what :meth:`project` and :meth:`pose` then use), else None."""
+        if not self._straight:
+            return None
+        return (np.ascontiguousarray(self._a[:, 0]), np.ascontiguousarray(self._u[:, 0]),
+                np.ascontiguousarray(self._heading[:, 0]))
+
+    @property
     def bounds(self) -> np.ndarray:
         """(xmin, ymin, xmax, ymax) of the drivable area, for normalising observations."""
         pts = np.concatenate([l.outline() for l in self.lanes] + list(self.areas))

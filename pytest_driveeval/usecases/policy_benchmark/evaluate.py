@@ -77,13 +77,13 @@ def observer(episodes: Any, agent_limit: int) -> Callable[[Any], Any]:
     """``observe(episodes)`` -> the flat graph observation (E, D) float32 of every
     episode (seed 002's encoding), with the normalisation of these episodes' map
     worked out once rather than every step."""
-    from pytest_driveeval.policies.graph import ObservationRanges, encode, graph_observation
+    from pytest_driveeval.policies.graph import ObservationRanges
+    from pytest_driveeval.policies.graph_jit import observer as graph_observer
 
-    ranges = ObservationRanges.from_bounding_box(*episodes.map_bounds)
+    observe = graph_observer(ObservationRanges.from_bounding_box(*episodes.map_bounds), agent_limit)
 
     def observe_now(now: Any):
-        return encode(graph_observation(now.xy, now.yaw, now.speed, now.valid, now.goal_centre, now.goal_speed,
-                                        ranges, agent_limit=agent_limit))
+        return observe(now.xy, now.yaw, now.speed, now.valid, now.goal_centre, now.goal_speed)
 
     return observe_now
 
