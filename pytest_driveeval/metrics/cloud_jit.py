@@ -12,16 +12,19 @@ type (stride and offsets known to the compiler) whatever else the cloud holds.
 """
 from __future__ import annotations
 
+import threading
+from functools import lru_cache
+
 import numpy as np
 
-from .cloud_jit_grid import AREA_BIT, AVAILABLE, CX, CY, CZ, HX, HY, HZ, COS, SIN, LOW
-from .cloud_jit_grid import build, cell_of, compiled, in_polygon
+from .cloud_jit_grid import AVAILABLE, CX, CY, CZ, HX, HY, HZ, COS, SIN, LOW
+from .cloud_jit_grid import MAX_CELLS, build, cell_of, clear, compiled, in_polygon
 from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 if AVAILABLE:
-    from .cloud_simd import compact16
+    from .cloud_simd import compact16, scan16
 else:  # pragma: no cover - exercised where numba is absent
-    compact16 = None
+    compact16 = scan16 = None
 
 CHUNK = 1024  # points per step (16 KB of XYZIRC records): a step's records and keys stay in L1
 
@@ -46,23 +49,29 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
     cloud order on ties), as x y z (NaN: none).  And the area points, in cloud order."""
     n, nb = len(rec), len(box)
     counts, nearest, best = np.zeros(nb, np.int64), np.full(nb, -1, np.int64), np.full(nb, np.inf)
-    keys = np.zeros(CHUNK + 16, np.int32)
+    keys = np.zeros(16, np.int32)
     cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK, np.int32)
-    area = np.empty(n, np.int64)
+    area = np.empty(4 * CHUNK, np.int64)
     n_area = n_cands = 0
     zlo, zhi = z_range[0], z_range[1]
     gx32 = np.int32(gx)
     for s in range(0, n, CHUNK):
         m = min(n - s, CHUNK)
-        part = rec[s:s + m]
-        for j in range(m):  # vectorised by LLVM
-            i, jj = cell_of(part[j].x, part[j].y, x0, y0, inv, xmax, ymax)
-            keys[j] = jj * gx32 + i
-        for j in range(m, m + 16):
-            keys[j] = 0  # cell 0 is a border cell: never a candidate
+        if n_area + m > len(area):  # room for every point of this chunk
+            more = np.empty(2 * len(area), np.int64)
+            more[:n_area] = area[:n_area]
+            area = more
         n_cand = 0
-        for b in range(0, m, 16):
-            n_cand = compact16(table, keys, b, s + b, cand, val, n_cand)
+        full = m - m % 16
+        for b in range(0, full, 16):
+            n_cand = scan16(rec, s + b, x0, y0, inv, xmax, ymax, gx, table, cand, val, n_cand)
+        if full < m:  # the last few points of the cloud
+            for j in range(16):
+                keys[j] = 0  # cell 0 is a border cell: never a candidate
+            for j in range(m - full):
+                i, jj = cell_of(rec[s + full + j].x, rec[s + full + j].y, x0, y0, inv, xmax, ymax)
+                keys[j] = jj * gx32 + i
+            n_cand = compact16(table, keys, 0, s + full, cand, val, n_cand)
         n_cands += n_cand
         # Branch-free over the candidates: cells with a fast entry decided here, the rest queued.
         n_gen = 0
@@ -86,24 +95,25 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
             t = generic[u]
             v, i = val[t], np.int64(cand[t])
             px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
-            in_box = False
+            in_box = 0
             node = (v & LOW) - 1
             while node >= 0:
                 b = node_box[node]
                 dx, dy = px - box[b, CX], py - box[b, CY]
-                if (abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX]
-                        and abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY]
-                        and abs(pz - box[b, CZ]) <= box[b, HZ]):
-                    in_box = True
-                    counts[b] += 1
-                    d2 = px * px + py * py + pz * pz
-                    if d2 < best[b] or (d2 == best[b] and i < nearest[b]):
-                        best[b], nearest[b] = d2, i
+                inside = ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                          & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                          & (abs(pz - box[b, CZ]) <= box[b, HZ]))
+                counts[b] += inside
+                in_box |= inside
+                d2 = px * px + py * py + pz * pz
+                d2 = d2 if inside else np.inf
+                if d2 < best[b] or (d2 == best[b] and inside and i < nearest[b]):
+                    best[b], nearest[b] = d2, i
                 node = next_node[node]
-            if (not in_box and (v & AREA_BIT) and pz >= zlo and pz <= zhi
-                    and _on_road(px, py, edges, ends, clip_boxes)):
-                area[n_area] = i
-                n_area += 1
+            if (in_box ^ 1) & ((v >> 28) & 1) & (pz >= zlo) & (pz <= zhi):  # rarely: an area point?
+                if _on_road(px, py, edges, ends, clip_boxes):
+                    area[n_area] = i
+                    n_area += 1
     area_idx = np.sort(area[:n_area])
     area_xyz = np.empty((n_area, 3))
     for a in range(n_area):
@@ -117,6 +127,9 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
     return counts, near, area_xyz, n_cands
 
 
+_scratch = threading.local()  # per thread (the kernels release the GIL): the grid's table, all zeros
+
+
 class _Records:
     """x, y, z of a cloud as one record type over its own memory (keeps ``base`` alive)."""
 
@@ -124,6 +137,11 @@ class _Records:
         self.base = base
         self.__array_interface__ = {"shape": (n,), "typestr": f"|V{itemsize}", "data": (addr, True),
                                     "strides": None, "version": 3}
+
+
+@lru_cache(maxsize=64)
+def _record_type(field: str, offsets: tuple, stride: int) -> np.dtype:
+    return np.dtype({"names": ["x", "y", "z"], "formats": [field] * 3, "offsets": list(offsets), "itemsize": stride})
 
 
 def records(points: np.ndarray) -> np.ndarray:
@@ -138,8 +156,7 @@ def records(points: np.ndarray) -> np.ndarray:
         offsets = [a - addr[0] for a in addr]
         if 0 < offsets[1] - offsets[0] and 0 < offsets[2] - offsets[1] and offsets[2] + size <= stride \
                 and offsets[1] >= size and offsets[2] - offsets[1] >= size:
-            dtype = np.dtype({"names": ["x", "y", "z"], "formats": [x.dtype] * 3, "offsets": offsets,
-                              "itemsize": stride})
+            dtype = _record_type(x.dtype.str, tuple(offsets), stride)
             return np.asarray(_Records(points, addr[0], stride, len(x))).view(dtype)
     out = np.empty(len(x), [("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
     out["x"], out["y"], out["z"] = x, y, z
@@ -159,8 +176,16 @@ def evaluate(points: np.ndarray, boxes: BoxSet, area: Area | None) -> CloudCount
         area_box, z_range = area.aabb(), np.array([area.z_min, area.z_max], dtype=np.float64)
         poly = np.asarray(area.polygon, dtype=np.float64)
         edges, ends, clip_boxes = area.edge_table
-    x0, y0, inv, xmax, ymax, *grid = build(box[:nb], area_box, poly, edges, area is not None and area.clips is not None)
+    table = getattr(_scratch, "table", None)
+    if table is None:
+        table = _scratch.table = np.zeros(MAX_CELLS, np.int32)
+    clipped = area is not None and area.clips is not None
+    x0, y0, inv, xmax, ymax, gx, table, *lists, touched = build(box[:nb], area_box, poly, edges, clipped, table)
     f32 = np.float32  # numba hands float32 scalars back as Python floats
-    counts, nearest, area_points, n_cands = _frame(records(points), f32(x0), f32(y0), f32(inv), f32(xmax), f32(ymax),
-                                                   *grid, box, z_range, edges, ends, clip_boxes)
+    try:
+        counts, nearest, area_points, n_cands = _frame(records(points), f32(x0), f32(y0), f32(inv), f32(xmax),
+                                                       f32(ymax), gx, table, *lists, box, z_range, edges, ends,
+                                                       clip_boxes)
+    finally:
+        clear(table, touched)
     return CloudCounts(counts[:nb], nearest[:nb], area_points, candidates=n_cands)

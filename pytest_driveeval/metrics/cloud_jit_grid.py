@@ -27,7 +27,8 @@ AVAILABLE = njit is not None
 INNER, AREA_IN, AREA_BIT = 1 << 30, 1 << 29, 1 << 28
 LOW = AREA_BIT - 1
 CX, CY, CZ, HX, HY, HZ, COS, SIN = range(8)  # columns of the box table
-SIDE = 250  # cells along the grid's longer side
+SIDE = 500  # cells along the grid's longer side
+MAX_CELLS = (SIDE + 4) ** 2  # a table this long serves every grid
 
 
 def compiled(fn):
@@ -58,17 +59,6 @@ def cell_of(px, py, x0, y0, inv, xmax, ymax):
 
 
 @compiled
-def _inside_box(box, b, xa, ya, xb, yb, m):
-    """Whether the rectangle [xa, xb] x [ya, yb] lies inside box b's footprint shrunk by m."""
-    c, s = box[b, COS], box[b, SIN]
-    for dx in (xa - box[b, CX], xb - box[b, CX]):
-        for dy in (ya - box[b, CY], yb - box[b, CY]):
-            if abs(dx * c + dy * s) > box[b, HX] - m or abs(dy * c - dx * s) > box[b, HY] - m:
-                return False
-    return True
-
-
-@compiled
 def _clear_of_edges(poly, xa, ya, xb, yb):
     """Whether no edge of the closed polygon ``poly`` meets the rectangle (conservative)."""
     nv = len(poly)
@@ -89,9 +79,10 @@ def _clear_of_edges(poly, xa, ya, xb, yb):
 
 
 @compiled
-def build(box, area_box, poly, edges, clipped):
+def build(box, area_box, poly, edges, clipped, table):
     """The grid: origin, 1 / cell and border limits (float32, as cell_of computes), width,
-    the table of cell entries, and the box lists (next node, box) of GENERIC cells.
+    the table of cell entries (in ``table`` when it is long enough), the box lists (next
+    node, box) of GENERIC cells, and the cells written (``clear`` zeroes them again).
 
     A cell is listed for a box when the cell, dilated by ``m``, overlaps the box's
     footprint (separating axes: the box's AABB gives the cell axes, the loop tests the
@@ -120,7 +111,8 @@ def build(box, area_box, poly, edges, clipped):
     x0, y0 = np.float32(lo[0] - m - cell), np.float32(lo[1] - m - cell)
     gx, gy = int((hi[0] + m - x0) / cell) + 2, int((hi[1] + m - y0) / cell) + 2
 
-    table = np.zeros(gx * gy, np.int32)  # while building: 1 + head of the cell's box list
+    if len(table) < gx * gy:  # the caller's buffer is all zeros and at least MAX_CELLS long
+        table = np.zeros(gx * gy, np.int32)
     spans = np.empty((nb, 4), np.int64)
     n_nodes = 0
     for b in range(nb):
@@ -129,53 +121,57 @@ def build(box, area_box, poly, edges, clipped):
         spans[b, 2] = max(int((box[b, CY] - ext[b, 1] - m - y0) / cell), 1)
         spans[b, 3] = min(int((box[b, CY] + ext[b, 1] + m - y0) / cell), gy - 2)
         n_nodes += max(spans[b, 1] - spans[b, 0] + 1, 0) * max(spans[b, 3] - spans[b, 2] + 1, 0)
-    area_span = np.zeros(4, np.int64)
-    if has_area:
-        area_span[0] = max(int((area_box[0] - m - x0) / cell), 1)
-        area_span[1] = min(int((area_box[3] + m - x0) / cell), gx - 2)
-        area_span[2] = max(int((area_box[1] - m - y0) / cell), 1)
-        area_span[3] = min(int((area_box[4] + m - y0) / cell), gy - 2)
-    n_area = max(area_span[1] - area_span[0] + 1, 0) * max(area_span[3] - area_span[2] + 1, 0) if has_area else 0
+    ai0 = max(int((area_box[0] - m - x0) / cell), 1) if has_area else 1
+    ai1 = min(int((area_box[3] + m - x0) / cell), gx - 2) if has_area else 0
+    aj0 = max(int((area_box[1] - m - y0) / cell), 1) if has_area else 1
+    aj1 = min(int((area_box[4] + m - y0) / cell), gy - 2) if has_area else 0
     next_node, node_box = np.empty(n_nodes, np.int32), np.empty(n_nodes, np.int32)
-    touched = np.empty(n_nodes + n_area, np.int64)
+    node_inner = np.empty(n_nodes, np.bool_)
+    touched = np.empty(n_nodes + max(ai1 - ai0 + 1, 0) * max(aj1 - aj0 + 1, 0), np.int64)
     n_touched = n_nodes = 0
     for b in range(nb):
-        c, s, cx, cy = box[b, COS], box[b, SIN], box[b, CX], box[b, CY]
-        r = (0.5 * cell + m) * (abs(c) + abs(s))  # the dilated cell's half extent on a box axis
+        c, s, cx, cy, hx, hy = box[b, COS], box[b, SIN], box[b, CX], box[b, CY], box[b, HX], box[b, HY]
+        # The dilated cell's half extent along a box axis: |u| over the cell is |u(centre)| +- r.
+        r = (0.5 * cell + m) * (abs(c) + abs(s))
         for j in range(spans[b, 2], spans[b, 3] + 1):
             dy = y0 + (j + 0.5) * cell - cy
             for i in range(spans[b, 0], spans[b, 1] + 1):
                 dx = x0 + (i + 0.5) * cell - cx
-                if abs(dx * c + dy * s) <= box[b, HX] + r and abs(dy * c - dx * s) <= box[b, HY] + r:
+                u, v = abs(dx * c + dy * s), abs(dy * c - dx * s)
+                if u <= hx + r and v <= hy + r:
                     k = j * gx + i
                     if table[k] == 0:
                         touched[n_touched] = k
                         n_touched += 1
                     next_node[n_nodes], node_box[n_nodes] = table[k] - 1, b
+                    node_inner[n_nodes] = u + r <= hx - m and v + r <= hy - m
                     table[k] = n_nodes + 1
                     n_nodes += 1
-    in_area = np.zeros(gx * gy, np.uint8)
-    if has_area:
-        for j in range(area_span[2], area_span[3] + 1):
-            for i in range(area_span[0], area_span[1] + 1):
-                k = j * gx + i
-                in_area[k] = 1
-                if table[k] == 0:
-                    touched[n_touched] = k
-                    n_touched += 1
+    for j in range(aj0, aj1 + 1):
+        for i in range(ai0, ai1 + 1):
+            if table[j * gx + i] == 0:
+                touched[n_touched] = j * gx + i
+                n_touched += 1
     for t in range(n_touched):  # the final entries
         k = touched[t]
         head = table[k] - 1
-        xa, ya = x0 + (k % gx) * cell - m, y0 + (k // gx) * cell - m
-        xb, yb = xa + cell + 2 * m, ya + cell + 2 * m
-        entry = 0
-        decided = head < 0 or (next_node[head] < 0 and _inside_box(box, node_box[head], xa, ya, xb, yb, m))
-        if decided and head >= 0:
-            entry = INNER | node_box[head]
-        if decided and in_area[k]:
+        i, j = k % gx, k // gx
+        decided = head < 0 or (next_node[head] < 0 and node_inner[head])
+        entry = INNER | node_box[head] if decided and head >= 0 else 0
+        in_area = ai0 <= i <= ai1 and aj0 <= j <= aj1
+        if decided and in_area:
+            xa, ya = x0 + i * cell - m, y0 + j * cell - m
+            xb, yb = xa + cell + 2 * m, ya + cell + 2 * m
             decided = not clipped and _clear_of_edges(poly, xa, ya, xb, yb)
             if decided and in_polygon(0.5 * (xa + xb), 0.5 * (ya + yb), edges, 0, len(poly)):
                 entry |= AREA_IN
-        table[k] = entry if decided else (head + 1) | (AREA_BIT if in_area[k] else 0)
+        table[k] = entry if decided else (head + 1) | (AREA_BIT if in_area else 0)
     xmax, ymax = np.float32(gx - 1), np.float32(gy - 1)
-    return x0, y0, inv, xmax, ymax, gx, table, next_node, node_box
+    return x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, touched[:n_touched]
+
+
+@compiled
+def clear(table, touched):
+    """Zero the cells ``build`` wrote, so that the table serves the next frame."""
+    for t in range(len(touched)):
+        table[touched[t]] = 0
