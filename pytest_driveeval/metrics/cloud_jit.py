@@ -3,9 +3,9 @@
 One pass over the cloud, in chunks of CHUNK points whose records stay in L1: the
 chunk's cells (a vector loop, float32), then the points in listed cells with their
 cell entries (``cloud_simd.compact16``: a gather and a compressing store per 16
-points), then the verdicts.  Most candidates lie in a cell inside one box, or
-inside the area polygon (``cloud_jit_grid``), where one z comparison decides; the
-rest get the float64 tests of ``BoxSet.contains`` and ``points_in_polygon``.  Every
+points), then the verdicts.  Most candidates lie in a cell of one box (tested against it alone,
+without branches), or inside the area polygon, where the z range decides
+(``cloud_jit_grid``); the rest go through each box of their cell and the polygons.  Every
 verdict is the float64 expression the numpy path evaluates, so the two agree
 point for point.  The records are read in place: x, y, z are viewed as one record
 type (stride and offsets known to the compiler) whatever else the cloud holds.
@@ -73,14 +73,18 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
                 keys[j] = jj * gx32 + i
             n_cand = compact16(table, keys, 0, s + full, cand, val, n_cand)
         n_cands += n_cand
-        # Branch-free over the candidates: cells with a fast entry decided here, the rest queued.
+        # Branch-free over the candidates: cells of one box (or none) and decided area, here;
+        # the rest queued.  The box test is BoxSet.contains's float64 expression.
         n_gen = 0
         for t in range(n_cand):
             v, i = val[t], np.int64(cand[t])
-            is_box, is_area = (v >> 30) & 1, (v >> 29) & 1
-            b = (v & LOW) * is_box
+            one, is_area = (v >> 30) & 1, (v >> 29) & 1
+            b = (v & LOW) * one
             px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
-            ok = is_box & (abs(pz - box[b, CZ]) <= box[b, HZ])
+            dx, dy = px - box[b, CX], py - box[b, CY]
+            ok = one & ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                        & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                        & (abs(pz - box[b, CZ]) <= box[b, HZ]))
             counts[b] += ok
             d2 = px * px + py * py + pz * pz
             if (d2 if ok else np.inf) < best[b]:  # rarely: cloud order is no distance order
@@ -88,7 +92,7 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
             area[n_area] = i
             n_area += is_area & (ok ^ 1) & (pz >= zlo) & (pz <= zhi)
             generic[n_gen] = t
-            n_gen += 1 - (is_box | is_area)
+            n_gen += 1 - (one | is_area)
         # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point
         # go to the first in cloud order, though this loop runs after the one above.
         for u in range(n_gen):

@@ -5,8 +5,8 @@ footprint dilated by ``m``, which covers that rounding many times over, so a
 cell's class holds for every point the lookup puts in it.  Table entry of a cell:
 
 * 0: no box footprint and no area touches it: its points are in nothing;
-* ``INNER | b``: inside box b's footprint, no other box's: a point there is in box
-  b exactly when ``|z - cz| <= hz``;
+* ``ONE | b``: box b's footprint touches it, no other box's: a point there is in
+  box b or in none;
 * ``AREA_IN``: inside the area polygon (no lanelet clips): a point in no box is
   an area point exactly when z is in the area's range;
 * both, or either with no box / no area around;
@@ -24,10 +24,10 @@ except ImportError:  # pragma: no cover - exercised where numba is absent
     njit = None
 
 AVAILABLE = njit is not None
-INNER, AREA_IN, AREA_BIT = 1 << 30, 1 << 29, 1 << 28
+ONE, AREA_IN, AREA_BIT = 1 << 30, 1 << 29, 1 << 28
 LOW = AREA_BIT - 1
 CX, CY, CZ, HX, HY, HZ, COS, SIN = range(8)  # columns of the box table
-SIDE = 500  # cells along the grid's longer side
+SIDE = 250  # cells along the grid's longer side
 MAX_CELLS = (SIDE + 4) ** 2  # a table this long serves every grid
 
 
@@ -126,13 +126,11 @@ def build(box, area_box, poly, edges, clipped, table):
     aj0 = max(int((area_box[1] - m - y0) / cell), 1) if has_area else 1
     aj1 = min(int((area_box[4] + m - y0) / cell), gy - 2) if has_area else 0
     next_node, node_box = np.empty(n_nodes, np.int32), np.empty(n_nodes, np.int32)
-    node_inner = np.empty(n_nodes, np.bool_)
     touched = np.empty(n_nodes + max(ai1 - ai0 + 1, 0) * max(aj1 - aj0 + 1, 0), np.int64)
     n_touched = n_nodes = 0
     for b in range(nb):
         c, s, cx, cy, hx, hy = box[b, COS], box[b, SIN], box[b, CX], box[b, CY], box[b, HX], box[b, HY]
-        # The dilated cell's half extent along a box axis: |u| over the cell is |u(centre)| +- r.
-        r = (0.5 * cell + m) * (abs(c) + abs(s))
+        r = (0.5 * cell + m) * (abs(c) + abs(s))  # the dilated cell's half extent on a box axis
         for j in range(spans[b, 2], spans[b, 3] + 1):
             dy = y0 + (j + 0.5) * cell - cy
             for i in range(spans[b, 0], spans[b, 1] + 1):
@@ -144,7 +142,6 @@ def build(box, area_box, poly, edges, clipped, table):
                         touched[n_touched] = k
                         n_touched += 1
                     next_node[n_nodes], node_box[n_nodes] = table[k] - 1, b
-                    node_inner[n_nodes] = u + r <= hx - m and v + r <= hy - m
                     table[k] = n_nodes + 1
                     n_nodes += 1
     for j in range(aj0, aj1 + 1):
@@ -156,8 +153,8 @@ def build(box, area_box, poly, edges, clipped, table):
         k = touched[t]
         head = table[k] - 1
         i, j = k % gx, k // gx
-        decided = head < 0 or (next_node[head] < 0 and node_inner[head])
-        entry = INNER | node_box[head] if decided and head >= 0 else 0
+        decided = head < 0 or next_node[head] < 0
+        entry = ONE | node_box[head] if decided and head >= 0 else 0
         in_area = ai0 <= i <= ai1 and aj0 <= j <= aj1
         if decided and in_area:
             xa, ya = x0 + i * cell - m, y0 + j * cell - m
