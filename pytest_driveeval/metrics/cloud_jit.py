@@ -134,6 +134,16 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
 _scratch = threading.local()  # per thread (the kernels release the GIL): the grid's table, all zeros
 
 
+@compiled
+def _evaluate(rec, box, nb, area_box, z_range, poly, edges, ends, clip_boxes, clipped, table):
+    """The grid of the first ``nb`` boxes, the frame, the table zeroed again: one call from Python."""
+    x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, touched = build(box[:nb], area_box, poly, edges,
+                                                                             clipped, table)
+    out = _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_range, edges, ends, clip_boxes)
+    clear(table, touched)
+    return out
+
+
 class _Records:
     """x, y, z of a cloud as one record type over its own memory (keeps ``base`` alive)."""
 
@@ -184,12 +194,6 @@ def evaluate(points: np.ndarray, boxes: BoxSet, area: Area | None) -> CloudCount
     if table is None:
         table = _scratch.table = np.zeros(MAX_CELLS, np.int32)
     clipped = area is not None and area.clips is not None
-    x0, y0, inv, xmax, ymax, gx, table, *lists, touched = build(box[:nb], area_box, poly, edges, clipped, table)
-    f32 = np.float32  # numba hands float32 scalars back as Python floats
-    try:
-        counts, nearest, area_points, n_cands = _frame(records(points), f32(x0), f32(y0), f32(inv), f32(xmax),
-                                                       f32(ymax), gx, table, *lists, box, z_range, edges, ends,
-                                                       clip_boxes)
-    finally:
-        clear(table, touched)
+    counts, nearest, area_points, n_cands = _evaluate(records(points), box, nb, area_box, z_range, poly, edges, ends,
+                                                      clip_boxes, clipped, table)
     return CloudCounts(counts[:nb], nearest[:nb], area_points, candidates=n_cands)
