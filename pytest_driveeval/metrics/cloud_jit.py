@@ -1,14 +1,15 @@
 """The obstacle frame compiled with numba: ``evaluate_cloud``'s path when numba is installed.
 
-One pass over the cloud, in chunks of CHUNK points whose records stay in L1: the
-chunk's cells (a vector loop, float32), then the points in listed cells with their
-cell entries (``cloud_simd.compact16``: a gather and a compressing store per 16
-points), then the verdicts.  Most candidates lie in a cell of one box (tested against it alone,
-without branches), or inside the area polygon, where the z range decides
-(``cloud_jit_grid``); the rest go through each box of their cell and the polygons.  Every
-verdict is the float64 expression the numpy path evaluates, so the two agree
-point for point.  The records are read in place: x, y, z are viewed as one record
-type (stride and offsets known to the compiler) whatever else the cloud holds.
+One pass over the cloud, in chunks of CHUNK points whose records stay in L1.  Per
+16 records, ``cloud_simd.scan16`` computes their cells (one wide load, shuffles,
+float32), gathers the cells' entries and appends the points of listed cells
+(a compressing store).  Then the chunk's candidates: most lie in a cell of one box,
+tested against it alone without branches, or inside the area polygon, where the z
+range decides (``cloud_jit_grid``); the rest go through each box of their cell and
+the polygons.  Every verdict is the float64 expression the numpy path evaluates,
+so the two agree point for point.  The records are read in place: x, y, z are
+viewed as one record type (stride and offsets known to the compiler) whatever
+else the cloud holds.
 """
 from __future__ import annotations
 
