@@ -113,9 +113,11 @@ def _float_ptr_suffix(ptr_vector_type, width: int) -> str:
 def scan16(typingctx, rec, first, x0, y0, inv, xmax, ymax, gx, table, out_idx, out_val, n):
     """``compact16`` of the cells of the 16 records ``rec[first:first + 16]`` (all present),
     computed as ``cell_of`` does, from the records in place."""
-    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record)):
+    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record)
+            and all(isinstance(a, types.Float) for a in (x0, y0, inv, xmax, ymax))):
         return None
-    sig = types.intp(rec, first, x0, y0, inv, xmax, ymax, gx, table, out_idx, out_val, n)
+    f32 = types.float32  # the grid's constants are float32: wider arguments are rounded to them
+    sig = types.intp(rec, first, f32, f32, f32, f32, f32, gx, table, out_idx, out_val, n)
 
     def codegen(context, builder, signature, args):
         rec_t, tab_t, idx_t, val_t = signature.args[0], signature.args[8], signature.args[9], signature.args[10]
