@@ -133,16 +133,26 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
 
 
 _scratch = threading.local()  # per thread (the kernels release the GIL): the grid's table, all zeros
+_NO_AREA_BOX, _NO_POLYGON = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.zeros((0, 2))
+_NO_EDGES = np.zeros((0, 4)), np.zeros(1, np.int64), np.zeros((0, 4))
 
 
 @compiled
-def _evaluate(rec, box, nb, area_box, z_range, poly, edges, ends, clip_boxes, clipped, table):
-    """The grid of the first ``nb`` boxes, the frame, the table zeroed again: one call from Python."""
+def _evaluate(rec, centers, half, yaws, area_box, z_min, z_max, poly, edges, ends, clip_boxes, clipped, table):
+    """The box table, the grid, the frame, the grid's table zeroed again: one call from Python."""
+    nb = len(yaws)
+    box = np.zeros((max(nb, 1), 8))  # a row at least: the frame indexes row 0 for cells of no box
+    for b in range(nb):
+        box[b, CX], box[b, CY], box[b, CZ] = centers[b, 0], centers[b, 1], centers[b, 2]
+        box[b, HX], box[b, HY], box[b, HZ] = half[b, 0], half[b, 1], half[b, 2]
+        box[b, COS], box[b, SIN] = np.cos(yaws[b]), np.sin(yaws[b])
     x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, touched = build(box[:nb], area_box, poly, edges,
                                                                              clipped, table)
-    out = _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_range, edges, ends, clip_boxes)
+    z_range = np.array([z_min, z_max])
+    counts, nearest, area_points, n_cands = _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box,
+                                                   z_range, edges, ends, clip_boxes)
     clear(table, touched)
-    return out
+    return counts[:nb], nearest[:nb], area_points, n_cands
 
 
 class _Records:
@@ -159,9 +169,27 @@ def _record_type(field: str, offsets: tuple, stride: int) -> np.dtype:
     return np.dtype({"names": ["x", "y", "z"], "formats": [field] * 3, "offsets": list(offsets), "itemsize": stride})
 
 
+@lru_cache(maxsize=64)
+def _view_type(dtype: np.dtype) -> np.dtype | None:
+    """The x, y, z record type a contiguous structured cloud of ``dtype`` can be viewed as."""
+    fields = [dtype.fields.get(k) for k in "xyz"] if dtype.names else [None]
+    if None in fields:
+        return None
+    (tx, ox), (ty, oy), (tz, oz) = (f[:2] for f in fields)
+    size = tx.itemsize
+    if (tx not in (np.float32, np.float64) or not tx.isnative or not tx == ty == tz
+            or not (ox + size <= oy and oy + size <= oz and oz + size <= dtype.itemsize)):
+        return None
+    return _record_type(tx.str, (ox, oy, oz), dtype.itemsize)
+
+
 def records(points: np.ndarray) -> np.ndarray:
-    """A (N,) record array of fields x, y, z viewing the points' memory where their layout
-    allows (one native float type, one stride), else a float64 copy."""
+    """A (N,) C-contiguous record array of fields x, y, z viewing the points' memory where
+    their layout allows (one native float type, one stride), else a float64 copy."""
+    if points.ndim == 1 and points.flags.c_contiguous and points.dtype.names:
+        view = _view_type(points.dtype)
+        if view is not None:  # the common case, in microseconds
+            return points.view(view)
     x, y, z = xyz_columns(points)
     cols = (x, y, z)
     if (x.dtype in (np.float32, np.float64) and x.dtype.isnative and all(c.dtype == x.dtype for c in cols)
@@ -180,21 +208,20 @@ def records(points: np.ndarray) -> np.ndarray:
 
 def evaluate(points: np.ndarray, boxes: BoxSet, area: Area | None) -> CloudCounts:
     """``evaluate_cloud`` for a non-empty cloud; ``area`` is None when it is not checked."""
-    nb = len(boxes)
-    box = np.zeros((max(nb, 1), 8))
-    box[:nb, :3], box[:nb, 3:6] = boxes.centers, boxes.half
-    box[:nb, COS], box[:nb, SIN] = np.cos(boxes.yaws), np.sin(boxes.yaws)
     if area is None:  # an empty box (lo > hi) and no edges: no cell is the area's
-        area_box, z_range, poly = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.array([1.0, 0.0]), np.zeros((0, 2))
-        edges, ends, clip_boxes = np.zeros((0, 4)), np.zeros(1, np.int64), np.zeros((0, 4))
+        area_box, z_min, z_max, poly = _NO_AREA_BOX, 1.0, 0.0, _NO_POLYGON
+        (edges, ends, clip_boxes), clipped = _NO_EDGES, False
     else:
-        area_box, z_range = area.aabb(), np.array([area.z_min, area.z_max], dtype=np.float64)
-        poly = np.asarray(area.polygon, dtype=np.float64)
-        edges, ends, clip_boxes = area.edge_table
+        area_box, z_min, z_max, poly = area.aabb(), float(area.z_min), float(area.z_max), area.polygon
+        (edges, ends, clip_boxes), clipped = area.edge_table, area.clips is not None
+        if poly.dtype != np.float64:
+            poly = poly.astype(np.float64)
     table = getattr(_scratch, "table", None)
     if table is None:
         table = _scratch.table = np.zeros(MAX_CELLS, np.int32)
-    clipped = area is not None and area.clips is not None
-    counts, nearest, area_points, n_cands = _evaluate(records(points), box, nb, area_box, z_range, poly, edges, ends,
-                                                      clip_boxes, clipped, table)
-    return CloudCounts(counts[:nb], nearest[:nb], area_points, candidates=n_cands)
+    f64 = np.float64
+    centers, half = np.asarray(boxes.centers, f64).reshape(-1, 3), np.asarray(boxes.half, f64).reshape(-1, 3)
+    counts, nearest, area_points, n_cands = _evaluate(records(points), centers, half, np.asarray(boxes.yaws, f64).ravel(),
+                                                      area_box, z_min, z_max, poly, edges, ends, clip_boxes, clipped,
+                                                      table)
+    return CloudCounts(counts, nearest, area_points, candidates=n_cands)

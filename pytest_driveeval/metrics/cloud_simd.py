@@ -113,7 +113,7 @@ def _float_ptr_suffix(ptr_vector_type, width: int) -> str:
 def scan16(typingctx, rec, first, x0, y0, inv, xmax, ymax, gx, table, out_idx, out_val, n):
     """``compact16`` of the cells of the 16 records ``rec[first:first + 16]`` (all present),
     computed as ``cell_of`` does, from the records in place."""
-    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record)
+    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record) and rec.layout == "C"
             and all(isinstance(a, types.Float) for a in (x0, y0, inv, xmax, ymax))):
         return None
     f32 = types.float32  # the grid's constants are float32: wider arguments are rounded to them
