@@ -1,218 +1,227 @@
 """The obstacle frame compiled with numba: ``evaluate_cloud``'s path when numba is installed.
 
-Three kernels.  ``_grid`` lists, for each cell of a grid over the boxes and the
-area, the boxes whose footprint touches it.  ``_scan`` is the only pass over all
-points: it copies the points of flagged cells out, in cloud order.  ``_judge``
-tests those candidates exactly with the float64 expressions of
-``BoxSet.contains`` and ``points_in_polygon``, so its verdicts are those of the
-numpy path point for point.
+One pass over the cloud, in chunks of CHUNK points whose records stay in L1.  Per
+16 records, ``cloud_simd.scan16`` computes their cells (one wide load, shuffles,
+float32), gathers the cells' entries and appends the points of listed cells
+(a compressing store).  Then the chunk's candidates: most lie in a cell of one box,
+tested against it alone without branches, or inside the area polygon, where the z
+range decides (``cloud_jit_grid``); the rest go through each box of their cell and
+the polygons.  Every verdict is the float64 expression the numpy path evaluates,
+so the two agree point for point.  The records are read in place: x, y, z are
+viewed as one record type (stride and offsets known to the compiler) whatever
+else the cloud holds.
 """
 from __future__ import annotations
 
 import threading
+from functools import lru_cache
 
 import numpy as np
 
+from .cloud_jit_grid import AVAILABLE, CX, CY, CZ, HX, HY, HZ, COS, SIN, LOW
+from .cloud_jit_grid import MAX_CELLS, build, cell_of, clear, compiled, in_polygon
 from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
-try:
-    from numba import njit
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    njit = None
+if AVAILABLE:
+    from .cloud_simd import compact16, scan16
+else:  # pragma: no cover - exercised where numba is absent
+    compact16 = scan16 = None
 
-AVAILABLE = njit is not None
-# Columns of the box table handed to the kernels.
-CX, CY, CZ, HX, HY, HZ, COS, SIN = range(8)
+CHUNK = 1024  # points per step (16 KB of XYZIRC records): a step's records and keys stay in L1
 
 
-def _compiled(fn):
-    return njit(cache=True, nogil=True, boundscheck=False)(fn) if AVAILABLE else fn
+@compiled
+def _on_road(px, py, edges, ends, clip_boxes):
+    """In the area polygon and, when there are lanelet clips, in one of them."""
+    if not in_polygon(px, py, edges, 0, ends[0]):
+        return False
+    if len(clip_boxes) == 0:
+        return True
+    for c in range(len(clip_boxes)):
+        if (clip_boxes[c, 0] <= px <= clip_boxes[c, 2] and clip_boxes[c, 1] <= py <= clip_boxes[c, 3]
+                and in_polygon(px, py, edges, ends[c], ends[c + 1])):
+            return True
+    return False
 
 
-@_compiled
-def _grid(box, area_box):
-    """Grid over the boxes and the area: origin, 1 / cell (float32, as _scan computes
-    cells), size, CSR lists of the boxes touching each cell, the cells of the area's
-    bounds, and a flag per cell that is either.
-
-    A cell is listed for a box when the cell, dilated by ``m``, overlaps the box's
-    footprint (separating axes: the box's AABB gives the cell axes, the loop tests the
-    box's own two).  ``m`` covers the float32 rounding of _scan's cell lookup, so a
-    point in a box always lands in a cell listed for it."""
-    nb = len(box)
-    has_area = area_box[0] <= area_box[3] and area_box[1] <= area_box[4]
-    ext = np.empty((nb, 2))
-    lo, hi, reach = np.full(2, np.inf), np.full(2, -np.inf), 0.0
-    for b in range(nb):
-        ac, as_ = abs(box[b, COS]), abs(box[b, SIN])
-        ext[b, 0] = ac * box[b, HX] + as_ * box[b, HY]
-        ext[b, 1] = as_ * box[b, HX] + ac * box[b, HY]
-        for d in range(2):
-            lo[d] = min(lo[d], box[b, d] - ext[b, d])
-            hi[d] = max(hi[d], box[b, d] + ext[b, d])
-    if has_area:
-        for d in range(2):
-            lo[d], hi[d] = min(lo[d], area_box[d]), max(hi[d], area_box[d + 3])
-    for d in range(2):
-        reach = max(reach, abs(lo[d]), abs(hi[d]))
-    m_abs = 1e-5 * (reach + 1.0)  # >> float32 rounding of coordinates of this size
-    # At most ~250 cells a side, plus a border cell each side for the points off the grid.
-    inv = np.float32(1.0 / max(max(hi[0] - lo[0], hi[1] - lo[1]) / 250.0, 8 * m_abs))
-    cell = 1.0 / np.float64(inv)
-    m = m_abs + 1e-3 * cell
-    x0, y0 = np.float32(lo[0] - m - cell), np.float32(lo[1] - m - cell)
-    gx, gy = int((hi[0] + m - x0) / cell) + 2, int((hi[1] + m - y0) / cell) + 2
-
-    n_cells = gx * gy
-    start = np.zeros(n_cells + 1, np.int32)
-    members = np.empty(0, np.int32)
-    fill = np.empty(0, np.int32)
-    for p in range(2):  # count, then fill
-        if p == 1:
-            for k in range(n_cells):
-                start[k + 1] += start[k]
-            members = np.empty(start[n_cells], np.int32)
-            fill = start[:n_cells].copy()
-        for b in range(nb):
-            c, s, cx, cy = box[b, COS], box[b, SIN], box[b, CX], box[b, CY]
-            i0 = max(int((cx - ext[b, 0] - m - x0) / cell), 0)
-            i1 = min(int((cx + ext[b, 0] + m - x0) / cell), gx - 1)
-            j0 = max(int((cy - ext[b, 1] - m - y0) / cell), 0)
-            j1 = min(int((cy + ext[b, 1] + m - y0) / cell), gy - 1)
-            r = (0.5 * cell + m) * (abs(c) + abs(s))  # the dilated cell's half extent on a box axis
-            for j in range(j0, j1 + 1):
-                dy = y0 + (j + 0.5) * cell - cy
-                for i in range(i0, i1 + 1):
-                    dx = x0 + (i + 0.5) * cell - cx
-                    if abs(dx * c + dy * s) <= box[b, HX] + r and abs(dy * c - dx * s) <= box[b, HY] + r:
-                        k = j * gx + i
-                        if p == 0:
-                            start[k + 1] += 1
-                        else:
-                            members[fill[k]] = b
-                            fill[k] += 1
-    area = np.zeros(n_cells, np.uint8)
-    if has_area:
-        i0, i1 = max(int((area_box[0] - m - x0) / cell), 0), min(int((area_box[3] + m - x0) / cell), gx - 1)
-        j0, j1 = max(int((area_box[1] - m - y0) / cell), 0), min(int((area_box[4] + m - y0) / cell), gy - 1)
-        for j in range(j0, j1 + 1):
-            area[j * gx + i0:j * gx + i1 + 1] = 1
-    flagged = area.copy()
-    for k in range(n_cells):
-        if start[k + 1] > start[k]:
-            flagged[k] = 1
-    return x0, y0, inv, gx, gy, start, members, area, flagged
-
-
-@_compiled
-def _scan(x, y, z, x0, y0, inv, gx, gy, flagged, idx, keys, xyz):
-    """Index, cell and coordinates of the points in flagged cells, in cloud order;
-    returns how many.  Points off the grid (and NaN) are clamped onto its border,
-    whose cells are never flagged."""
-    n = 0
-    xmax, ymax = np.float32(gx - 1), np.float32(gy - 1)
-    zero = np.float32(0.0)
-    for i in range(len(x)):
-        px, py = x[i], y[i]
-        fx = (np.float32(px) - x0) * inv
-        fy = (np.float32(py) - y0) * inv
-        fx = fx if fx > zero else zero
-        fy = fy if fy > zero else zero
-        fx = fx if fx < xmax else xmax
-        fy = fy if fy < ymax else ymax
-        k = np.uint32(fy) * np.uint32(gx) + np.uint32(fx)
-        # Written for every point, kept for flagged ones: no branch to mispredict.
-        idx[n] = i
-        keys[n] = k
-        xyz[n, 0] = px
-        xyz[n, 1] = py
-        xyz[n, 2] = z[i]
-        n += flagged[k]
-    return n
-
-
-@_compiled
-def _in_polygon(px, py, edges, lo, hi):
-    """Crossing number over edges lo..hi-1: the rule and float64 expression of points_in_polygon."""
-    inside = False
-    for e in range(lo, hi):
-        if (edges[e, 1] <= py) != (edges[e, 2] <= py) and px < edges[e, 0] + (py - edges[e, 1]) * edges[e, 3]:
-            inside = not inside
-    return inside
-
-
-@_compiled
-def _judge(xyz, idx, keys, start, members, area_cell, box, z_range, edges, ends, clip_boxes):
-    """Per box: the points inside, and the nearest one (first in cloud order on ties).
-    And the points of the area (polygon 0 of ``edges``, intersected with any of the
-    clip polygons 1.. when there are some) outside every box."""
-    nb = len(box)
-    counts = np.zeros(nb, np.int64)
-    nearest = np.full(nb, -1, np.int64)
-    best = np.full(nb, np.inf)
-    in_area = np.empty(len(idx), np.int64)
-    n_area = 0
-    for t in range(len(idx)):
-        k = keys[t]
-        px, py, pz = xyz[t, 0], xyz[t, 1], xyz[t, 2]
-        in_box = False
-        for mem in range(start[k], start[k + 1]):
-            b = members[mem]
+@compiled
+def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_range, edges, ends, clip_boxes):
+    """Per box (``box`` has at least one row): points inside, and the nearest one (first in
+    cloud order on ties), as x y z (NaN: none).  And the area points, in cloud order."""
+    n, nb = len(rec), len(box)
+    counts, nearest, best = np.zeros(nb, np.int64), np.full(nb, -1, np.int64), np.full(nb, np.inf)
+    keys = np.zeros(16, np.int32)
+    cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK, np.int32)
+    area = np.empty(4 * CHUNK, np.int64)
+    n_area = n_cands = 0
+    zlo, zhi = z_range[0], z_range[1]
+    gx32 = np.int32(gx)
+    for s in range(0, n, CHUNK):
+        m = min(n - s, CHUNK)
+        if n_area + m > len(area):  # room for every point of this chunk
+            more = np.empty(2 * len(area), np.int64)
+            more[:n_area] = area[:n_area]
+            area = more
+        n_cand = 0
+        full = m - m % 16
+        for b in range(0, full, 16):
+            n_cand = scan16(rec, s + b, x0, y0, inv, xmax, ymax, gx, table, cand, val, n_cand)
+        if full < m:  # the last few points of the cloud
+            for j in range(16):
+                keys[j] = 0  # cell 0 is a border cell: never a candidate
+            for j in range(m - full):
+                i, jj = cell_of(rec[s + full + j].x, rec[s + full + j].y, x0, y0, inv, xmax, ymax)
+                keys[j] = jj * gx32 + i
+            n_cand = compact16(table, keys, 0, s + full, cand, val, n_cand)
+        n_cands += n_cand
+        # Branch-free over the candidates: cells of one box (or none) and decided area, here;
+        # the rest queued.  The box test is BoxSet.contains's float64 expression.
+        n_gen = 0
+        for t in range(n_cand):
+            v, i = val[t], np.int64(cand[t])
+            one, is_area = (v >> 30) & 1, (v >> 29) & 1
+            b = (v & LOW) * one
+            px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
             dx, dy = px - box[b, CX], py - box[b, CY]
-            if (abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX]
-                    and abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY]
-                    and abs(pz - box[b, CZ]) <= box[b, HZ]):
-                in_box = True
-                counts[b] += 1
-                d2 = px ** 2 + py ** 2 + pz ** 2
-                if d2 < best[b]:
-                    best[b] = d2
-                    nearest[b] = idx[t]
-        if in_box or not area_cell[k] or not (pz >= z_range[0] and pz <= z_range[1]):
-            continue
-        if not _in_polygon(px, py, edges, 0, ends[0]):
-            continue
-        on_road = len(clip_boxes) == 0
-        for c in range(len(clip_boxes)):
-            if (clip_boxes[c, 0] <= px <= clip_boxes[c, 2] and clip_boxes[c, 1] <= py <= clip_boxes[c, 3]
-                    and _in_polygon(px, py, edges, ends[c], ends[c + 1])):
-                on_road = True
-                break
-        if on_road:
-            in_area[n_area] = t
-            n_area += 1
-    return counts, nearest, in_area[:n_area]
+            ok = one & ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                        & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                        & (abs(pz - box[b, CZ]) <= box[b, HZ]))
+            counts[b] += ok
+            d2 = px * px + py * py + pz * pz
+            if (d2 if ok else np.inf) < best[b]:  # rarely: cloud order is no distance order
+                best[b], nearest[b] = d2, i
+            area[n_area] = i
+            n_area += is_area & (ok ^ 1) & (pz >= zlo) & (pz <= zhi)
+            generic[n_gen] = t
+            n_gen += 1 - (one | is_area)
+        # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point
+        # go to the first in cloud order, though this loop runs after the one above.
+        for u in range(n_gen):
+            t = generic[u]
+            v, i = val[t], np.int64(cand[t])
+            px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
+            in_box = 0
+            node = (v & LOW) - 1
+            while node >= 0:
+                b = node_box[node]
+                dx, dy = px - box[b, CX], py - box[b, CY]
+                inside = ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                          & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                          & (abs(pz - box[b, CZ]) <= box[b, HZ]))
+                counts[b] += inside
+                in_box |= inside
+                d2 = px * px + py * py + pz * pz
+                d2 = d2 if inside else np.inf
+                if d2 < best[b] or (d2 == best[b] and inside and i < nearest[b]):
+                    best[b], nearest[b] = d2, i
+                node = next_node[node]
+            if (in_box ^ 1) & ((v >> 28) & 1) & (pz >= zlo) & (pz <= zhi):  # rarely: an area point?
+                if _on_road(px, py, edges, ends, clip_boxes):
+                    area[n_area] = i
+                    n_area += 1
+    area_idx = np.sort(area[:n_area])
+    area_xyz = np.empty((n_area, 3))
+    for a in range(n_area):
+        i = area_idx[a]
+        area_xyz[a, 0], area_xyz[a, 1], area_xyz[a, 2] = rec[i].x, rec[i].y, rec[i].z
+    near = np.full((nb, 3), np.nan)
+    for b in range(nb):
+        if nearest[b] >= 0:
+            i = nearest[b]
+            near[b, 0], near[b, 1], near[b, 2] = rec[i].x, rec[i].y, rec[i].z
+    return counts, near, area_xyz, n_cands
 
 
-_scratch = threading.local()  # per thread: the kernels release the GIL
+_scratch = threading.local()  # per thread (the kernels release the GIL): the grid's table, all zeros
+_NO_AREA_BOX, _NO_POLYGON = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.zeros((0, 2))
+_NO_EDGES = np.zeros((0, 4)), np.zeros(1, np.int64), np.zeros((0, 4))
 
 
-def _buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Candidates' index, cell and float64 coordinates, reused across frames of the same size."""
-    bufs = getattr(_scratch, "bufs", None)
-    if bufs is None or len(bufs[0]) != n:
-        bufs = _scratch.bufs = (np.empty(n, np.int64), np.empty(n, np.uint32), np.empty((n, 3)))
-    return bufs
+@compiled
+def _evaluate(rec, centers, half, yaws, area_box, z_min, z_max, poly, edges, ends, clip_boxes, clipped, table):
+    """The box table, the grid, the frame, the grid's table zeroed again: one call from Python."""
+    nb = len(yaws)
+    box = np.zeros((max(nb, 1), 8))  # a row at least: the frame indexes row 0 for cells of no box
+    for b in range(nb):
+        box[b, CX], box[b, CY], box[b, CZ] = centers[b, 0], centers[b, 1], centers[b, 2]
+        box[b, HX], box[b, HY], box[b, HZ] = half[b, 0], half[b, 1], half[b, 2]
+        box[b, COS], box[b, SIN] = np.cos(yaws[b]), np.sin(yaws[b])
+    x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, touched = build(box[:nb], area_box, poly, edges,
+                                                                             clipped, table)
+    z_range = np.array([z_min, z_max])
+    counts, nearest, area_points, n_cands = _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box,
+                                                   z_range, edges, ends, clip_boxes)
+    clear(table, touched)
+    return counts[:nb], nearest[:nb], area_points, n_cands
+
+
+class _Records:
+    """x, y, z of a cloud as one record type over its own memory (keeps ``base`` alive)."""
+
+    def __init__(self, base, addr: int, itemsize: int, n: int):
+        self.base = base
+        self.__array_interface__ = {"shape": (n,), "typestr": f"|V{itemsize}", "data": (addr, True),
+                                    "strides": None, "version": 3}
+
+
+@lru_cache(maxsize=64)
+def _record_type(field: str, offsets: tuple, stride: int) -> np.dtype:
+    return np.dtype({"names": ["x", "y", "z"], "formats": [field] * 3, "offsets": list(offsets), "itemsize": stride})
+
+
+@lru_cache(maxsize=64)
+def _view_type(dtype: np.dtype) -> np.dtype | None:
+    """The x, y, z record type a contiguous structured cloud of ``dtype`` can be viewed as."""
+    fields = [dtype.fields.get(k) for k in "xyz"] if dtype.names else [None]
+    if None in fields:
+        return None
+    (tx, ox), (ty, oy), (tz, oz) = (f[:2] for f in fields)
+    size = tx.itemsize
+    if (tx not in (np.float32, np.float64) or not tx.isnative or not tx == ty == tz
+            or not (ox + size <= oy and oy + size <= oz and oz + size <= dtype.itemsize)):
+        return None
+    return _record_type(tx.str, (ox, oy, oz), dtype.itemsize)
+
+
+def records(points: np.ndarray) -> np.ndarray:
+    """A (N,) C-contiguous record array of fields x, y, z viewing the points' memory where
+    their layout allows (one native float type, one stride), else a float64 copy."""
+    if points.ndim == 1 and points.flags.c_contiguous and points.dtype.names:
+        view = _view_type(points.dtype)
+        if view is not None:  # the common case, in microseconds
+            return points.view(view)
+    x, y, z = xyz_columns(points)
+    cols = (x, y, z)
+    if (x.dtype in (np.float32, np.float64) and x.dtype.isnative and all(c.dtype == x.dtype for c in cols)
+            and len({c.strides for c in cols}) == 1 and x.strides[0] > 0):
+        stride, size = x.strides[0], x.dtype.itemsize
+        addr = [c.__array_interface__["data"][0] for c in cols]
+        offsets = [a - addr[0] for a in addr]
+        if 0 < offsets[1] - offsets[0] and 0 < offsets[2] - offsets[1] and offsets[2] + size <= stride \
+                and offsets[1] >= size and offsets[2] - offsets[1] >= size:
+            dtype = _record_type(x.dtype.str, tuple(offsets), stride)
+            return np.asarray(_Records(points, addr[0], stride, len(x))).view(dtype)
+    out = np.empty(len(x), [("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+    out["x"], out["y"], out["z"] = x, y, z
+    return out
 
 
 def evaluate(points: np.ndarray, boxes: BoxSet, area: Area | None) -> CloudCounts:
     """``evaluate_cloud`` for a non-empty cloud; ``area`` is None when it is not checked."""
-    x, y, z = xyz_columns(points)
-    if not all(c.dtype in (np.float32, np.float64) and c.dtype.isnative for c in (x, y, z)):
-        x, y, z = (np.asarray(c, dtype=np.float64) for c in (x, y, z))  # big-endian, integer, half...
-    box = np.column_stack([boxes.centers, boxes.half, np.cos(boxes.yaws), np.sin(boxes.yaws)])
     if area is None:  # an empty box (lo > hi) and no edges: no cell is the area's
-        area_box, z_range = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.array([1.0, 0.0])
-        edges, ends, clip_boxes = np.zeros((0, 4)), np.zeros(1, np.int64), np.zeros((0, 4))
+        area_box, z_min, z_max, poly = _NO_AREA_BOX, 1.0, 0.0, _NO_POLYGON
+        (edges, ends, clip_boxes), clipped = _NO_EDGES, False
     else:
-        area_box, z_range = area.aabb(), np.array([area.z_min, area.z_max], dtype=np.float64)
-        edges, ends, clip_boxes = area.edge_table
-    x0, y0, inv, gx, gy, start, members, area_cell, flagged = _grid(box, area_box)
-    idx, keys, xyz = _buffers(len(x))
-    n = _scan(x, y, z, x0, y0, inv, gx, gy, flagged, idx, keys, xyz)
-    counts, first, in_area = _judge(xyz[:n], idx[:n], keys[:n], start, members, area_cell, box, z_range,
-                                    edges, ends, clip_boxes)
-    nearest = np.full((len(boxes), 3), np.nan)
-    has = np.flatnonzero(first >= 0)
-    nearest[has] = np.stack([x[first[has]], y[first[has]], z[first[has]]], axis=1)
-    return CloudCounts(counts, nearest, xyz[in_area], candidates=n)
+        area_box, z_min, z_max, poly = area.aabb(), float(area.z_min), float(area.z_max), area.polygon
+        (edges, ends, clip_boxes), clipped = area.edge_table, area.clips is not None
+        if poly.dtype != np.float64:
+            poly = poly.astype(np.float64)
+    table = getattr(_scratch, "table", None)
+    if table is None:
+        table = _scratch.table = np.zeros(MAX_CELLS, np.int32)
+    f64 = np.float64
+    centers, half = np.asarray(boxes.centers, f64).reshape(-1, 3), np.asarray(boxes.half, f64).reshape(-1, 3)
+    counts, nearest, area_points, n_cands = _evaluate(records(points), centers, half, np.asarray(boxes.yaws, f64).ravel(),
+                                                      area_box, z_min, z_max, poly, edges, ends, clip_boxes, clipped,
+                                                      table)
+    return CloudCounts(counts, nearest, area_points, candidates=n_cands)

@@ -36,10 +36,12 @@ def evaluate_cloud(points: np.ndarray, boxes: BoxSet, area: Area | None = None,
         raise ImportError("kernel='numba' needs numba: pip install 'pytest-driveeval[obstacle]'")
     x = xyz_columns(points)[0]
     nb = len(boxes)
-    for name, values in (("centre", boxes.centers), ("size", boxes.half), ("yaw", boxes.yaws)):
-        bad = np.flatnonzero(~np.isfinite(values.reshape(nb, -1 if nb else 1)).all(axis=1))
-        if len(bad):  # the grids would be garbage
-            raise ValueError(f"box {int(bad[0])} has a non-finite {name}: {values[bad[0]]}")
+    fields = (("centre", boxes.centers), ("size", boxes.half), ("yaw", boxes.yaws))
+    if not all(np.isfinite(values).all() for _, values in fields):  # the grids would be garbage
+        for name, values in fields:
+            bad = np.flatnonzero(~np.isfinite(values.reshape(nb, -1 if nb else 1)).all(axis=1))
+            if len(bad):
+                raise ValueError(f"box {int(bad[0])} has a non-finite {name}: {values[bad[0]]}")
     use_area = area is not None and not area.empty
     if (not nb and not use_area) or len(x) == 0:
         return CloudCounts(np.zeros(nb, dtype=np.int64), np.full((nb, 3), np.nan), np.zeros((0, 3)))

@@ -1,0 +1,140 @@
+"""Vector steps numba does not write from scalar code, as LLVM intrinsics for cloud_jit's frame kernel.
+
+LLVM's cost model keeps a table lookup per point scalar (no gathers) and cannot
+vectorise "append the hits"; both are a few vector instructions with AVX-512
+(a gather, a compressing store).  The intrinsics are LLVM's target-independent
+``llvm.masked.gather`` and ``llvm.masked.compressstore``: on a CPU without those
+instructions LLVM expands them into scalar code with the same result.
+"""
+from __future__ import annotations
+
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+from llvmlite import ir
+
+LANES = 16
+_I1, _I8, _I16, _I32, _I64 = ir.IntType(1), ir.IntType(8), ir.IntType(16), ir.IntType(32), ir.IntType(64)
+_V32, _VMASK = ir.VectorType(_I32, LANES), ir.VectorType(_I1, LANES)
+
+
+def _pointer_suffix(ptr_type) -> str:
+    """Name suffix of an intrinsic over ``ptr_type``: typed pointers (older LLVM) or opaque ones."""
+    return "p0i32" if str(ptr_type).endswith("*") else "p0"
+
+
+def _splat(builder, value, vtype):
+    v = builder.insert_element(ir.Constant(vtype, None), value, ir.Constant(_I32, 0))
+    return builder.shuffle_vector(v, ir.Constant(vtype, None), ir.Constant(_V32, None))
+
+
+def _data(context, builder, array_type, value):
+    return context.make_array(array_type)(context, builder, value).data
+
+
+def _compact(builder, tab, kv, first, out_i, out_v, n):
+    """Append (first + lane, table[key]) of the lanes whose table entry is not 0; the new n."""
+    # Addresses of the table entries: base + 4 * key, as a vector of pointers.
+    v64 = ir.VectorType(_I64, LANES)
+    addr = builder.add(_splat(builder, builder.ptrtoint(tab, _I64), v64),
+                       builder.shl(builder.sext(kv, v64), ir.Constant(v64, [2] * LANES)))
+    ptrs = builder.inttoptr(addr, ir.VectorType(tab.type, LANES))
+    gather = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(_V32, [ptrs.type, _I32, _VMASK, _V32]),
+        f"llvm.masked.gather.v16i32.v16{_pointer_suffix(tab.type)}")
+    val = builder.call(gather, [ptrs, ir.Constant(_I32, 4), ir.Constant(_VMASK, [1] * LANES), ir.Constant(_V32, None)])
+    hit = builder.icmp_unsigned("!=", val, ir.Constant(_V32, None))
+    lanes = builder.add(_splat(builder, builder.trunc(first, _I32), _V32), ir.Constant(_V32, list(range(LANES))))
+    store = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(ir.VoidType(), [_V32, out_i.type, _VMASK]), "llvm.masked.compressstore.v16i32")
+    builder.call(store, [lanes, builder.gep(out_i, [n]), hit])
+    builder.call(store, [val, builder.gep(out_v, [n]), hit])
+    popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_I16, [_I16]), "llvm.ctpop.i16")
+    hits = builder.call(popcount, [builder.bitcast(hit, _I16)])
+    return builder.add(n, builder.zext(hits, n.type))
+
+
+@intrinsic
+def compact16(typingctx, table, keys, b, first, out_idx, out_val, n):
+    """Of the 16 cells ``keys[b:b + 16]``, those whose ``table`` entry is not 0 append
+    their point index (``first`` + lane) to ``out_idx[n:]`` and their entry to
+    ``out_val[n:]``, in lane order; returns the new ``n``.  int32 arrays, ``keys``
+    readable 16 past ``b``, the outputs writable 16 past ``n``."""
+    sig = types.intp(table, keys, b, first, out_idx, out_val, n)
+
+    def codegen(context, builder, signature, args):
+        tab_t, keys_t, _, _, idx_t, val_t, _ = signature.args
+        tab, ks = _data(context, builder, tab_t, args[0]), _data(context, builder, keys_t, args[1])
+        out_i, out_v = _data(context, builder, idx_t, args[4]), _data(context, builder, val_t, args[5])
+        kv = builder.load(builder.bitcast(builder.gep(ks, [args[2]]), _V32.as_pointer()), align=4)
+        return _compact(builder, tab, kv, args[3], out_i, out_v, args[6])
+
+    return sig, codegen
+
+
+def _load_xy(builder, context, rec_t, data, first):
+    """x and y of the 16 records from ``first`` on, as two <16 x float> (float32 as cell_of computes)."""
+    rec = rec_t.dtype
+    size, (ox, tx), (oy, ty) = rec.size, (rec.offset("x"), rec.typeof("x")), (rec.offset("y"), rec.typeof("y"))
+    ftype = ir.FloatType() if tx == types.float32 else ir.DoubleType()
+    width = 4 if tx == types.float32 else 8
+    base = builder.gep(builder.bitcast(data, _I8.as_pointer()), [builder.mul(first, ir.Constant(first.type, size))])
+    if size % width == 0 and ox % width == 0 and oy % width == 0 and size <= 8 * width:
+        # Whole records in one wide load, the fields picked out by shuffles (no gathers).
+        per = size // width
+        wide = ir.VectorType(ftype, LANES * per)
+        block = builder.load(builder.bitcast(base, wide.as_pointer()), align=1)  # records may sit anywhere
+        pick = [builder.shuffle_vector(block, ir.Constant(wide, None),
+                                       ir.Constant(_V32, [o // width + per * lane for lane in range(LANES)]))
+                for o in (ox, oy)]
+    else:
+        v64 = ir.VectorType(_I64, LANES)
+        at = builder.add(_splat(builder, builder.ptrtoint(base, _I64), v64),
+                         ir.Constant(v64, [size * lane for lane in range(LANES)]))
+        vf = ir.VectorType(ftype, LANES)
+        pick = []
+        for o in (ox, oy):
+            ptrs = builder.inttoptr(builder.add(at, ir.Constant(v64, [o] * LANES)), ir.VectorType(ftype.as_pointer(), LANES))
+            gather = cgutils.get_or_insert_function(
+                builder.module, ir.FunctionType(vf, [ptrs.type, _I32, _VMASK, vf]),
+                f"llvm.masked.gather.v16{'f32' if width == 4 else 'f64'}.v16{_float_ptr_suffix(ptrs.type, width)}")
+            pick.append(builder.call(gather, [ptrs, ir.Constant(_I32, 1), ir.Constant(_VMASK, [1] * LANES),
+                                              ir.Constant(vf, None)]))
+    if width == 8:
+        pick = [builder.fptrunc(p, ir.VectorType(ir.FloatType(), LANES)) for p in pick]
+    return pick
+
+
+def _float_ptr_suffix(ptr_vector_type, width: int) -> str:
+    return ("p0f32" if width == 4 else "p0f64") if str(ptr_vector_type).endswith("*>") else "p0"
+
+
+@intrinsic
+def scan16(typingctx, rec, first, x0, y0, inv, xmax, ymax, gx, table, out_idx, out_val, n):
+    """``compact16`` of the cells of the 16 records ``rec[first:first + 16]`` (all present),
+    computed as ``cell_of`` does, from the records in place."""
+    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record) and rec.layout == "C"
+            and all(isinstance(a, types.Float) for a in (x0, y0, inv, xmax, ymax))):
+        return None
+    f32 = types.float32  # the grid's constants are float32: wider arguments are rounded to them
+    sig = types.intp(rec, first, f32, f32, f32, f32, f32, gx, table, out_idx, out_val, n)
+
+    def codegen(context, builder, signature, args):
+        rec_t, tab_t, idx_t, val_t = signature.args[0], signature.args[8], signature.args[9], signature.args[10]
+        data = _data(context, builder, rec_t, args[0])
+        tab, out_i, out_v = (_data(context, builder, t, a) for t, a in ((tab_t, args[8]), (idx_t, args[9]),
+                                                                         (val_t, args[10])))
+        vf = ir.VectorType(ir.FloatType(), LANES)
+        x, y = _load_xy(builder, context, rec_t, data, args[1])
+        cells = []
+        for v, origin, top in ((x, args[2], args[5]), (y, args[3], args[6])):
+            f = builder.fmul(builder.fsub(v, _splat(builder, origin, vf)), _splat(builder, args[4], vf))
+            zero = ir.Constant(vf, None)
+            f = builder.select(builder.fcmp_ordered(">", f, zero), f, zero)  # NaN too goes to 0
+            lim = _splat(builder, top, vf)
+            f = builder.select(builder.fcmp_ordered("<", f, lim), f, lim)
+            cells.append(builder.fptosi(f, _V32))
+        keys = builder.add(builder.mul(cells[1], _splat(builder, builder.trunc(args[7], _I32), _V32)), cells[0])
+        return _compact(builder, tab, keys, args[1], out_i, out_v, args[11])
+
+    return sig, codegen
