@@ -40,6 +40,10 @@ def size_of(perturbation: Any, widths: dict[str, float]) -> float:
                for f in fields(perturbation))
 
 
-def rank(example: Example, widths: dict[str, float]) -> tuple[float, int]:
-    """The order in which failures are preferred: the smaller perturbation, then the lower case."""
-    return size_of(example.perturbation, widths), example.case
+def rank(example: Example, widths: dict[str, float]) -> tuple[float, int, int]:
+    """The order in which failures are preferred: the smaller perturbation, then the fewer fields
+    changed (hypothesis draws offsets of 1e-105, which add nothing to a size), then the lower case."""
+    neutral = type(example.perturbation)()
+    changed = sum(getattr(example.perturbation, f.name) != getattr(neutral, f.name)
+                  for f in fields(example.perturbation))
+    return size_of(example.perturbation, widths), changed, example.case
