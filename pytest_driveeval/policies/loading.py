@@ -128,7 +128,7 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
     path = _resolve(spec, base)
     if path.suffix == ".pt2":
         try:
-            return torch.export.load(str(path)).module()
+            return ExportedModel(torch.export.load(str(path)).module())
         except Exception as exc:  # noqa: BLE001
             raise ModelError(f"cannot load exported program {path}: {exc}") from None
     if not _is_torchscript(path):
@@ -142,6 +142,44 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
             return _eval(torch.jit.load(str(path), map_location="cpu"))
     except Exception as exc:  # noqa: BLE001
         raise ModelError(f"cannot load TorchScript model {path}: {exc}") from None
+
+
+class ExportedModel:
+    """An exported program's module that checks the shapes of its inputs once per shape.
+
+    The module's hooks compare every call's input shapes with the program's
+    constraints in Python (about 0.5 ms, a third of the GNN actor's call on one
+    episode), though a policy is called with the same shape step after step.
+    Tensors of a shape that passed go straight to the program's ``forward``;
+    anything else (a new shape, keyword or non-tensor arguments) goes through
+    the hooks as before.  Everything else is the module's (``training``,
+    ``state_dict`` ...)."""
+
+    def __init__(self, module: Any):
+        self.module = module
+        self._passed: set[tuple] = set()
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        shapes = _shapes(args) if not kwargs else None
+        if shapes is not None and shapes in self._passed:
+            return self.module.forward(*args)
+        out = self.module(*args, **kwargs)
+        if shapes is not None:
+            self._passed.add(shapes)
+        return out
+
+    def __getattr__(self, name: str) -> Any:
+        if name in ("module", "_passed"):  # not set yet (unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.module, name)
+
+
+def _shapes(args: tuple) -> tuple | None:
+    import torch
+
+    if not all(type(a) is torch.Tensor for a in args):
+        return None
+    return tuple((tuple(a.shape), a.dtype, a.device) for a in args)
 
 
 def _eval(model: Any) -> Any:

@@ -32,9 +32,11 @@ SMOKED = {
     "bench_obstacle_frame.py": (rf"evaluate_cloud, numpy kernel: median {NUMBER} ms", ()),
     "bench_pointcloud2.py": (rf"^  stream / page cache: median {NUMBER} of the faster reference", ("rosbags",)),
     "bench_policy_benchmark_step.py": (rf"ours merging\s+E=\s*2:\s+{NUMBER} live agent-steps/s", ()),
-    # The row's columns: case (10), outcome (44), examples, search s, engine %, examples per minute.
     "bench_policy_training.py": (rf"^collection at \d+ threads / 1 thread: median {NUMBER}x", ("torch",)),
-    "bench_policy_search.py": (rf"^gnn-wide   .{{44}} +\d+ +[0-9.]+ +\d+% +{NUMBER} ", ("torch", "hypothesis")),
+    # The row's columns: case (16), outcome (44), examples, search s, cpu s, engine %, examples per minute,
+    # then the one-at-a-time search's s, cpu s, examples per minute, and the ratio.
+    "bench_policy_search.py": (rf"^gnn-wide {{9}}.{{44}} +\d+ +[0-9.]+ +[0-9.]+ +\d+% +{NUMBER} +[0-9.]+ +[0-9.]+ "
+                               rf"+{NUMBER} +[0-9.]+ ", ("torch", "hypothesis")),
     "bench_raster.py": (rf"^box_debug .*new arrays\s+1 scene: {NUMBER}/s", ()),
     "bench_raster_closed_loop.py": (rf"^\s+2 scene\(s\):\s+{NUMBER} scene-steps/s", ("torch",)),
     "bench_ray.py": (rf"^  chunks here: .* speed-up over one batch {NUMBER}x; results identical", ("torch",)),

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.loading import load_model
+from pytest_driveeval.policies.loading import ExportedModel, load_model
 from pytest_driveeval.policies.planning_model import PlanningModel
 from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
 from pytest_driveeval.synth.scenegen import generate_scenes
@@ -49,7 +49,7 @@ def _batch(log, frames=(0, 40, 90)):
 
 def test_shipped_model_is_a_small_exported_program(shipped):
     assert MODEL.stat().st_size < 2_000_000
-    assert isinstance(shipped, torch.fx.GraphModule)
+    assert isinstance(shipped, ExportedModel) and isinstance(shipped.module, torch.fx.GraphModule)
 
 
 def test_output_shapes_finite_and_deterministic(shipped, held_out_log):

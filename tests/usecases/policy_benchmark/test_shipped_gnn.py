@@ -12,7 +12,7 @@ pytest.importorskip("scipy")
 
 from pytest_driveeval import assert_beats  # noqa: E402
 from pytest_driveeval.policies.control_baselines import RandomAction  # noqa: E402
-from pytest_driveeval.policies.loading import load_model  # noqa: E402
+from pytest_driveeval.policies.loading import ExportedModel, load_model  # noqa: E402
 from pytest_driveeval.sim.episodes import reset  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark.evaluate import observe, run_policy, seeds_for  # noqa: E402
 
@@ -24,7 +24,7 @@ OBSERVATION_SIZE = 279  # 3 + 12 agents * 11 features + 12 * 12 adjacency
 def actor():
     # An exported program carries its graph, so load_model takes it without unpickling anything.
     model = load_model(str(MODEL))
-    assert isinstance(model, torch.fx.GraphModule)
+    assert isinstance(model, ExportedModel) and isinstance(model.module, torch.fx.GraphModule)
     return model
 
 
