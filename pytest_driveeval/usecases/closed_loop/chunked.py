@@ -25,7 +25,8 @@ __all__ = ["DEFAULT_CHUNK_SIZE", "SceneChunk", "SceneResults", "SearchChunk", "r
            "scene_chunks", "search_chunks"]
 
 #: scenes per task unless the Executor section says otherwise: a few seconds of the planning
-#: model's unroll, against opening the dataset and loading the model on the worker
+#: model's unroll, against opening the dataset on the worker (the model and semantic map are
+#: loaded by a worker's first chunk of the item and kept: execute.reuse)
 DEFAULT_CHUNK_SIZE = 8
 
 

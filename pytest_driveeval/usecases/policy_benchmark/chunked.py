@@ -25,7 +25,8 @@ __all__ = ["COMMONROAD", "DEFAULT_CHUNK_SIZE", "EpisodeChunk", "EpisodeResults",
            "episode_chunks", "run_episode_chunk", "run_policies_chunked"]
 
 #: episodes per task unless the Executor section says otherwise: ~0.3 s of the shipped GNN's
-#: merging episodes, against ~20 ms of loading the policy and building the blueprint on the worker
+#: merging episodes, against ~3 ms of building the blueprint on the worker; the policy (~1 s to load
+#: an exported program) is loaded by a worker's first chunk of the item and kept (execute.reuse)
 DEFAULT_CHUNK_SIZE = 64
 
 
