@@ -22,8 +22,18 @@ parallel efficiency = (chunks here) / (wall x cores used).  On a 2-core machine 
 shares the cores with the workers, so efficiency is bounded below 1.
 Whether the results are identical is printed, never asserted.
 
+A process keeps the model (and semantic map) a chunk loaded for the next chunks of the same item
+(execute.reuse, issue 25).  The warm-up run loads a copy of the model under another name, so a
+measured run still loads the item's model once per worker process, as the chunks here load it
+once in this process.  ``--reuse-off`` adds, in the same run, the chunks here and on the two-node
+cluster with reuse turned off (``DRIVEEVAL_REUSE=0``: every chunk loads its own, as before);
+efficiency is always against the chunks here with reuse, the cheapest way to run them here.
+Each row names the machine's load average (1 min) when it ended: other jobs on the same cores
+stretch the cluster's wall time more than the one-process reference's.
+
     OMP_NUM_THREADS=1 python benchmarks/bench_ray.py [--episodes 10000] [--scenes 1000] [--steps 50] [--no-cluster]
-                                                     [--smoke]
+                                                     [--only policy|closed_loop] [--big-nodes 8 (0: none)]
+                                                     [--reuse-off] [--smoke]
 """
 from __future__ import annotations
 
@@ -31,6 +41,7 @@ import argparse
 import contextlib
 import logging
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +52,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from pytest_driveeval.execute import ExecutorSpec, run_chunks  # noqa: E402
+from pytest_driveeval.execute.reuse import SWITCH  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
@@ -49,12 +61,20 @@ SMOKE_HELP = ("every part at tiny sizes in seconds, no cluster (the chunks run h
               "measures nothing")
 
 
+#: Ray starts its workers at nice 15 (so that raylets and the GCS come first).  On a dedicated
+#: cluster nothing else competes for the cores; on this machine, shared with other jobs at nice 0,
+#: workers at nice 15 get a fraction of what the reference (chunks here, nice 0) gets, and the
+#: efficiency measured the load of the other jobs.  0: the same priority as the reference.
+WORKER_NICENESS = 0
+
+
 @contextlib.contextmanager
-def local_cluster(nodes: int, cpus: float):
+def local_cluster(nodes: int, cpus: float, niceness: int | None = WORKER_NICENESS):
     import ray
     from ray.cluster_utils import Cluster
 
-    cluster = Cluster(initialize_head=True, connect=True, head_node_args={"num_cpus": 0})
+    config = {} if niceness is None else {"_system_config": {"worker_niceness": niceness}}
+    cluster = Cluster(initialize_head=True, connect=True, head_node_args={"num_cpus": 0, **config})
     try:
         for _ in range(nodes):
             cluster.add_node(num_cpus=cpus)
@@ -75,29 +95,129 @@ def timed(fn, *args, **kwargs):
 def report(name: str, run, wall: float, slots: float, sequential: float, one_batch: float, same: str) -> None:
     inside = sum(p.seconds for p in run.placements)
     chunks = len(run.placements)
+    processes = len({(p.node_id, p.pid) for p in run.placements})
     # Against the chunks' own time on a quiet process: inside a chunk on an oversubscribed node
     # the seconds stretch, which is part of the cost.
     overhead = (wall * slots - sequential) / chunks
-    print(f"  {name}: {wall:7.2f} s wall, {chunks} chunks on {len(run.nodes)} node(s), {slots:g} core(s); "
-          f"inside chunks {inside:.1f} s; overhead per chunk {overhead * 1000:.0f} ms; parallel efficiency "
-          f"{sequential / (wall * slots):.2f} (vs one batch {one_batch / (wall * slots):.2f}); speed-up over "
-          f"one batch {one_batch / wall:.2f}x; {same}")
+    print(f"  {name}: {wall:7.2f} s wall, {chunks} chunks on {len(run.nodes)} node(s), {processes} process(es), "
+          f"{slots:g} core(s); inside chunks {inside:.1f} s; overhead per chunk {overhead * 1000:.0f} ms; parallel "
+          f"efficiency {sequential / (wall * slots):.2f} (vs one batch {one_batch / (wall * slots):.2f}); speed-up "
+          f"over one batch {one_batch / wall:.2f}x; {same}; load {os.getloadavg()[0]:.2f}")
 
 
-def on_clusters(args, work, task_fn, warm_work, compare, sequential: float, one_batch: float) -> None:
+REUSE_OFF = {"env_vars": {SWITCH: "0"}}
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _process_table() -> dict[int, tuple[int, str, float]]:
+    """pid -> (parent pid, what it is, CPU seconds so far) of every process /proc shows."""
+    table = {}
+    for entry in Path("/proc").iterdir() if Path("/proc/self/stat").exists() else ():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            command = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        seconds = (int(fields[11]) + int(fields[12])) / _TICK
+        table[int(entry.name)] = (int(fields[1]), command, seconds)
+    return table
+
+
+def _kind(command: str) -> str:
+    if command.startswith("ray::"):
+        # ray::IDLE, ray::<task name>: worker processes; ray::DashboardAgent, ray::RuntimeEnvAgent: one per node
+        return "Ray agents" if command.endswith("Agent") else "workers"
+    for name in ("raylet", "gcs_server"):
+        if command.endswith(name):
+            return name + "s" if name == "raylet" else name
+    return "other Ray processes"
+
+
+def tree_cpu() -> dict[str, float]:
+    """CPU seconds so far of this process and its descendants (the local cluster's), by kind."""
+    table = _process_table()
+    me = os.getpid()
+    totals: dict[str, float] = {}
+    for pid, (_, command, seconds) in table.items():
+        ancestor, chain = pid, 0
+        while ancestor not in (me, 0, 1) and ancestor in table and chain < 64:
+            ancestor, chain = table[ancestor][0], chain + 1
+        if ancestor == me:
+            kind = "driver" if pid == me else _kind(command)
+            totals[kind] = totals.get(kind, 0.0) + seconds
+    return totals
+
+
+def warmed(warm_run, run) -> str:
+    """Whether the measured run's worker processes are those the warm-up started (a new one
+    imports torch and compiles the numba kernels inside the measured run: seconds of CPU)."""
+    ran = {(p.node_id, p.pid) for p in run.placements}
+    warm = {(p.node_id, p.pid) for p in warm_run.placements}
+    return f"{len(ran & warm)} of the measured run's {len(ran)} worker process(es) ran the warm-up"
+
+
+def cpu_breakdown(before: dict[str, float], after: dict[str, float], sequential_cpu: float) -> str:
+    """Where the cores went during a cluster run (processes that exited during it are missed)."""
+    spent = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
+    total = sum(spent.values())
+    parts = ", ".join(f"{k} {v:.1f}" for k, v in sorted(spent.items(), key=lambda kv: -kv[1]) if v >= 0.05)
+    return (f"    CPU seconds during it: {parts} (all {total:.1f}); the chunks here took {sequential_cpu:.1f} CPU s: "
+            f"CPU efficiency {sequential_cpu / total:.2f}" if total > 0 else "    CPU seconds: /proc unreadable")
+
+
+@contextlib.contextmanager
+def reuse_off_here():
+    before = os.environ.get(SWITCH)
+    os.environ[SWITCH] = "0"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[SWITCH]
+        else:
+            os.environ[SWITCH] = before
+
+
+def warm_copy(model: Path, folder: str) -> Path:
+    """The model under another name: the warm-up run starts the workers and imports torch without
+    leaving the measured run's model loaded in them."""
+    copy = Path(folder) / f"warm_{model.name}"
+    shutil.copyfile(model, copy)
+    return copy
+
+
+def on_clusters(args, work, task_fn, warm_work, compare, sequential: float, one_batch: float,
+                sequential_cpu: float) -> None:
     if args.no_cluster:
         print("  clusters skipped (--no-cluster)")
         return
     cores = os.cpu_count() or 1
-    for nodes in (2, args.big_nodes):
+    for nodes in (2, args.big_nodes) if args.big_nodes else (2,):
         label = f"{nodes} worker nodes x 1 CPU" + (f" (simulated: {cores / nodes:.2g} core each)" if nodes > cores
                                                    else "")
         with local_cluster(nodes, 1):
             spec = ExecutorSpec(Kind="ray")
-            _, cold = timed(run_chunks, spec, warm_work, task_fn)
+            warm_run, cold = timed(run_chunks, spec, warm_work, task_fn)
+            before = tree_cpu()
             run, wall = timed(run_chunks, spec, work, task_fn)
-            print(f"  cluster of {label}: cold start (workers starting, first tiny run) {cold:.1f} s")
+            after = tree_cpu()
+            print(f"  cluster of {label}: cold start (workers starting, first tiny run) {cold:.1f} s; "
+                  f"{warmed(warm_run, run)}")
             report("cluster", run, wall, min(nodes, cores), sequential, one_batch, compare(run))
+            print(cpu_breakdown(before, after, sequential_cpu))
+            if args.reuse_off and nodes == 2:
+                # Workers of another runtime env: started and warmed afresh.
+                off = ExecutorSpec(Kind="ray", RuntimeEnv=REUSE_OFF)
+                warm_run = run_chunks(off, warm_work, task_fn)
+                before = tree_cpu()
+                run, wall = timed(run_chunks, off, work, task_fn)
+                after = tree_cpu()
+                print(f"  {warmed(warm_run, run)}")
+                report("cluster, reuse off", run, wall, min(nodes, cores), sequential, one_batch, compare(run))
+                print(cpu_breakdown(before, after, sequential_cpu))
 
 
 def policy_benchmark(args) -> None:
@@ -114,7 +234,9 @@ def policy_benchmark(args) -> None:
     print(f"  one batch here: {one_batch:7.2f} s ({args.episodes / one_batch:.0f} episodes/s)")
     source = PolicySource(GNN.name, str(GNN.parent))
     work = episode_chunks("gnn", source, "merging", {}, seeds, 12, args.episode_chunk)
+    cpu = time.process_time()
     here, sequential = timed(run_chunks, ExecutorSpec(), work, run_episode_chunk)
+    sequential_cpu = time.process_time() - cpu
 
     def compare(run) -> str:
         done = merged(run.results)
@@ -122,8 +244,14 @@ def policy_benchmark(args) -> None:
         return "results identical to one batch" if identical else "RESULTS DIFFER from one batch"
 
     report("chunks here", here, sequential, 1, sequential, one_batch, compare(here))
-    warm = episode_chunks("gnn", source, "merging", {}, seeds[:8], 12, 1)
-    on_clusters(args, work, run_episode_chunk, warm, compare, sequential, one_batch)
+    if args.reuse_off:
+        with reuse_off_here():
+            off, seconds = timed(run_chunks, ExecutorSpec(), work, run_episode_chunk)
+        report("chunks here, reuse off", off, seconds, 1, sequential, one_batch, compare(off))
+    with tempfile.TemporaryDirectory() as folder:
+        warm_model = warm_copy(GNN, folder)
+        warm = episode_chunks("gnn", PolicySource(warm_model.name, folder), "merging", {}, seeds[:8], 12, 1)
+        on_clusters(args, work, run_episode_chunk, warm, compare, sequential, one_batch, sequential_cpu)
 
 
 def closed_loop(args) -> None:
@@ -160,7 +288,9 @@ def closed_loop(args) -> None:
     print(f"  one batch here: {one_batch:7.2f} s ({len(ids) * args.steps / one_batch:.0f} scene-steps/s)")
     spec = ExecutorSpec(ChunkSize=args.scene_chunk)
     work = scene_chunks(str(path), ids, config, str(PLANNING_MODEL), None, str(REPO), spec)
+    cpu = time.process_time()
     here, sequential = timed(run_chunks, ExecutorSpec(), work, run_scene_chunk)
+    sequential_cpu = time.process_time() - cpu
     reference = merged(here.results).verdicts
 
     def differences(verdicts) -> tuple[int, int, float]:
@@ -180,8 +310,14 @@ def closed_loop(args) -> None:
                 "(float32 rounding with the batch size)")
 
     report("chunks here", here, sequential, 1, sequential, one_batch, compare(here))
-    warm = scene_chunks(str(path), ids[:2], config, str(PLANNING_MODEL), None, str(REPO), ExecutorSpec(ChunkSize=1))
-    on_clusters(args, work, run_scene_chunk, warm, compare, sequential, one_batch)
+    if args.reuse_off:
+        with reuse_off_here():
+            off, seconds = timed(run_chunks, ExecutorSpec(), work, run_scene_chunk)
+        report("chunks here, reuse off", off, seconds, 1, sequential, one_batch, compare(off))
+    with tempfile.TemporaryDirectory() as folder:
+        warm_model = warm_copy(PLANNING_MODEL, folder)
+        warm = scene_chunks(str(path), ids[:2], config, str(warm_model), None, str(REPO), ExecutorSpec(ChunkSize=1))
+        on_clusters(args, work, run_scene_chunk, warm, compare, sequential, one_batch, sequential_cpu)
 
 
 def main() -> None:
@@ -191,7 +327,9 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=1_000)
     parser.add_argument("--scene-chunk", type=int, default=50)
     parser.add_argument("--steps", type=int, default=50)
-    parser.add_argument("--big-nodes", type=int, default=8)
+    parser.add_argument("--big-nodes", type=int, default=8, help="the simulated larger cluster's nodes (0: none)")
+    parser.add_argument("--reuse-off", action="store_true",
+                        help="also the chunks here and on two nodes with execute.reuse off (as before issue 25)")
     parser.add_argument("--data", default="~/.cache/driveeval-bench")
     parser.add_argument("--only", choices=("policy", "closed_loop"))
     parser.add_argument("--no-cluster", action="store_true", help="one batch and chunks here only")
@@ -200,7 +338,7 @@ def main() -> None:
     if args.smoke:
         with tempfile.TemporaryDirectory() as data:
             args.episodes, args.episode_chunk, args.scenes, args.scene_chunk, args.steps = 16, 8, 4, 2, 5
-            args.no_cluster, args.data = True, data
+            args.no_cluster, args.data, args.reuse_off = True, data, True
             print("smoke run: tiny sizes, no cluster, scenes generated in a temporary folder; the figures mean "
                   "nothing")
             run(args)
@@ -210,7 +348,8 @@ def main() -> None:
 
 def run(args) -> None:
     torch.set_num_threads(1)
-    print(f"{os.cpu_count()} cores; torch on 1 thread here and in every chunk")
+    print(f"{os.cpu_count()} cores; torch on 1 thread here and in every chunk; load average (1, 5, 15 min) "
+          f"{', '.join(f'{x:.2f}' for x in os.getloadavg())}")
     if args.only != "closed_loop":
         policy_benchmark(args)
     if args.only != "policy":

@@ -15,10 +15,12 @@ For whoever wires a use case to it
    or after what it ran.  Data loaded once on the driver and small enough to copy may go in
    ``shared`` instead (put in Ray's object store once, read by every task).
 3. Pass a module-level ``task_fn(chunk)`` (``task_fn(chunk, shared)``) that loads what the
-   description names, sets torch to one thread (so float sums are the same as a local run's),
-   and returns plain data: numpy arrays, numbers, dataclasses of them; artefacts as bytes or
-   as files it writes under a path the description gives.  On a real cluster the workers
-   need this package installed (or ``RuntimeEnv: {py_modules: [...]}``).
+   description names (a model or map through :func:`reuse.reused`, so that a worker's next
+   chunks of the item find it loaded while its files are unchanged), sets torch to one thread
+   (so float sums are the same as a local run's), and returns plain data: numpy arrays,
+   numbers, dataclasses of them; artefacts as bytes or as files it writes under a path the
+   description gives.  On a real cluster the workers need this package installed (or
+   ``RuntimeEnv: {py_modules: [...]}``).
 4. ``run = run_chunks(spec, chunks, task_fn, progress=...)``; ``run.results`` is in chunk
    order whatever order they finished in, so merging is concatenation in that order, and the
    item's figures are computed from the merged arrays exactly as a local run computes them.

@@ -182,6 +182,20 @@ def _shapes(args: tuple) -> tuple | None:
     return tuple((tuple(a.shape), a.dtype, a.device) for a in args)
 
 
+def model_files(spec: str, base: Path | None = None) -> tuple[Path, ...]:
+    """The files :func:`load_model` reads for ``spec`` (none for a factory alone, whose module
+    Python imports once per process anyway); raises ModelError as loading would for a missing one."""
+    spec = spec.strip()
+    if spec.startswith(PICKLE_PREFIX):
+        return (_resolve(spec[len(PICKLE_PREFIX):], base),)
+    weights, sep, _ = spec.partition("=")
+    if sep:
+        return (_resolve(weights, base),)
+    if ":" in spec and not Path(spec).suffix:
+        return ()
+    return (_resolve(spec, base),)
+
+
 def _eval(model: Any) -> Any:
     if hasattr(model, "eval"):
         model.eval()

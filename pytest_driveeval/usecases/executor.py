@@ -13,12 +13,30 @@ differently with the batch size (the shipped planning model: ~1e-6 m on its disp
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from pytest_driveeval.errors import DriveEvalError, display_path
 from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, UnreachableCluster, run_chunks
+from pytest_driveeval.execute.reuse import reused
 
-__all__ = ["ChunkLedger", "chunked_executor", "executor_details", "item_executor", "run_item_chunks"]
+__all__ = ["ChunkLedger", "chunked_executor", "executor_details", "item_executor", "kept_model", "run_item_chunks"]
+
+#: models a process keeps for its next chunks (an item's policies and a few items' worth)
+KEPT_MODELS = 4
+
+
+def kept_model(spec: str, base: str | None) -> Any:
+    """The model a chunk names by its loading spec, loaded with the safe loaders, or the one an
+    earlier chunk in this process loaded from the same spec and unchanged file.  A factory alone
+    names no file whose change could be seen, so it is built for every chunk, as before."""
+    from pytest_driveeval.policies.loading import load_model, model_files
+
+    folder = Path(base) if base else None
+    files = model_files(spec, folder)
+    if not files:
+        return load_model(spec, base=folder)
+    return reused("model", (spec.strip(), base), files, lambda: load_model(spec, base=folder), keep=KEPT_MODELS)
 
 
 def chunked_executor(ctx: Any, scenario_spec: ExecutorSpec | None) -> ExecutorSpec | None:

@@ -25,7 +25,8 @@ __all__ = ["DEFAULT_CHUNK_SIZE", "SceneChunk", "SceneResults", "SearchChunk", "r
            "scene_chunks", "search_chunks"]
 
 #: scenes per task unless the Executor section says otherwise: a few seconds of the planning
-#: model's unroll, against opening the dataset and loading the model on the worker
+#: model's unroll, against opening the dataset on the worker (the model and semantic map are
+#: loaded by a worker's first chunk of the item and kept: execute.reuse)
 DEFAULT_CHUNK_SIZE = 8
 
 
@@ -51,12 +52,12 @@ class SceneResults:
 
 
 def _policy(chunk: SceneChunk) -> Any:
-    from pytest_driveeval.policies.loading import load_model
     from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
+    from pytest_driveeval.usecases.executor import kept_model
 
     if chunk.model in BASELINES:
         return baseline(chunk.model, chunk.config)
-    return load_model(chunk.model, base=Path(chunk.base) if chunk.base else None)
+    return kept_model(chunk.model, chunk.base)
 
 
 def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
@@ -71,7 +72,8 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     dataset = open_dataset(chunk.dataset)
     from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
 
-    semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder, dataset, chunk.scenes)
+    semantic_map = semantic_map_for(spec.Inputs, dataset.path, chunk.scenario_folder, dataset, chunk.scenes,
+                                    kept=True)
     ids = list(chunk.scenes)
     with one_torch_thread():  # as the design of run_chunks asks: the same float sums wherever it runs
         unroll = unroll_scenes(dataset, _policy(chunk), ids, **spec.unroll_options(),

@@ -17,7 +17,10 @@ import numpy as np
 
 from pytest_driveeval.errors import DataError
 
-__all__ = ["load_semantic_map", "raster_inputs", "semantic_map_for"]
+__all__ = ["KEPT_MAPS", "load_semantic_map", "raster_inputs", "semantic_map_files", "semantic_map_for"]
+
+#: semantic maps a process keeps for its next chunks (a full-size one is large)
+KEPT_MAPS = 2
 
 
 def raster_inputs(params: Any, log: Any, scenes: Sequence[Any], semantic_map: Any = None) -> Callable:
@@ -46,16 +49,21 @@ def raster_inputs(params: Any, log: Any, scenes: Sequence[Any], semantic_map: An
     return inputs
 
 
+def semantic_map_files(dataset_path: str | os.PathLike, pb: str | None = None, meta: str | None = None,
+                       folder: str | os.PathLike | None = None) -> tuple[Path, Path]:
+    """The ``.pb`` and ``meta.json`` :func:`load_semantic_map` reads."""
+    beside = Path(dataset_path).parent
+    base = Path(folder) if folder is not None else Path.cwd()
+    return (base / pb if pb else beside / "semantic_map.pb", base / meta if meta else beside / "meta.json")
+
+
 def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, meta: str | None = None,
                       folder: str | os.PathLike | None = None) -> Any:
     """The semantic map of a dataset: ``pb`` / ``meta`` (relative to ``folder``, the scenario's),
     by default ``semantic_map.pb`` and ``meta.json`` beside the dataset, as l5kit lays them out."""
     from pytest_driveeval.io.l5_semantic_map import read_semantic_map
 
-    beside = Path(dataset_path).parent
-    base = Path(folder) if folder is not None else Path.cwd()
-    pb_path = base / pb if pb else beside / "semantic_map.pb"
-    meta_path = base / meta if meta else beside / "meta.json"
+    pb_path, meta_path = semantic_map_files(dataset_path, pb, meta, folder)
     for path, key in ((pb_path, "SemanticMap"), (meta_path, "Meta")):
         if not path.is_file():
             raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
@@ -71,12 +79,20 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
 
 
 def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike,
-                     dataset: Any = None, ids: Any = None) -> Any:
+                     dataset: Any = None, ids: Any = None, *, kept: bool = False) -> Any:
     """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None.  A
-    dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``."""
+    dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``.
+    ``kept``: a chunk's map, which the next chunks in this process that name the same unchanged
+    files get without reading them again (the map is only read, never written, by the rasters)."""
     if inputs.Kind != "raster" or inputs.MapType != "py_semantic":
         return None
     own = getattr(dataset, "semantic_map", None)
     if own is not None:
         return own(list(ids))
-    return load_semantic_map(dataset_path, inputs.SemanticMap, inputs.Meta, folder)
+    args = (dataset_path, inputs.SemanticMap, inputs.Meta, folder)
+    if not kept:
+        return load_semantic_map(*args)
+    from pytest_driveeval.execute.reuse import reused
+
+    key = tuple(str(a) if a is not None else None for a in args)
+    return reused("semantic map", key, semantic_map_files(*args), lambda: load_semantic_map(*args), keep=KEPT_MAPS)
