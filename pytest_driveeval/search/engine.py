@@ -26,6 +26,8 @@ from hypothesis import HealthCheck, Phase, given, settings as hypothesis_setting
 from hypothesis.database import ExampleDatabase
 from hypothesis.errors import Found
 
+from pytest_driveeval.errors import DriveEvalError
+
 from pytest_driveeval.search.examples import EvaluateMany, Example, Verdict, rank, size_of
 from pytest_driveeval.search.shrink import shrink_candidates, tighten_many
 
@@ -150,6 +152,15 @@ def search(cases: st.SearchStrategy[int], perturbations: st.SearchStrategy[Any],
         shrunk = None if failing is None else _shrink(evaluate, memo, smallest, widths, config, result.evaluations)
     except _Aborted as aborted:
         raise aborted.error from None
+    except BaseExceptionGroup as group:
+        # A time limit's alarm can land in hypothesis's own code rather than in an evaluation;
+        # hypothesis then replays the generation, which passes, and calls it flaky.
+        ours = group.subgroup(lambda e: isinstance(e, DriveEvalError))
+        if ours is None:
+            raise
+        while isinstance(ours, BaseExceptionGroup):
+            ours = ours.exceptions[0]
+        raise ours from None
     if shrunk is not None:
         phase[0] = "tighten"
         result.shrunk = shrunk
