@@ -4,28 +4,18 @@ tests/usecases/*/test_*_reuse.py."""
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import pytest
 
 from pytest_driveeval.execute import reuse
-
-
-@pytest.fixture(autouse=True)
-def nothing_kept(monkeypatch):
-    monkeypatch.delenv(reuse.SWITCH, raising=False)
-    reuse.forget()
-    yield
-    reuse.forget()
+from reuse_items import nothing_kept, settle  # noqa: F401  (tests/reuse_items.py; the fixture by name)
 
 
 def settled(path: Path, text: str, age: float = 60.0) -> Path:
     """``text`` in ``path``, modified ``age`` seconds ago (older than RACY_SECONDS)."""
     path.write_text(text)
-    then = time.time() - age
-    os.utime(path, (then, then))
-    return path
+    return settle(path, age)
 
 
 class Loader:

@@ -4,14 +4,12 @@ a changed map is read again, another item's map or model is never served, and th
 the same with and without reuse.  The cache itself: tests/execute/test_reuse.py."""
 from __future__ import annotations
 
-import os
-import shutil
-import time
 from pathlib import Path
 
 import pytest
 
 from pytest_driveeval.execute import ExecutorSpec, reuse
+from reuse_items import nothing_kept, settle, settled_copy  # noqa: F401  (tests/reuse_items.py; the fixture by name)
 
 pytest.importorskip("torch")
 
@@ -22,22 +20,6 @@ RASTER_MODEL = REPO / "fixtures" / "models" / "raster_model.pt2"
 
 pytestmark = pytest.mark.skipif(not GENERATED.exists(), reason="fixtures/l5kit/generated.zarr is absent: "
                                 "python examples/make_demo_data.py makes it")
-
-
-@pytest.fixture(autouse=True)
-def nothing_kept(monkeypatch):
-    monkeypatch.delenv(reuse.SWITCH, raising=False)
-    reuse.forget()
-    yield
-    reuse.forget()
-
-
-def settled_copy(source: Path, target: Path) -> Path:
-    """``source`` copied to ``target``, its mtime a minute ago (older than reuse.RACY_SECONDS)."""
-    shutil.copyfile(source, target)
-    then = time.time() - 60.0
-    os.utime(target, (then, then))
-    return target
 
 
 def config(inputs: dict | None = None):
@@ -83,8 +65,7 @@ def test_the_semantic_map_is_read_once_per_item_again_when_changed_and_never_for
     assert run(RASTER_MODEL, ids, tmp_path / "b", 2, inputs) == first
     assert reuse.loads == {"model": 1, "semantic map": 2}
     # Rewritten (here: the same bytes with a new mtime, as a copy onto it leaves it): read again.
-    then = time.time() - 30.0
-    os.utime(tmp_path / "a" / "map.pb", (then, then))
+    settle(tmp_path / "a" / "map.pb", 30.0)
     assert run(RASTER_MODEL, ids, tmp_path / "a", 2, inputs) == first
     assert reuse.loads == {"model": 1, "semantic map": 3}
     monkeypatch.setenv(reuse.SWITCH, "0")

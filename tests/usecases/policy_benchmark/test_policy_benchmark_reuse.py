@@ -4,15 +4,13 @@ is loaded again, an item whose spec differs never gets another's model, and the 
 those of one batch with and without reuse.  The cache itself: tests/execute/test_reuse.py."""
 from __future__ import annotations
 
-import os
-import shutil
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pytest_driveeval.execute import reuse
+from reuse_items import nothing_kept, settled_copy  # noqa: F401  (tests/reuse_items.py; the fixture by name)
 
 pytest.importorskip("torch")
 pytest.importorskip("scipy")
@@ -21,23 +19,6 @@ REPO = Path(__file__).resolve().parents[3]
 GNN = REPO / "fixtures" / "models" / "gnn_actor_merging.pt2"
 MLP = REPO / "fixtures" / "models" / "mlp_actor_merging.pt2"
 FIELDS = ("outcome", "returns", "steps")
-
-
-@pytest.fixture(autouse=True)
-def nothing_kept(monkeypatch):
-    monkeypatch.delenv(reuse.SWITCH, raising=False)
-    reuse.forget()
-    yield
-    reuse.forget()
-
-
-def settled_copy(source: Path, target: Path) -> Path:
-    """``source`` copied to ``target``, its mtime a minute ago (older than reuse.RACY_SECONDS)."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(source, target)
-    then = time.time() - 60.0
-    os.utime(target, (then, then))
-    return target
 
 
 def chunks(spec: str, base: Path, seeds, size: int, params: dict | None = None):
