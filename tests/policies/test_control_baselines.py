@@ -83,6 +83,24 @@ def test_random_actions_depend_on_seed_and_step_only():
     assert not np.array_equal(policy.act_on_episodes(a)[0], policy.act_on_episodes(a)[1])
 
 
+def test_random_actions_of_running_episodes_ignore_the_ended_ones():
+    policy = RandomAction()
+    episodes = reset("merging", [3, 8, 12])
+    low, high = _bounds(episodes)
+    # Full throttle and full lock: the first episodes leave the road within a few steps.
+    wild = np.tile([high[0], high[1]], (3, 1))
+    wild[2] = [0.0, 0.0]
+    while not episodes.done[:2].all():
+        episodes.step(wild)
+    assert not episodes.done[2]
+    act = policy.act_on_episodes(episodes)
+    np.testing.assert_array_equal(act[:2], np.tile(0.5 * (low + high), (2, 1)))
+    alone = reset("merging", [12])
+    for _ in range(int(episodes.steps[2])):
+        alone.step(np.zeros((1, 2)))
+    np.testing.assert_array_equal(act[2], policy.act_on_episodes(alone)[0])
+
+
 def test_random_actions_change_from_step_to_step():
     actions = _unroll(RandomAction(), "highway", [3], 3)
     assert len({tuple(a[0]) for a in actions}) == 3
