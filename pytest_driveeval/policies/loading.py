@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import ModelError
+from .fx_forward import fast_forward
 
 PICKLE_PREFIX = "pickle:"
 ALLOW_CODE_OPTION = "--driveeval-allow-scenario-code"
@@ -150,7 +151,8 @@ class ExportedModel:
     The module's hooks compare every call's input shapes with the program's
     constraints in Python (about 0.5 ms, a third of the GNN actor's call on one
     episode), though a policy is called with the same shape step after step.
-    Tensors of a shape that passed go straight to the program's ``forward``;
+    Tensors of a shape that passed go straight to the program's forward (as
+    :func:`~.fx_forward.fast_forward` generates it, bit for bit the module's);
     anything else (a new shape, keyword or non-tensor arguments) goes through
     the hooks as before.  Everything else is the module's (``training``,
     ``state_dict`` ...)."""
@@ -158,18 +160,22 @@ class ExportedModel:
     def __init__(self, module: Any):
         self.module = module
         self._passed: set[tuple] = set()
+        self._forward: Callable[..., Any] | None = None
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
         shapes = _shapes(args) if not kwargs else None
         if shapes is not None and shapes in self._passed:
-            return self.module.forward(*args)
+            if self._forward is None:
+                # The module's generated forward, with a quarter less Python per call (see .fx_forward).
+                self._forward = fast_forward(self.module) or self.module.forward
+            return self._forward(*args)
         out = self.module(*args, **kwargs)
         if shapes is not None:
             self._passed.add(shapes)
         return out
 
     def __getattr__(self, name: str) -> Any:
-        if name in ("module", "_passed"):  # not set yet (unpickling): no recursion
+        if name in ("module", "_passed", "_forward"):  # not set yet (unpickling): no recursion
             raise AttributeError(name)
         return getattr(self.module, name)
 
