@@ -25,13 +25,13 @@ __all__ = ["fast_forward"]
 
 def fast_forward(module: Any) -> Callable[..., Any] | None:
     """``module(*args)`` for an exported program's module (a ``torch.fx.GraphModule``) as a plain
-    function, or None for a graph this does not handle (a node that calls a submodule or a method)."""
+    function, or None for a graph this does not handle (a node that calls a tensor's method)."""
     import torch
     from torch.fx import Node
 
     graph = module.graph
     nodes = list(graph.nodes)
-    if any(n.op not in ("placeholder", "get_attr", "call_function", "output") for n in nodes):
+    if any(n.op not in ("placeholder", "get_attr", "call_function", "call_module", "output") for n in nodes):
         return None
     bound: dict[str, Any] = {}
 
@@ -65,14 +65,11 @@ def fast_forward(module: Any) -> Callable[..., Any] | None:
             names[node] = f"v{i}"
             params.append(names[node])
         elif node.op == "get_attr":
-            value = module
-            for part in node.target.split("."):
-                value = getattr(value, part)
-            names[node] = bind(value)
+            names[node] = bind(_attribute(module, node.target))
         elif node.op == "output":
             lines.append(f"    return {source(node.args[0])}")
         else:
-            target = node.target
+            target = _attribute(module, node.target) if node.op == "call_module" else node.target  # export's guards
             call = bind(target._op if isinstance(target, torch._ops.OpOverload) else target)
             args = [source(a) for a in node.args] + [f"{k}={source(v)}" for k, v in node.kwargs.items()]
             names[node] = f"v{i}"
@@ -91,3 +88,9 @@ def fast_forward(module: Any) -> Callable[..., Any] | None:
         return codegen.process_outputs(flat_forward(*codegen.process_inputs(*args)))
 
     return forward
+
+
+def _attribute(module: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        module = getattr(module, part)
+    return module
