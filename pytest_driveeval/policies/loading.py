@@ -11,6 +11,7 @@ Spec forms:
 from __future__ import annotations
 
 import importlib
+import re
 import warnings
 import zipfile
 from pathlib import Path
@@ -24,6 +25,19 @@ ALLOW_CODE_OPTION = "--driveeval-allow-scenario-code"
 ALLOW_CODE_INI = "driveeval_allow_scenario_code"
 
 
+# 'package.module:factory': dotted names either side of one colon.
+_FACTORY = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
+# What a model file ends in, so that 'models:v2.pt2' stays a file name.
+_MODEL_SUFFIXES = frozenset({".pt2", ".pt", ".pth", ".ts", ".jit", ".zip", ".bin", ".ckpt"})
+
+
+def names_factory(spec: str) -> bool:
+    """Whether ``spec`` alone names a factory to import and call ('package.module:make_model')
+    rather than a model file."""
+    spec = spec.strip()
+    return bool(_FACTORY.fullmatch(spec)) and Path(spec).suffix.lower() not in _MODEL_SUFFIXES
+
+
 def runs_code(spec: str) -> bool:
     """Whether loading ``spec`` imports and calls Python named by the spec, or
     unpickles (which can call anything).  TorchScript and exported programs
@@ -31,7 +45,7 @@ def runs_code(spec: str) -> bool:
     spec = spec.strip()
     if spec.startswith(PICKLE_PREFIX) or "=" in spec:
         return True
-    return ":" in spec and not Path(spec).suffix
+    return names_factory(spec)
 
 
 def refuse_code_from_data(spec: str, where: str) -> None:
@@ -124,7 +138,7 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
         except (RuntimeError, TypeError, AttributeError) as exc:
             raise ModelError(f"weights {path} do not fit {factory}(): {exc}") from None
         return _eval(module)
-    if ":" in spec and not Path(spec).suffix:
+    if names_factory(spec):
         return _eval(_call_factory(spec))
     path = _resolve(spec, base)
     if path.suffix == ".pt2":
@@ -197,7 +211,7 @@ def model_files(spec: str, base: Path | None = None) -> tuple[Path, ...]:
     weights, sep, _ = spec.partition("=")
     if sep:
         return (_resolve(weights, base),)
-    if ":" in spec and not Path(spec).suffix:
+    if names_factory(spec):
         return ()
     return (_resolve(spec, base),)
 

@@ -6,7 +6,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from pytest_driveeval.errors import ModelError  # noqa: E402
-from pytest_driveeval.policies.loading import load_model  # noqa: E402
+from pytest_driveeval.policies.loading import load_model, model_files, names_factory, runs_code  # noqa: E402
 from conftest import save_torchscript
 
 
@@ -54,6 +54,21 @@ def test_state_dict_with_factory(tmp_path):
 def test_factory_only():
     with torch.no_grad():
         assert float(load_model("test_policy_loading:make_doubler")(torch.tensor(1.0))) == 2.0
+
+
+def test_factory_in_a_dotted_module():
+    # Path("pytest_driveeval.policies.gnn:make_actor").suffix is ".gnn:make_actor": not a file name.
+    assert runs_code("pytest_driveeval.policies.gnn:make_actor")
+    assert model_files("pytest_driveeval.policies.gnn:make_actor") == ()
+    actor = load_model("pytest_driveeval.policies.gnn:make_actor")
+    assert isinstance(actor, torch.nn.Module) and not actor.training
+
+
+@pytest.mark.parametrize("spec", ["models:v2.pt2", "a.b:c.pt", "C:/models/actor.pt2", "./pkg:f", "pkg:"])
+def test_a_colon_in_a_file_name_is_not_a_factory(tmp_path, spec):
+    assert not names_factory(spec) and not runs_code(spec)
+    with pytest.raises(ModelError, match="model file not found"):
+        load_model(spec, base=tmp_path)
 
 
 def test_whole_pickled_model_needs_the_pickle_prefix(tmp_path):
