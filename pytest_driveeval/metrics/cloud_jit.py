@@ -23,9 +23,9 @@ from .cloud_jit_grid import MAX_CELLS, build, cell_of, clear, compiled, in_polyg
 from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 if AVAILABLE:
-    from .cloud_simd import compact16, scan16
+    from .cloud_simd import bit, compact16, scan16
 else:  # pragma: no cover - exercised where numba is absent
-    compact16 = scan16 = None
+    bit = compact16 = scan16 = None
 
 CHUNK = 1024  # points per step (16 KB of XYZIRC records): a step's records and keys stay in L1
 
@@ -83,15 +83,15 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
             b = (v & LOW) * one
             px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
             dx, dy = px - box[b, CX], py - box[b, CY]
-            ok = one & ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
-                        & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
-                        & (abs(pz - box[b, CZ]) <= box[b, HZ]))
+            ok = one & (bit(abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                        & bit(abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                        & bit(abs(pz - box[b, CZ]) <= box[b, HZ]))
             counts[b] += ok
             d2 = px * px + py * py + pz * pz
             if (d2 if ok else np.inf) < best[b]:  # rarely: cloud order is no distance order
                 best[b], nearest[b] = d2, i
             area[n_area] = i
-            n_area += is_area & (ok ^ 1) & (pz >= zlo) & (pz <= zhi)
+            n_area += is_area & (ok ^ 1) & bit(pz >= zlo) & bit(pz <= zhi)
             generic[n_gen] = t
             n_gen += 1 - (one | is_area)
         # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point
@@ -105,9 +105,9 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
             while node >= 0:
                 b = node_box[node]
                 dx, dy = px - box[b, CX], py - box[b, CY]
-                inside = ((abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
-                          & (abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
-                          & (abs(pz - box[b, CZ]) <= box[b, HZ]))
+                inside = (bit(abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
+                          & bit(abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
+                          & bit(abs(pz - box[b, CZ]) <= box[b, HZ]))
                 counts[b] += inside
                 in_box |= inside
                 d2 = px * px + py * py + pz * pz

@@ -138,3 +138,22 @@ def scan16(typingctx, rec, first, x0, y0, inv, xmax, ymax, gx, table, out_idx, o
         return _compact(builder, tab, keys, args[1], out_i, out_v, args[11])
 
     return sig, codegen
+
+
+@intrinsic
+def bit(typingctx, cond):
+    """A comparison's verdict as an int64 0 or 1 that LLVM cannot see through.
+
+    LLVM turns ``ok = one & (a <= b) & (c <= d)`` into a select on the combined
+    condition, and x86's cmov converter then makes that select a branch on a
+    comparison that goes either way at random (a point near a box is inside or
+    not): a misprediction every other point.  An empty asm statement between the
+    comparison and its integer keeps each verdict a setcc, combined with ``and``."""
+    if not isinstance(cond, types.Boolean):
+        return None
+
+    def codegen(context, builder, signature, args):
+        opaque = ir.InlineAsm(ir.FunctionType(_I64, [_I64]), "", "=r,0")
+        return builder.call(opaque, [builder.zext(args[0], _I64)])
+
+    return types.int64(cond), codegen
