@@ -23,9 +23,9 @@ from .cloud_jit_grid import MAX_CELLS, build, cell_of, clear, compiled, in_polyg
 from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 if AVAILABLE:
-    from .cloud_simd import bit, compact16, scan16
+    from .cloud_simd import bit, boxes8, compact16, scan16
 else:  # pragma: no cover - exercised where numba is absent
-    bit = compact16 = scan16 = None
+    bit = boxes8 = compact16 = scan16 = None
 
 CHUNK = 1024  # points per step (16 KB of XYZIRC records): a step's records and keys stay in L1
 
@@ -51,15 +51,16 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
     n, nb = len(rec), len(box)
     counts, nearest, best = np.zeros(nb, np.int64), np.full(nb, -1, np.int64), np.full(nb, np.inf)
     keys = np.zeros(16, np.int32)
-    cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK, np.int32)
-    area = np.empty(4 * CHUNK, np.int64)
+    cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 8, np.int32)
+    in_one, dist = np.empty(CHUNK + 16, np.int8), np.empty(CHUNK + 16)
+    area = np.empty(4 * CHUNK, np.int32)
     n_area = n_cands = 0
     zlo, zhi = z_range[0], z_range[1]
     gx32 = np.int32(gx)
     for s in range(0, n, CHUNK):
         m = min(n - s, CHUNK)
-        if n_area + m > len(area):  # room for every point of this chunk
-            more = np.empty(2 * len(area), np.int64)
+        if n_area + m + 8 > len(area):  # room for every point of this chunk, and a vector's spare lanes
+            more = np.empty(2 * len(area), np.int32)
             more[:n_area] = area[:n_area]
             area = more
         n_cand = 0
@@ -74,26 +75,20 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
                 keys[j] = jj * gx32 + i
             n_cand = compact16(table, keys, 0, s + full, cand, val, n_cand)
         n_cands += n_cand
-        # Branch-free over the candidates: cells of one box (or none) and decided area, here;
-        # the rest queued.  The box test is BoxSet.contains's float64 expression.
+        # Eight at a time in vectors: cells of one box (or none) and decided area, the rest
+        # queued; then the counts and nearest points in cloud order.
+        for k in range(8):  # the last vector's spare lanes read a valid point of cell 0
+            cand[n_cand + k], val[n_cand + k] = s, 0
         n_gen = 0
+        for t in range(0, n_cand, 8):
+            n_area, n_gen = boxes8(rec, cand, val, t, n_cand - t, box, zlo, zhi, in_one, dist, area, n_area, generic,
+                                   n_gen)
         for t in range(n_cand):
-            v, i = val[t], np.int64(cand[t])
-            one, is_area = (v >> 30) & 1, (v >> 29) & 1
-            b = (v & LOW) * one
-            px, py, pz = np.float64(rec[i].x), np.float64(rec[i].y), np.float64(rec[i].z)
-            dx, dy = px - box[b, CX], py - box[b, CY]
-            ok = one & (bit(abs(dx * box[b, COS] + dy * box[b, SIN]) <= box[b, HX])
-                        & bit(abs(dy * box[b, COS] - dx * box[b, SIN]) <= box[b, HY])
-                        & bit(abs(pz - box[b, CZ]) <= box[b, HZ]))
-            counts[b] += ok
-            d2 = px * px + py * py + pz * pz
-            if (d2 if ok else np.inf) < best[b]:  # rarely: cloud order is no distance order
-                best[b], nearest[b] = d2, i
-            area[n_area] = i
-            n_area += is_area & (ok ^ 1) & bit(pz >= zlo) & bit(pz <= zhi)
-            generic[n_gen] = t
-            n_gen += 1 - (one | is_area)
+            v = val[t]
+            b = (v & LOW) * ((v >> 30) & 1)
+            counts[b] += in_one[t]
+            if dist[t] < best[b]:  # rarely: cloud order is no distance order
+                best[b], nearest[b] = dist[t], cand[t]
         # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point
         # go to the first in cloud order, though this loop runs after the one above.
         for u in range(n_gen):

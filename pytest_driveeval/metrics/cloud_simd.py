@@ -157,3 +157,101 @@ def bit(typingctx, cond):
         return builder.call(opaque, [builder.zext(args[0], _I64)])
 
     return types.int64(cond), codegen
+
+
+_W = 8  # lanes of boxes8: float64 in a 512-bit register
+_V8I32, _V8I64, _V8F64, _V8MASK = (ir.VectorType(t, _W) for t in (_I32, _I64, ir.DoubleType(), _I1))
+
+
+def _splat8(builder, value, vtype):
+    v = builder.insert_element(ir.Constant(vtype, None), value, ir.Constant(_I32, 0))
+    return builder.shuffle_vector(v, ir.Constant(vtype, None), ir.Constant(_V8I32, None))
+
+
+def _gather8(builder, addr, ftype):
+    """The 8 values of type ``ftype`` at the byte addresses ``addr`` (<8 x i64>)."""
+    vf = ir.VectorType(ftype, _W)
+    ptrs = builder.inttoptr(addr, ir.VectorType(ftype.as_pointer(), _W))
+    width = 4 if isinstance(ftype, ir.FloatType) else 8
+    gather = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(vf, [ptrs.type, _I32, _V8MASK, vf]),
+        f"llvm.masked.gather.v8{'f32' if width == 4 else 'f64'}.v8{_float_ptr_suffix(ptrs.type, width)}")
+    return builder.call(gather, [ptrs, ir.Constant(_I32, width), ir.Constant(_V8MASK, [1] * _W), ir.Constant(vf, None)])
+
+
+def _append8(builder, values, out, n, mask):
+    """Append the lanes of ``values`` (<8 x i32>) where ``mask`` holds to ``out[n:]``; the new n."""
+    store = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(ir.VoidType(), [_V8I32, out.type, _V8MASK]), "llvm.masked.compressstore.v8i32")
+    builder.call(store, [values, builder.gep(out, [n]), mask])
+    popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_I8, [_I8]), "llvm.ctpop.i8")
+    return builder.add(n, builder.zext(builder.call(popcount, [builder.bitcast(mask, _I8)]), n.type))
+
+
+@intrinsic
+def boxes8(typingctx, rec, cand, val, t, count, box, zlo, zhi, inside, dist, area, n_area, generic, n_gen):
+    """cloud_jit's branch-free candidate step for the 8 candidates ``t .. t + 7`` (of which
+    the first ``count`` are real), in float64 vectors: for each, ``BoxSet.contains``'s
+    expression against the box of its cell (``inside[t + k]``: 0 or 1) and its squared
+    distance where inside (``dist[t + k]``, inf elsewhere); the points of decided area cells
+    that are in no box and in ``zlo .. zhi`` appended to ``area[n_area:]``, the positions
+    of undecided candidates to ``generic[n_gen:]``.  Returns the new (n_area, n_gen).
+    The operations are the scalar ones, one per lane, in the same order and rounding
+    (no fused multiply-add), so every verdict is the scalar verdict.  ``cand`` and ``val``
+    readable, ``inside`` and ``dist`` writable, 8 past ``t``; ``cand`` past ``count``
+    valid indices of ``rec``; ``area`` and ``generic`` writable 8 past their n."""
+    if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record) and rec.layout == "C"
+            and isinstance(box, types.Array) and box.ndim == 2 and box.layout == "C" and box.dtype == types.float64):
+        return None
+    sig = types.UniTuple(types.intp, 2)(rec, cand, val, t, count, box, types.float64, types.float64, inside, dist,
+                                        area, n_area, generic, n_gen)
+
+    def codegen(context, builder, signature, args):
+        a = signature.args
+        data = [_data(context, builder, a[k], args[k]) if isinstance(a[k], types.Array) else None
+                for k in range(len(args))]
+        recp, candp, valp, t, count, boxp = data[0], data[1], data[2], args[3], args[4], data[5]
+        i = builder.load(builder.bitcast(builder.gep(candp, [t]), _V8I32.as_pointer()), align=4)
+        v = builder.load(builder.bitcast(builder.gep(valp, [t]), _V8I32.as_pointer()), align=4)
+        splat = lambda value, vt=_V8I32: _splat8(builder, value, vt)  # noqa: E731
+        bit_of = lambda k: builder.trunc(builder.lshr(v, splat(ir.Constant(_I32, k))), _V8MASK)  # noqa: E731
+        one, is_area = bit_of(30), bit_of(29)
+        b = builder.select(one, builder.and_(v, splat(ir.Constant(_I32, (1 << 28) - 1))), ir.Constant(_V8I32, None))
+        # The point's x, y, z and the box row's columns, gathered.
+        rt = a[0].dtype
+        ftype = ir.FloatType() if rt.typeof("x") == types.float32 else ir.DoubleType()
+        base = splat(builder.ptrtoint(recp, _I64), _V8I64)
+        at = builder.add(base, builder.mul(builder.sext(i, _V8I64), splat(ir.Constant(_I64, rt.size), _V8I64)))
+        p = []
+        for f in "xyz":
+            q = _gather8(builder, builder.add(at, splat(ir.Constant(_I64, rt.offset(f)), _V8I64)), ftype)
+            p.append(builder.fpext(q, _V8F64) if ftype != ir.DoubleType() else q)
+        row = builder.add(splat(builder.ptrtoint(boxp, _I64), _V8I64),
+                          builder.mul(builder.sext(b, _V8I64), splat(ir.Constant(_I64, 64), _V8I64)))
+        col = [_gather8(builder, builder.add(row, splat(ir.Constant(_I64, 8 * k), _V8I64)), ir.DoubleType())
+               for k in range(8)]  # CX, CY, CZ, HX, HY, HZ, COS, SIN
+        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V8F64, [_V8F64]), "llvm.fabs.v8f64")
+        dx, dy = builder.fsub(p[0], col[0]), builder.fsub(p[1], col[1])
+        u = builder.fadd(builder.fmul(dx, col[6]), builder.fmul(dy, col[7]))
+        w = builder.fsub(builder.fmul(dy, col[6]), builder.fmul(dx, col[7]))
+        ok = builder.and_(builder.and_(builder.fcmp_ordered("<=", builder.call(fabs, [u]), col[3]),
+                                       builder.fcmp_ordered("<=", builder.call(fabs, [w]), col[4])),
+                          builder.fcmp_ordered("<=", builder.call(fabs, [builder.fsub(p[2], col[2])]), col[5]))
+        ok = builder.and_(ok, one)
+        d2 = builder.fadd(builder.fadd(builder.fmul(p[0], p[0]), builder.fmul(p[1], p[1])), builder.fmul(p[2], p[2]))
+        inf = ir.Constant(_V8F64, [float("inf")] * _W)
+        builder.store(builder.select(ok, d2, inf), builder.bitcast(builder.gep(data[9], [t]), _V8F64.as_pointer()),
+                      align=8)
+        builder.store(builder.zext(ok, ir.VectorType(_I8, _W)),
+                      builder.bitcast(builder.gep(data[8], [t]), ir.VectorType(_I8, _W).as_pointer()), align=1)
+        real = builder.icmp_signed("<", ir.Constant(_V8I32, list(range(_W))), splat(builder.trunc(count, _I32)))
+        in_z = builder.and_(builder.fcmp_ordered(">=", p[2], splat(args[6], _V8F64)),
+                            builder.fcmp_ordered("<=", p[2], splat(args[7], _V8F64)))
+        to_area = builder.and_(builder.and_(is_area, builder.not_(ok)), builder.and_(in_z, real))
+        n_area = _append8(builder, i, data[10], args[11], to_area)
+        lanes = builder.add(splat(builder.trunc(t, _I32)), ir.Constant(_V8I32, list(range(_W))))
+        undecided = builder.and_(builder.not_(builder.or_(one, is_area)), real)
+        n_gen = _append8(builder, lanes, data[12], args[13], undecided)
+        return context.make_tuple(builder, signature.return_type, [n_area, n_gen])
+
+    return sig, codegen
