@@ -32,6 +32,19 @@ def _data(context, builder, array_type, value):
     return context.make_array(array_type)(context, builder, value).data
 
 
+def _compress_store(builder, values, out, n, mask):
+    """``values``'s lanes where ``mask`` holds, packed, to ``out[n:]``; all lanes are written.
+
+    A compress in registers and a plain store: x86's compressing store to memory
+    (what ``llvm.masked.compressstore`` becomes) is microcoded and several times slower."""
+    vtype = values.type
+    compress = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(vtype, [vtype, mask.type, vtype]),
+        f"llvm.experimental.vector.compress.v{vtype.count}i32")
+    packed = builder.call(compress, [values, mask, ir.Constant(vtype, None)])
+    builder.store(packed, builder.bitcast(builder.gep(out, [n]), vtype.as_pointer()), align=4)
+
+
 def _compact(builder, tab, kv, first, out_i, out_v, n):
     """Append (first + lane, table[key]) of the lanes whose table entry is not 0; the new n."""
     # Addresses of the table entries: base + 4 * key, as a vector of pointers.
@@ -45,10 +58,8 @@ def _compact(builder, tab, kv, first, out_i, out_v, n):
     val = builder.call(gather, [ptrs, ir.Constant(_I32, 4), ir.Constant(_VMASK, [1] * LANES), ir.Constant(_V32, None)])
     hit = builder.icmp_unsigned("!=", val, ir.Constant(_V32, None))
     lanes = builder.add(_splat(builder, builder.trunc(first, _I32), _V32), ir.Constant(_V32, list(range(LANES))))
-    store = cgutils.get_or_insert_function(
-        builder.module, ir.FunctionType(ir.VoidType(), [_V32, out_i.type, _VMASK]), "llvm.masked.compressstore.v16i32")
-    builder.call(store, [lanes, builder.gep(out_i, [n]), hit])
-    builder.call(store, [val, builder.gep(out_v, [n]), hit])
+    _compress_store(builder, lanes, out_i, n, hit)
+    _compress_store(builder, val, out_v, n, hit)
     popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_I16, [_I16]), "llvm.ctpop.i16")
     hits = builder.call(popcount, [builder.bitcast(hit, _I16)])
     return builder.add(n, builder.zext(hits, n.type))
@@ -181,9 +192,7 @@ def _gather8(builder, addr, ftype):
 
 def _append8(builder, values, out, n, mask):
     """Append the lanes of ``values`` (<8 x i32>) where ``mask`` holds to ``out[n:]``; the new n."""
-    store = cgutils.get_or_insert_function(
-        builder.module, ir.FunctionType(ir.VoidType(), [_V8I32, out.type, _V8MASK]), "llvm.masked.compressstore.v8i32")
-    builder.call(store, [values, builder.gep(out, [n]), mask])
+    _compress_store(builder, values, out, n, mask)
     popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_I8, [_I8]), "llvm.ctpop.i8")
     return builder.add(n, builder.zext(builder.call(popcount, [builder.bitcast(mask, _I8)]), n.type))
 
