@@ -53,6 +53,7 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
     keys = np.zeros(16, np.int32)
     cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 8, np.int32)
     in_one, dist = np.empty(CHUNK + 16, np.int8), np.empty(CHUNK + 16)
+    late = np.empty(CHUNK, np.int32)
     area = np.empty(4 * CHUNK, np.int32)
     n_area = n_cands = 0
     zlo, zhi = z_range[0], z_range[1]
@@ -79,7 +80,7 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
         # queued; then the counts and nearest points in cloud order.
         for k in range(8):  # the last vector's spare lanes read a valid point of cell 0
             cand[n_cand + k], val[n_cand + k] = s, 0
-        n_gen = 0
+        n_gen, first_area = 0, n_area
         for t in range(0, n_cand, 8):
             n_area, n_gen = boxes8(rec, cand, val, t, n_cand - t, box, zlo, zhi, in_one, dist, area, n_area, generic,
                                    n_gen)
@@ -91,6 +92,7 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
                 best[b], nearest[b] = dist[t], cand[t]
         # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point
         # go to the first in cloud order, though this loop runs after the one above.
+        n_late = 0
         for u in range(n_gen):
             t = generic[u]
             v, i = val[t], np.int64(cand[t])
@@ -112,12 +114,21 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
                 node = next_node[node]
             if (in_box ^ 1) & ((v >> 28) & 1) & (pz >= zlo) & (pz <= zhi):  # rarely: an area point?
                 if _on_road(px, py, edges, ends, clip_boxes):
-                    area[n_area] = i
-                    n_area += 1
-    area_idx = np.sort(area[:n_area])
+                    late[n_late] = i
+                    n_late += 1
+        # Both lists of this chunk's area points are in cloud order: merged from the back.
+        a, w = n_area - 1, n_area + n_late - 1
+        for l in range(n_late - 1, -1, -1):
+            while a >= first_area and area[a] > late[l]:
+                area[w] = area[a]
+                a -= 1
+                w -= 1
+            area[w] = late[l]
+            w -= 1
+        n_area += n_late
     area_xyz = np.empty((n_area, 3))
     for a in range(n_area):
-        i = area_idx[a]
+        i = area[a]
         area_xyz[a, 0], area_xyz[a, 1], area_xyz[a, 2] = rec[i].x, rec[i].y, rec[i].z
     near = np.full((nb, 3), np.nan)
     for b in range(nb):
