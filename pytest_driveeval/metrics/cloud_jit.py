@@ -52,7 +52,7 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
     counts, nearest, best = np.zeros(nb, np.int64), np.full(nb, -1, np.int64), np.full(nb, np.inf)
     keys = np.zeros(16, np.int32)
     cand, val, generic = np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 16, np.int32), np.empty(CHUNK + 8, np.int32)
-    in_one, dist = np.empty(CHUNK + 16, np.int8), np.empty(CHUNK + 16)
+    hits, dist = np.empty(CHUNK + 8, np.int32), np.empty(CHUNK + 16)
     late = np.empty(CHUNK, np.int32)
     area = np.empty(4 * CHUNK, np.int32)
     n_area = n_cands = 0
@@ -77,17 +77,17 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
             n_cand = compact16(table, keys, 0, s + full, cand, val, n_cand)
         n_cands += n_cand
         # Eight at a time in vectors: cells of one box (or none) and decided area, the rest
-        # queued; then the counts and nearest points in cloud order.
+        # queued; then the counts and nearest points of the hits, in cloud order.
         for k in range(8):  # the last vector's spare lanes read a valid point of cell 0
             cand[n_cand + k], val[n_cand + k] = s, 0
-        n_gen, first_area = 0, n_area
+        n_hit, n_gen, first_area = 0, 0, n_area
         for t in range(0, n_cand, 8):
-            n_area, n_gen = boxes8(rec, cand, val, t, n_cand - t, box, zlo, zhi, in_one, dist, area, n_area, generic,
-                                   n_gen)
-        for t in range(n_cand):
-            v = val[t]
-            b = (v & LOW) * ((v >> 30) & 1)
-            counts[b] += in_one[t]
+            n_hit, n_area, n_gen = boxes8(rec, cand, val, t, n_cand - t, box, zlo, zhi, hits, n_hit, dist, area,
+                                          n_area, generic, n_gen)
+        for h in range(n_hit):
+            t = hits[h]
+            b = val[t] & LOW
+            counts[b] += 1
             if dist[t] < best[b]:  # rarely: cloud order is no distance order
                 best[b], nearest[b] = dist[t], cand[t]
         # The exact tests of BoxSet.contains and points_in_polygon.  Ties of the nearest point

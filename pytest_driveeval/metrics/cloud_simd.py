@@ -198,22 +198,23 @@ def _append8(builder, values, out, n, mask):
 
 
 @intrinsic
-def boxes8(typingctx, rec, cand, val, t, count, box, zlo, zhi, inside, dist, area, n_area, generic, n_gen):
+def boxes8(typingctx, rec, cand, val, t, count, box, zlo, zhi, hits, n_hit, dist, area, n_area, generic, n_gen):
     """cloud_jit's branch-free candidate step for the 8 candidates ``t .. t + 7`` (of which
     the first ``count`` are real), in float64 vectors: for each, ``BoxSet.contains``'s
-    expression against the box of its cell (``inside[t + k]``: 0 or 1) and its squared
-    distance where inside (``dist[t + k]``, inf elsewhere); the points of decided area cells
-    that are in no box and in ``zlo .. zhi`` appended to ``area[n_area:]``, the positions
-    of undecided candidates to ``generic[n_gen:]``.  Returns the new (n_area, n_gen).
+    expression against the box of its cell, and its squared distance (``dist[t + k]``);
+    the positions of the candidates inside their box appended to ``hits[n_hit:]``, the
+    points of decided area cells that are in no box and in ``zlo .. zhi`` to
+    ``area[n_area:]``, the positions of undecided candidates to ``generic[n_gen:]``.
+    Returns the new (n_hit, n_area, n_gen).
     The operations are the scalar ones, one per lane, in the same order and rounding
     (no fused multiply-add), so every verdict is the scalar verdict.  ``cand`` and ``val``
-    readable, ``inside`` and ``dist`` writable, 8 past ``t``; ``cand`` past ``count``
-    valid indices of ``rec``; ``area`` and ``generic`` writable 8 past their n."""
+    readable and ``dist`` writable 8 past ``t``; ``cand`` past ``count`` valid indices of
+    ``rec``; ``hits``, ``area`` and ``generic`` writable 8 past their n."""
     if not (isinstance(rec, types.Array) and isinstance(rec.dtype, types.Record) and rec.layout == "C"
             and isinstance(box, types.Array) and box.ndim == 2 and box.layout == "C" and box.dtype == types.float64):
         return None
-    sig = types.UniTuple(types.intp, 2)(rec, cand, val, t, count, box, types.float64, types.float64, inside, dist,
-                                        area, n_area, generic, n_gen)
+    sig = types.UniTuple(types.intp, 3)(rec, cand, val, t, count, box, types.float64, types.float64, hits, n_hit,
+                                        dist, area, n_area, generic, n_gen)
 
     def codegen(context, builder, signature, args):
         a = signature.args
@@ -246,21 +247,18 @@ def boxes8(typingctx, rec, cand, val, t, count, box, zlo, zhi, inside, dist, are
         ok = builder.and_(builder.and_(builder.fcmp_ordered("<=", builder.call(fabs, [u]), col[3]),
                                        builder.fcmp_ordered("<=", builder.call(fabs, [w]), col[4])),
                           builder.fcmp_ordered("<=", builder.call(fabs, [builder.fsub(p[2], col[2])]), col[5]))
-        ok = builder.and_(ok, one)
-        d2 = builder.fadd(builder.fadd(builder.fmul(p[0], p[0]), builder.fmul(p[1], p[1])), builder.fmul(p[2], p[2]))
-        inf = ir.Constant(_V8F64, [float("inf")] * _W)
-        builder.store(builder.select(ok, d2, inf), builder.bitcast(builder.gep(data[9], [t]), _V8F64.as_pointer()),
-                      align=8)
-        builder.store(builder.zext(ok, ir.VectorType(_I8, _W)),
-                      builder.bitcast(builder.gep(data[8], [t]), ir.VectorType(_I8, _W).as_pointer()), align=1)
         real = builder.icmp_signed("<", ir.Constant(_V8I32, list(range(_W))), splat(builder.trunc(count, _I32)))
+        ok = builder.and_(builder.and_(ok, one), real)
+        d2 = builder.fadd(builder.fadd(builder.fmul(p[0], p[0]), builder.fmul(p[1], p[1])), builder.fmul(p[2], p[2]))
+        builder.store(d2, builder.bitcast(builder.gep(data[10], [t]), _V8F64.as_pointer()), align=8)
+        lanes = builder.add(splat(builder.trunc(t, _I32)), ir.Constant(_V8I32, list(range(_W))))
+        n_hit = _append8(builder, lanes, data[8], args[9], ok)
         in_z = builder.and_(builder.fcmp_ordered(">=", p[2], splat(args[6], _V8F64)),
                             builder.fcmp_ordered("<=", p[2], splat(args[7], _V8F64)))
         to_area = builder.and_(builder.and_(is_area, builder.not_(ok)), builder.and_(in_z, real))
-        n_area = _append8(builder, i, data[10], args[11], to_area)
-        lanes = builder.add(splat(builder.trunc(t, _I32)), ir.Constant(_V8I32, list(range(_W))))
+        n_area = _append8(builder, i, data[11], args[12], to_area)
         undecided = builder.and_(builder.not_(builder.or_(one, is_area)), real)
-        n_gen = _append8(builder, lanes, data[12], args[13], undecided)
-        return context.make_tuple(builder, signature.return_type, [n_area, n_gen])
+        n_gen = _append8(builder, lanes, data[13], args[14], undecided)
+        return context.make_tuple(builder, signature.return_type, [n_hit, n_area, n_gen])
 
     return sig, codegen
