@@ -3,13 +3,13 @@
 One pass over the cloud, in chunks of CHUNK points whose records stay in L1.  Per
 16 records, ``cloud_simd.scan16`` computes their cells (one wide load, shuffles,
 float32), gathers the cells' entries and appends the points of listed cells
-(a compressing store).  Then the chunk's candidates: most lie in a cell of one box,
-tested against it alone without branches, or inside the area polygon, where the z
-range decides (``cloud_jit_grid``); the rest go through each box of their cell and
-the polygons.  Every verdict is the float64 expression the numpy path evaluates,
-so the two agree point for point.  The records are read in place: x, y, z are
-viewed as one record type (stride and offsets known to the compiler) whatever
-else the cloud holds.
+(a compress).  Then the chunk's candidates, eight at a time in float64 vectors
+(``cloud_simd.boxes8``): most lie in a cell of one box, tested against it alone,
+or inside the area polygon, where the z range decides (``cloud_jit_grid``); the
+rest go through each box of their cell and the polygons, one at a time.  Every
+verdict is the float64 expression the numpy path evaluates, so the two agree
+point for point.  The records are read in place: x, y, z are viewed as one record
+type (stride and offsets known to the compiler) whatever else the cloud holds.
 """
 from __future__ import annotations
 

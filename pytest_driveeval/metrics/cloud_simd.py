@@ -2,9 +2,10 @@
 
 LLVM's cost model keeps a table lookup per point scalar (no gathers) and cannot
 vectorise "append the hits"; both are a few vector instructions with AVX-512
-(a gather, a compressing store).  The intrinsics are LLVM's target-independent
-``llvm.masked.gather`` and ``llvm.masked.compressstore``: on a CPU without those
-instructions LLVM expands them into scalar code with the same result.
+(a gather, a compress).  Nor does it vectorise the candidates' box test, whose
+operands are gathered by index.  The intrinsics are LLVM's target-independent
+``llvm.masked.gather`` and ``llvm.experimental.vector.compress``: on a CPU
+without those instructions LLVM expands them into scalar code with the same result.
 """
 from __future__ import annotations
 
