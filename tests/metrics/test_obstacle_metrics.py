@@ -138,6 +138,20 @@ def test_a_non_finite_box_is_an_error_not_a_count(kernel):
         evaluate_cloud(pts, boxes, kernel=kernel)
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("bad", [np.inf, -np.inf, np.nan])
+def test_a_non_finite_size_or_yaw_is_found_whatever_the_other_values(kernel, bad):
+    """The check sums the boxes' values first: inf and -inf in one sum make NaN, still caught."""
+    pts, boxes = scene(0, n=100)
+    boxes.half[4, 2] = bad
+    boxes.yaws[6] = -bad
+    with pytest.raises(ValueError, match=r"box 4 has a non-finite size"):
+        evaluate_cloud(pts, boxes, kernel=kernel)
+    boxes.half[4, 2] = 1.0
+    with pytest.raises(ValueError, match=r"box 6 has a non-finite yaw"):
+        evaluate_cloud(pts, boxes, kernel=kernel)
+
+
 def test_polygon_edges_of_several_polygons_close_each_one():
     tri, square = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 2.0]]), DLR_AREA
     table, ends = polygon_edges(tri, np.zeros((0, 2)), square)
