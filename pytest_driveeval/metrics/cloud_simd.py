@@ -4,7 +4,7 @@ LLVM's cost model keeps a table lookup per point scalar (no gathers) and cannot
 vectorise "append the hits"; both are a few vector instructions with AVX-512
 (a gather, a compress).  Nor does it vectorise the candidates' box test, whose
 operands are gathered by index.  The intrinsics are LLVM's target-independent
-``llvm.masked.gather`` and ``llvm.experimental.vector.compress``: on a CPU
+``llvm.masked.gather`` and ``llvm.masked.compressstore``: on a CPU
 without those instructions LLVM expands them into scalar code with the same result.
 """
 from __future__ import annotations
@@ -34,16 +34,16 @@ def _data(context, builder, array_type, value):
 
 
 def _compress_store(builder, values, out, n, mask):
-    """``values``'s lanes where ``mask`` holds, packed, to ``out[n:]``; all lanes are written.
+    """``values``'s lanes where ``mask`` holds, packed, to ``out[n:]``.
 
-    A compress in registers and a plain store: x86's compressing store to memory
-    (what ``llvm.masked.compressstore`` becomes) is microcoded and several times slower."""
+    ``llvm.masked.compressstore``, which LLVM 15 (numba 0.61's) has; the newer
+    compress in registers (``llvm.experimental.vector.compress``, LLVM 19) measured
+    no faster here."""
     vtype = values.type
-    compress = cgutils.get_or_insert_function(
-        builder.module, ir.FunctionType(vtype, [vtype, mask.type, vtype]),
-        f"llvm.experimental.vector.compress.v{vtype.count}i32")
-    packed = builder.call(compress, [values, mask, ir.Constant(vtype, None)])
-    builder.store(packed, builder.bitcast(builder.gep(out, [n]), vtype.as_pointer()), align=4)
+    store = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(ir.VoidType(), [vtype, out.type, mask.type]),
+        f"llvm.masked.compressstore.v{vtype.count}i32")
+    builder.call(store, [values, builder.gep(out, [n]), mask])
 
 
 def _compact(builder, tab, kv, first, out_i, out_v, n):
