@@ -18,6 +18,7 @@ the function once, for the inference it runs.
 """
 from __future__ import annotations
 
+import keyword
 from typing import Any, Callable
 
 __all__ = ["fast_forward"]
@@ -25,13 +26,17 @@ __all__ = ["fast_forward"]
 
 def fast_forward(module: Any) -> Callable[..., Any] | None:
     """``module(*args)`` for an exported program's module (a ``torch.fx.GraphModule``) as a plain
-    function, or None for a graph this does not handle (a node that calls a tensor's method)."""
+    function, or None for a graph this does not handle (a node that calls a tensor's method, or a
+    keyword argument whose name is no Python name: a crafted file's, which must not become code)."""
     import torch
     from torch.fx import Node
 
     graph = module.graph
     nodes = list(graph.nodes)
     if any(n.op not in ("placeholder", "get_attr", "call_function", "call_module", "output") for n in nodes):
+        return None
+    # The only text of the graph's that goes into the code: keyword names (values are literals or bound).
+    if not all(_plain_name(k) for n in nodes for k in n.kwargs):
         return None
     bound: dict[str, Any] = {}
 
@@ -88,6 +93,10 @@ def fast_forward(module: Any) -> Callable[..., Any] | None:
         return codegen.process_outputs(flat_forward(*codegen.process_inputs(*args)))
 
     return forward
+
+
+def _plain_name(name: Any) -> bool:
+    return isinstance(name, str) and name.isidentifier() and not keyword.iskeyword(name)
 
 
 def _attribute(module: Any, dotted: str) -> Any:

@@ -110,3 +110,12 @@ def test_the_export_guards_still_run():
     forward = fast_forward(module)
     with pytest.raises(AssertionError, match="Guard failed"):
         forward(torch.ones(5, 3))
+
+
+def test_a_keyword_name_that_is_not_a_name_never_becomes_code(tmp_path):
+    module = _exported(torch.nn.Linear(3, 2), torch.ones(4, 3))
+    node = next(n for n in module.graph.nodes if n.op == "call_function")
+    marker = tmp_path / "ran"
+    node.kwargs = {**node.kwargs, f"x=open({str(marker)!r}, 'w'), y": 1}
+    assert fast_forward(module) is None
+    assert not marker.exists()
