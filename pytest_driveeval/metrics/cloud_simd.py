@@ -87,7 +87,8 @@ def compact16(typingctx, table, keys, b, first, out_idx, out_val, n):
 def _load_xy(builder, context, rec_t, data, first):
     """x and y of the 16 records from ``first`` on, as two <16 x float> (float32 as cell_of computes)."""
     rec = rec_t.dtype
-    size, (ox, tx), (oy, ty) = rec.size, (rec.offset("x"), rec.typeof("x")), (rec.offset("y"), rec.typeof("y"))
+    # x and y share one type: cloud_jit's record types give x, y and z one float type.
+    size, ox, oy, tx = rec.size, rec.offset("x"), rec.offset("y"), rec.typeof("x")
     ftype = ir.FloatType() if tx == types.float32 else ir.DoubleType()
     width = 4 if tx == types.float32 else 8
     base = builder.gep(builder.bitcast(data, _I8.as_pointer()), [builder.mul(first, ir.Constant(first.type, size))])

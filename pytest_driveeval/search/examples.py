@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
-__all__ = ["EvaluateMany", "Example", "Verdict", "rank", "size_of"]
+__all__ = ["EvaluateMany", "Example", "Verdict", "changed_fields", "rank", "size_of"]
 
 
 @dataclass(frozen=True)
@@ -40,10 +40,13 @@ def size_of(perturbation: Any, widths: dict[str, float]) -> float:
                for f in fields(perturbation))
 
 
+def changed_fields(perturbation: Any) -> list[str]:
+    """The names of ``perturbation``'s fields that differ from no change, in field order."""
+    neutral = type(perturbation)()
+    return [f.name for f in fields(perturbation) if getattr(perturbation, f.name) != getattr(neutral, f.name)]
+
+
 def rank(example: Example, widths: dict[str, float]) -> tuple[float, int, int]:
     """The order in which failures are preferred: the smaller perturbation, then the fewer fields
     changed (hypothesis draws offsets of 1e-105, which add nothing to a size), then the lower case."""
-    neutral = type(example.perturbation)()
-    changed = sum(getattr(example.perturbation, f.name) != getattr(neutral, f.name)
-                  for f in fields(example.perturbation))
-    return size_of(example.perturbation, widths), changed, example.case
+    return size_of(example.perturbation, widths), len(changed_fields(example.perturbation)), example.case

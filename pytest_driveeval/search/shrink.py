@@ -15,7 +15,7 @@ from dataclasses import asdict, replace
 from itertools import combinations
 from typing import Any, Callable, Generator, Sequence
 
-from pytest_driveeval.search.examples import Example, Verdict, rank
+from pytest_driveeval.search.examples import Example, Verdict, changed_fields, rank
 
 __all__ = ["shrink_candidates", "tighten_many"]
 
@@ -31,7 +31,7 @@ def shrink_candidates(example: Example, widths: dict[str, float]) -> list[Exampl
     the smallest first."""
     perturbation = example.perturbation
     neutral = type(perturbation)()
-    changed = [k for k, v in asdict(perturbation).items() if v != getattr(neutral, k)]
+    changed = changed_fields(perturbation)
     if len(changed) <= ALL_SUBSETS_UP_TO:
         subsets = [s for n in range(1, len(changed) + 1) for s in combinations(changed, n)]
     else:
