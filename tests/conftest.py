@@ -48,7 +48,9 @@ if torch is not None:
     # Likewise torch.export.load: its first call imports modules that register operator
     # libraries once per process ("Only a single TORCH_LIBRARY ..." when a second pytester run
     # imports them again). Loading the smallest shipped program here makes them permanent.
-    torch.export.load(str(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2"))
+    from pytest_driveeval.policies.pt2_archive import load_exported_program
+
+    load_exported_program(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2").module()
 SHARED_DATA = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from .pt2_archive import load_exported_program
+
 __all__ = ["export_program"]
 
 
@@ -41,4 +43,4 @@ def export_program(model: Any, example_args: tuple, path: Path) -> Any:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.export.save(program, str(path))
-    return torch.export.load(str(path)).module()
+    return load_exported_program(path).module()

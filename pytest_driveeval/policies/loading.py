@@ -1,7 +1,8 @@
 """Loading a model (policy) from a spec string, safely by default.
 
 Spec forms:
-  ``model.pt2``                  exported program (``torch.export.save``; policies.export), as shipped
+  ``model.pt2``                  exported program (``torch.export.save``; policies.export), as shipped;
+                                 read by .pt2_archive, which unpickles nothing and runs only ATen
   ``model.pt``                   TorchScript archive (``torch.jit.save``), deprecated by torch but loaded
   ``weights.pt=pkg.mod:factory`` state_dict loaded with ``weights_only=True`` into ``factory()``
   ``pkg.mod:factory``            whatever ``factory()`` returns (a module or any callable)
@@ -19,6 +20,7 @@ from typing import Any, Callable
 
 from ..errors import ModelError
 from .fx_forward import fast_forward
+from .pt2_archive import ProgramRefused, load_exported_program
 
 PICKLE_PREFIX = "pickle:"
 ALLOW_CODE_OPTION = "--driveeval-allow-scenario-code"
@@ -142,8 +144,13 @@ def load_model(spec: str, base: Path | None = None) -> Callable[..., Any]:
         return _eval(_call_factory(spec))
     path = _resolve(spec, base)
     if path.suffix == ".pt2":
+        # Never torch.export.load: it unpickles parts of the archive (see .pt2_archive).
         try:
-            return ExportedModel(torch.export.load(str(path)).module())
+            return ExportedModel(load_exported_program(path).module())
+        except ProgramRefused as exc:
+            raise ModelError(f"refused exported program {path}: {exc}. An archive that torch.export.save "
+                             "wrote from a model of ATen operators loads; this one would run code "
+                             "from the file") from None
         except Exception as exc:  # noqa: BLE001
             raise ModelError(f"cannot load exported program {path}: {exc}") from None
     if not _is_torchscript(path):
