@@ -79,3 +79,32 @@ def test_a_model_option_that_cannot_be_a_model_is_a_clear_error(cl, spec, messag
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines([f"*ModelError: {message}"])
     assert "Traceback" not in result.stdout.str()
+
+
+def test_a_crafted_pt2_named_by_a_scenario_runs_no_code_and_the_other_items_run(cl):
+    # The .pt2 path needs no opt-in, so it must run nothing of the file's: here its sample
+    # inputs are a pickle that torch.export.load would have run (issue 34).
+    import zipfile
+
+    shipped = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"
+    with zipfile.ZipFile(shipped) as src, zipfile.ZipFile(cl.path / "crafted.pt2", "w") as dst:
+        for info in src.infolist():
+            is_sample = "/data/sample_inputs/" in info.filename
+            dst.writestr(info.filename, (cl.path / "evil.pkl").read_bytes() if is_sample else src.read(info))
+        config = next(n for n in src.namelist() if n.endswith("model_weights_config.json"))
+    with zipfile.ZipFile(cl.path / "pickled_weight.pt2", "w") as dst, zipfile.ZipFile(shipped) as src:
+        for info in src.infolist():
+            data = src.read(info)
+            if info.filename == config:
+                data = data.replace(b'"use_pickle": false', b'"use_pickle": true', 1)
+            elif info.filename.endswith("/data/weights/weight_0"):
+                data = (cl.path / "evil.pkl").read_bytes()
+            dst.writestr(info.filename, data)
+    cl.makefile(".scenario.yaml", crafted=scenario(name="c", model="crafted.pt2", unroll="    StartFrame: 10\n    Steps: 5"),
+                weights=scenario(name="w", model="pickled_weight.pt2", unroll="    StartFrame: 10\n    Steps: 5"))
+    result = cl.runpytest("-q", "crafted.scenario.yaml", "weights.scenario.yaml", "good.scenario.yaml")
+    assert not (cl.path / "pickle_ran").exists()
+    # The sample inputs are never read, so that file's model runs; the pickled weight is refused.
+    result.assert_outcomes(passed=2, errors=1)
+    result.stdout.fnmatch_lines(["error *weights.scenario.yaml::closed_loop*", "*ModelError: refused exported program*",
+                                 "*pickled_weight.pt2:*", "*'ego_tag' is stored as a*", "*pickle (use_pickle)*"])
