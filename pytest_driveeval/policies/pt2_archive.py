@@ -47,7 +47,10 @@ def load_exported_program(path: Path) -> Any:
             document = json.loads(files.read(f"models/{model}.json", MAX_PROGRAM_JSON_BYTES))
         except (ValueError, RecursionError) as exc:
             raise ProgramRefused(f"models/{model}.json is not JSON torch writes: {str(exc)[:200]}") from None
-        program = check_program(document)
+        try:
+            program = check_program(document)
+        except RecursionError:
+            raise ProgramRefused(f"models/{model}.json nests deeper than any program torch writes") from None
         state_dict = _payloads(files, f"data/weights/{model}_weights_config.json", "data/weights/", weights=True)
         constants = _payloads(files, f"data/constants/{model}_constants_config.json", "data/constants/",
                               weights=False)

@@ -255,3 +255,18 @@ def test_a_file_that_is_no_archive_is_a_clear_error(tmp_path):
     (tmp_path / "m.pt2").write_bytes(pickle.dumps({"not": "a zip"}))
     with pytest.raises(ModelError, match="not a .pt2 archive"):
         load_model(str(tmp_path / "m.pt2"))
+
+
+def test_a_program_nested_past_the_recursion_limit_is_a_clear_error(tmp_path):
+    deep = "[" * 5000 + "]" * 5000  # past the recursion limit: neither json nor the walk may end in a bare RecursionError
+
+    def change(name, data):
+        if name == "models/model.json":
+            document = json.loads(data)
+            document["graph_module"]["graph"]["nodes"][0]["inputs"][0]["arg"] = {"as_ints": "DEEP"}
+            return json.dumps(document).replace('"DEEP"', deep).encode()
+        return data
+
+    crafted = _rewrite(GNN, tmp_path / "m.pt2", lambda name, data: None if name is None else change(name, data))
+    with pytest.raises(ModelError, match="nests deeper|not JSON torch writes"):
+        load_model(str(crafted))
