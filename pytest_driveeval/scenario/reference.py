@@ -154,17 +154,16 @@ def _table(entries: list[tuple[str, ...]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _blueprint_params() -> str:
-    """The blueprints' own Params (dataclass fields with a ``doc``), one table per blueprint."""
-    from pytest_driveeval.sim.blueprints import BLUEPRINTS
-    from pytest_driveeval.sim.commonroad_scene import CommonRoadParams
-
-    out = []
-    for name, (params, _) in sorted(BLUEPRINTS.items()):
-        out.append(f"### `Blueprint.Params` of `Name: {name}`\n\n" + _dataclass_table(params, None))
-    own = {f.name for f in dataclasses.fields(CommonRoadParams)} - set(CommonRoadParams.USED)
-    out.append("### `Blueprint.Params` of a `CommonRoad` scene\n\n"
-               + _dataclass_table(CommonRoadParams, set(CommonRoadParams.USED) | own))
+def _parameter_tables(model: type[BaseModel]) -> str:
+    """Keys read into dataclasses rather than models (a blueprint's ``Params``): the tables a
+    use case's config model names with ``parameter_tables()``, from each field's ``doc``."""
+    tables = getattr(model, "parameter_tables", None)
+    if tables is None:
+        return ""
+    out = ["The blueprint's own parameters, given under `Blueprint.Params`:\n"]
+    for title, params, only in tables():
+        out.append(f"### `Blueprint.Params` of {title}\n\n" + _dataclass_table(params, None if only is None
+                                                                                   else set(only)))
     return "\n".join(out)
 
 
@@ -206,9 +205,9 @@ def page() -> str:
                   f"`UseCaseName: {name}`, `UseCaseFormatVersion`: {versions} "
                   f"(`{type(usecase).__module__.replace('.', '/')}/config.py`).\n",
                   _table(list(rows(usecase.config_model, "Evaluation.")))]
-        if name == "policy_benchmark":
-            parts.append("The blueprint's own parameters, given under `Blueprint.Params`:\n")
-            parts.append(_blueprint_params())
+        extra = _parameter_tables(usecase.config_model)
+        if extra:
+            parts.append(extra)
     return "\n".join(parts)
 
 

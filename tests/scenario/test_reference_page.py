@@ -93,3 +93,17 @@ def test_the_check_command_fails_on_a_stale_page_and_says_how_to_remake_it(tmp_p
     assert reference.COMMAND in capsys.readouterr().err
     stale.write_text(reference.page())
     assert reference.main(["--check"]) == 0
+
+
+def test_the_commonroad_params_table_lists_what_a_commonroad_scene_accepts():
+    from pytest_driveeval.sim.blueprints import ParameterError
+    from pytest_driveeval.sim.commonroad_scene import CommonRoadParams, check_params
+
+    table = reference.page().split("of a `CommonRoad` scene", 1)[1]
+    listed = [line.split("`")[1].rsplit(".", 1)[1] for line in table.splitlines() if line.startswith("| `")]
+    assert "start_lateral" in listed and "dt" not in listed
+    defaults = CommonRoadParams()
+    for name in listed:
+        check_params({name: getattr(defaults, name)})  # accepted: a listed key means something there
+    with pytest.raises(ParameterError):
+        check_params({"lane_width": 3.5})  # and one the blueprints know but the table leaves out does not

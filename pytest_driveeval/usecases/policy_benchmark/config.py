@@ -50,6 +50,7 @@ one of ``FailOn``; the Conditions are not judged then.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from typing import Any, ClassVar, Literal
@@ -273,6 +274,21 @@ class PolicyBenchmarkConfig(ConditionsModel):
                                                "grows with the agents squared)")
         check_fits("Episodes", self.Episodes, episodes * one,
                    f"{episodes} episodes of {agents} agents stepped together")
+
+    @classmethod
+    def parameter_tables(cls) -> list[tuple[str, type, tuple[str, ...] | None]]:
+        """The dataclasses ``Blueprint.Params`` is read into, for the scenario keys' page
+        (scenario.reference): (title, dataclass, the fields that apply, None for all)."""
+        from pytest_driveeval.sim.blueprints import BLUEPRINTS, BlueprintParams
+        from pytest_driveeval.sim.commonroad_scene import CommonRoadParams
+
+        tables: list[tuple[str, type, tuple[str, ...] | None]] = [
+            (f"`Name: {name}`", params, None) for name, (params, _) in sorted(BLUEPRINTS.items())]
+        # What check_params accepts: the blueprint fields that mean something there, and its own.
+        base = {f.name for f in dataclasses.fields(BlueprintParams)}
+        own = tuple(f.name for f in dataclasses.fields(CommonRoadParams) if f.name not in base)
+        tables.append(("a `CommonRoad` scene", CommonRoadParams, (*CommonRoadParams.USED, *own)))
+        return tables
 
     def blueprint_params(self) -> dict[str, Any]:
         """make_blueprint's keyword arguments: the blueprint's Params and the StepLimit."""
