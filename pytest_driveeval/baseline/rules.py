@@ -45,16 +45,21 @@ class FigureRule:
 
 
 class FigureOverride(Section):
-    Atol: float | None = Field(None, ge=0)
-    Rtol: float | None = Field(None, ge=0)
-    Ignore: bool = False
+    Atol: float | None = Field(None, ge=0, description=(
+        "absolute tolerance: the figure is worse only when it moved the wrong way by more than Atol + Rtol x "
+        "|baseline|"))
+    Rtol: float | None = Field(None, ge=0, description="relative tolerance (a fraction of the baseline's value)")
+    Ignore: bool = Field(False, description="true: this figure is never compared")
 
 
 class SearchTolerance(Section):
     #: how far (in the perturbation's own unit) the smallest breaking value may move towards zero;
     #: one number for every parameter, or one per parameter
-    Tolerance: NonNegative | dict[str, NonNegative] = 0.0
-    RelativeTolerance: float = Field(DEFAULT_SEARCH_RELATIVE, ge=0)
+    Tolerance: NonNegative | dict[str, NonNegative] = Field(0.0, description=(
+        "how far (in the perturbation's own unit) the smallest breaking value may move towards zero; one number "
+        "for every parameter, or one per parameter"))
+    RelativeTolerance: float = Field(DEFAULT_SEARCH_RELATIVE, ge=0, description=(
+        "the part of the baseline's breaking value it may also move towards zero"))
 
     def allowed(self, parameter: str, before: float) -> float:
         absolute = self.Tolerance.get(parameter, 0.0) if isinstance(self.Tolerance, dict) else self.Tolerance
@@ -62,10 +67,17 @@ class SearchTolerance(Section):
 
 
 class RegressionSpec(Section):
-    Figures: dict[str, FigureOverride] = Field(default_factory=dict)
-    Confidence: float | None = Field(None, gt=50, lt=100)
-    Search: SearchTolerance = Field(default_factory=SearchTolerance)
-    Units: bool = True
+    Figures: dict[str, FigureOverride] = Field(default_factory=dict, description=(
+        "per key figure of the use case (by its name in the summary), its tolerances or Ignore; a name that is "
+        "not one of the use case's figures is an error at its line"))
+    Confidence: float | None = Field(None, gt=50, lt=100, description=(
+        "% level of the paired test of episode rates; default: the scenario's Conditions.Confidence, else 95"))
+    Search: SearchTolerance = Field(default_factory=SearchTolerance, description=(
+        "how far a robustness search's smallest breaking perturbation may move towards zero before it is a "
+        "regression"))
+    Units: bool = Field(True, description=(
+        "true: a scene or frame that passed in the baseline and fails now is a regression; false: only the "
+        "figures are compared"))
 
 
 @dataclass(frozen=True)

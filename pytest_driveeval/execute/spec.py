@@ -42,13 +42,20 @@ def host_port(address: str) -> tuple[str, int] | None:
 class ExecutorSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    Kind: Literal["local", "ray"] = "local"
-    Address: str | None = None
-    ChunkSize: PositiveInt | None = None
-    MaxInFlight: PositiveInt | None = None
-    Retries: NonNegativeInt = Field(3, le=100)
-    NumCpus: float = Field(1.0, gt=0.0)
-    RuntimeEnv: dict[str, Any] | None = None
+    Kind: Literal["local", "ray"] = Field("local", description=(
+        "where the item's scenes or episodes run: local (here, the default) or ray (chunks as Ray tasks)"))
+    Address: str | None = Field(None, description=(
+        "the Ray cluster: auto, local, host:6379 (the head's GCS) or ray://host:10001 (Ray Client); unset: Ray's "
+        "own choice (RAY_ADDRESS, else the cluster ray start left here, else a private one for this session)"))
+    ChunkSize: PositiveInt | None = Field(None, description=(
+        "episodes (policy_benchmark, default 64) or scenes (closed_loop, default 8) per task; with Kind: local "
+        "the same chunks run one after the other here"))
+    MaxInFlight: PositiveInt | None = Field(None, description=(
+        "tasks submitted and not yet collected; default: twice the cluster's CPUs over NumCpus"))
+    Retries: NonNegativeInt = Field(3, le=100, description="new attempts of a chunk whose worker or node died")
+    NumCpus: float = Field(1.0, gt=0.0, description="CPUs each task reserves (fractions pack tasks onto a node)")
+    RuntimeEnv: dict[str, Any] | None = Field(None, description=(
+        "Ray's runtime_env for the workers (e.g. {pip: [...]}, needs ray[default] on the cluster)"))
 
     @field_validator("Address")
     @classmethod

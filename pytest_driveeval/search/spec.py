@@ -59,10 +59,14 @@ class SearchSpec(BaseModel):
     #: keys whose values are whole numbers (a count of points, say)
     WHOLE: ClassVar[frozenset[str]] = frozenset()
 
-    Examples: PositiveInt = 100
-    Batch: PositiveInt = Field(32, le=4096)
-    Tolerance: float = Field(0.01, gt=0.0, lt=0.5)
-    Replay: dict[str, float] | None = None
+    Examples: PositiveInt = Field(100, description="examples the search tries (--driveeval-search-examples wins)")
+    Batch: PositiveInt = Field(32, le=4096, description=(
+        "examples evaluated together: one unroll of that many scenes, or one batch of episodes or clouds"))
+    Tolerance: float = Field(0.01, gt=0.0, lt=0.5, description=(
+        "the reported perturbation is within this fraction of each range of the edge of failure"))
+    Replay: dict[str, float] | None = Field(None, description=(
+        "evaluate exactly this case instead of searching, e.g. {Scene: 0, Lateral: 1.734} (as --driveeval-replay "
+        "does)"))
 
     @model_validator(mode="before")
     @classmethod
@@ -153,11 +157,15 @@ class StartSearchSpec(SearchSpec):
     BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {"SpeedScale": _POSITIVE_SCALE,
                                                              "AgentsSpeedScale": _POSITIVE_SCALE}
 
-    Lateral: Range = None
-    Longitudinal: Range = None
-    Heading: Range = None
-    SpeedScale: Range = None
-    AgentsSpeedScale: Range = None
+    Lateral: Range = Field(None, description=(
+        "[low, high] m: the start moved sideways, in the ego's frame; the range holds 0"))
+    Longitudinal: Range = Field(None, description=(
+        "[low, high] m: the start moved along the ego's heading; the range holds 0"))
+    Heading: Range = Field(None, description="[low, high] rad: the start's heading turned; the range holds 0")
+    SpeedScale: Range = Field(None, description=(
+        "[low, high]: the ego's past speeds, so its initial speed, scaled; the range holds 1"))
+    AgentsSpeedScale: Range = Field(None, description=(
+        "[low, high]: the other agents replayed (or started) faster or slower; the range holds 1"))
 
 
 def _number(value: Any) -> bool:

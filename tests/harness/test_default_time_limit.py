@@ -106,4 +106,4 @@ def test_the_default_is_half_an_hour_and_documented():
     assert settings.DEFAULT_TIME_LIMIT == 1800.0
     from conftest import REPO_ROOT
 
-    assert "default 1800, half an hour per item" in (REPO_ROOT / "README.md").read_text()
+    assert "default 1800, half an hour per item" in (REPO_ROOT / "docs" / "options.md").read_text()

@@ -1,5 +1,6 @@
-"""What README.md names exists: repository paths, the scripts' options, the pytest
-options, ini keys, marks and extras, the Python names its snippets import.
+"""What README.md and the manual's pages (docs/**/*.md) name exists: repository paths, the
+scripts' options, the pytest options, ini keys, marks and extras, the Python names their
+snippets import.
 
 A new user copies these first; a renamed file or option must fail here, not in
 their terminal.  Only code (spans, fenced blocks) and link targets are read: prose
@@ -25,6 +26,9 @@ except ImportError:
     pass
 
 README = REPO_ROOT / "README.md"
+DOCS = REPO_ROOT / "docs"
+# Every page a user reads: the README and the manual (docs/, built by mkdocs.yml).
+PAGES = [README, *sorted(DOCS.rglob("*.md"))]
 PACKAGE = REPO_ROOT / "pytest_driveeval"
 # The repository's top-level folders: a path starting with one of them is meant to be a
 # repository file (driveeval-results/, checkpoints/, runs/ are the user's).
@@ -44,17 +48,20 @@ DOTTED = re.compile(r"(?<![\w.])pytest_driveeval(?:\.\w+)+")
 COMMAND = re.compile(r"(?:^|\s)python (\S+\.py)([^\n|`]*)")
 
 
-def _blocks() -> list[tuple[str, str]]:
+def _blocks(pages: list[Path] = PAGES) -> list[tuple[str, str]]:
     """(language, text) of every fenced block."""
-    return [(m.group(1), m.group(2)) for m in FENCE.finditer(README.read_text())]
+    return [(m.group(1), m.group(2)) for page in pages for m in FENCE.finditer(page.read_text())]
 
 
-def _code() -> list[str]:
-    """The fenced blocks (continued lines joined), the code spans and the link targets."""
-    text = README.read_text()
-    outside = FENCE.sub("", text)
-    return ([block.replace("\\\n", " ") for _, block in _blocks()] + SPAN.findall(outside)
-            + LINK.findall(outside))
+def _code(pages: list[Path] = PAGES) -> list[str]:
+    """The fenced blocks (continued lines joined), the code spans and the link targets that
+    name repository paths from the root (a manual page's links to its neighbours are checked
+    by mkdocs build --strict, tests/harness/test_docs_site.py)."""
+    out = [block.replace("\\\n", " ") for _, block in _blocks(pages)]
+    for page in pages:
+        outside = FENCE.sub("", page.read_text())
+        out += SPAN.findall(outside) + LINK.findall(outside)
+    return out
 
 
 def _repo_paths() -> set[str]:
@@ -222,3 +229,19 @@ def test_the_demo_counts_in_the_readme_are_the_demos(pytester):
     items = _demo_items(pytester)
     xfail = sum(item.get_closest_marker("xfail") is not None for item in items)
     assert (len(items) - xfail, xfail) == tuple(map(int, claimed.groups()))
+
+
+def test_these_checks_read_the_readme_and_every_manual_page():
+    names = {page.relative_to(REPO_ROOT).as_posix() for page in PAGES}
+    assert {"README.md", "docs/closed-loop.md", "docs/policy-benchmark.md", "docs/options.md",
+            "docs/reference/scenario-keys.md"} <= names
+    assert len(names) > 12
+
+
+def test_the_readme_is_the_pitch_the_set_up_the_tour_and_links():
+    """The rest lives in the manual, where a user finds it; a README that grows again is
+    a manual page that was not made."""
+    text = README.read_text()
+    headings = re.findall(r"^## (.+)$", text, re.M)
+    assert headings == ["Set-up in two commands", "A five-minute tour", "The manual"]
+    assert len(text.splitlines()) < 260

@@ -69,17 +69,28 @@ class AgentsSpec(Section):
     (its notebook's ``distance_th_close``; the threshold is its 0.5).
     """
 
-    Mode: Literal["log", "reactive"] = "log"
-    Labels: list[str] | None = Field(None, min_length=1)
-    LabelThreshold: float = Field(0.5, ge=0.0, lt=1.0)
-    WithinAtStart: PositiveFloat | None = None
-    TimeHeadway: PositiveFloat = _IDM.time_headway
-    MinGap: PositiveFloat = _IDM.min_gap
-    ComfortAccel: PositiveFloat = _IDM.max_accel
-    ComfortDecel: PositiveFloat = _IDM.comfort_decel
-    MaxBrake: PositiveFloat = _IDM.max_brake
-    Delta: PositiveFloat = _IDM.delta
-    Corridor: PositiveFloat = 1.75
+    Mode: Literal["log", "reactive"] = Field("log", description=(
+        "log: every agent replays its log (l5kit's closed loop); reactive: vehicles brake by IDM for what is in "
+        "their way. Agents: log / Agents: reactive say just that"))
+    Labels: list[str] | None = Field(None, min_length=1, description=(
+        "only agent rows whose probability of one of these labels (e.g. CAR) is above LabelThreshold replay and "
+        "can be hit; default: every agent"))
+    LabelThreshold: float = Field(0.5, ge=0.0, lt=1.0, description=(
+        "the label probability an agent row must exceed (strictly; l5kit's filter_agents_threshold); needs Labels"))
+    WithinAtStart: PositiveFloat | None = Field(None, description=(
+        "m: only the tracks passing the label test within this distance of the ego at StartFrame replay, in every "
+        "frame (l5kit's disable_new_agents with distance_th_close)"))
+    TimeHeadway: PositiveFloat = Field(_IDM.time_headway, description="s, IDM's desired time gap (reactive only)")
+    MinGap: PositiveFloat = Field(_IDM.min_gap, description="m, IDM's minimum gap (reactive only)")
+    ComfortAccel: PositiveFloat = Field(_IDM.max_accel, description=(
+        "m/s^2, IDM's comfortable acceleration (reactive only)"))
+    ComfortDecel: PositiveFloat = Field(_IDM.comfort_decel, description=(
+        "m/s^2, IDM's comfortable deceleration (reactive only)"))
+    MaxBrake: PositiveFloat = Field(_IDM.max_brake, description=(
+        "m/s^2, the hardest an agent brakes, at least ComfortDecel (reactive only)"))
+    Delta: PositiveFloat = Field(_IDM.delta, description="IDM's acceleration exponent (reactive only)")
+    Corridor: PositiveFloat = Field(1.75, description=(
+        "m: how far sideways from an agent's path something is still in its way (reactive only)"))
 
     @model_validator(mode="before")
     @classmethod
@@ -143,14 +154,24 @@ class InputsSpec(Section):
     ``Inputs: vector`` / ``Inputs: raster`` say just the kind.
     """
 
-    Kind: Literal["vector", "raster"] = "vector"
-    MapType: Literal["box_debug", "py_semantic"] = "py_semantic"
-    RasterSize: tuple[PositiveInt, PositiveInt] = (224, 224)
-    PixelSize: tuple[PositiveFloat, PositiveFloat] = (0.5, 0.5)
-    EgoCenter: tuple[float, float] = (0.25, 0.5)
-    FilterAgentsThreshold: float = Field(0.5, ge=0.0, lt=1.0)
-    SemanticMap: str | None = None
-    Meta: str | None = None
+    Kind: Literal["vector", "raster"] = Field("vector", description=(
+        "vector: l5kit's agent and ego histories in the agent frame; raster: those plus image, l5kit's bird's-eye "
+        "raster. Inputs: vector / Inputs: raster say just that"))
+    MapType: Literal["box_debug", "py_semantic"] = Field("py_semantic", description=(
+        "box_debug: the agents' and the ego's boxes, one channel per history frame; py_semantic: those plus lanes "
+        "coloured by traffic-light state and crosswalks"))
+    RasterSize: tuple[PositiveInt, PositiveInt] = Field((224, 224), description=(
+        "[height, width] of the raster in pixels"))
+    PixelSize: tuple[PositiveFloat, PositiveFloat] = Field((0.5, 0.5), description=(
+        "[x, y] metres per pixel (square pixels)"))
+    EgoCenter: tuple[float, float] = Field((0.25, 0.5), description=(
+        "where the ego sits in the raster, as fractions of its width and height (l5kit's ego_center)"))
+    FilterAgentsThreshold: float = Field(0.5, ge=0.0, lt=1.0, description=(
+        "agents drawn are those whose label probability exceeds this (l5kit's filter_agents_threshold)"))
+    SemanticMap: str | None = Field(None, description=(
+        "the L5 semantic_map.pb (py_semantic), relative to the scenario file; default: beside the dataset"))
+    Meta: str | None = Field(None, description=(
+        "the L5 meta.json with the map's world-to-ECEF transform; default: beside the dataset"))
 
     @model_validator(mode="before")
     @classmethod
@@ -183,18 +204,28 @@ class InputsSpec(Section):
 
 
 class UnrollSpec(Section):
-    Scenes: list[NonNegativeInt] | None = None
-    SceneStride: PositiveInt | None = None
-    StartFrame: NonNegativeInt = 0
-    Steps: PositiveInt | None = None
-    DriftThreshold: NonNegativeFloat | None = 10.0
-    FreezeOnCollision: bool = True
-    Kinematic: bool = False
-    HistoryFrames: PositiveInt = 10
-    FutureFrames: PositiveInt = 12
-    MaxAgents: PositiveInt = 30
-    Agents: AgentsSpec = Field(default_factory=AgentsSpec)
-    Inputs: InputsSpec = Field(default_factory=InputsSpec)
+    Scenes: list[NonNegativeInt] | None = Field(None, description=(
+        "indices of the dataset's scenes to unroll; default: every scene"))
+    SceneStride: PositiveInt | None = Field(None, description=(
+        "unroll every N-th scene (as the seed does) instead of listing Scenes"))
+    StartFrame: NonNegativeInt = Field(0, description=(
+        "the frame each scene's unroll starts at; the policy sees the logged history before it"))
+    Steps: PositiveInt | None = Field(None, description="steps to unroll; default: to the end of the scene")
+    DriftThreshold: NonNegativeFloat | None = Field(10.0, description=(
+        "m: when the next pose the policy asks for is farther than this from the logged one, the ego is put back "
+        "on the log for that frame (counted as drift_resets); null: never"))
+    FreezeOnCollision: bool = Field(True, description=(
+        "true: in a frame where the ego overlaps an agent, the ego holds its pose for the next frame"))
+    Kinematic: bool = Field(False, description=(
+        "true: the ego moves as a unicycle within its limits instead of onto the pose the policy asks for"))
+    HistoryFrames: PositiveInt = Field(10, description="past frames the policy is given (and the raster draws)")
+    FutureFrames: PositiveInt = Field(12, description=(
+        "future frames of the logged target the policy is given (target_positions, for reference)"))
+    MaxAgents: PositiveInt = Field(30, description="the nearest surrounding agents the policy is given per step")
+    Agents: AgentsSpec = Field(default_factory=AgentsSpec, description=(
+        "which logged agents replay and how they move: log (default), reactive, or a mapping"))
+    Inputs: InputsSpec = Field(default_factory=InputsSpec, description=(
+        "what the policy is given each step: vector (default), raster, or a mapping"))
 
     def unroll_options(self) -> dict:
         """The keyword arguments of evaluate.unroll_scenes / unroll_config these keys set."""
@@ -222,17 +253,17 @@ class UnrollSpec(Section):
 
 
 class CollisionLimits(Section):
-    Front: NonNegativeInt = 0
-    Side: NonNegativeInt = 0
-    Rear: NonNegativeInt = 0
-    AtFaultOnly: bool = False
+    Front: NonNegativeInt = Field(0, description="front collisions allowed per scene")
+    Side: NonNegativeInt = Field(0, description="side collisions allowed per scene")
+    Rear: NonNegativeInt = Field(0, description="rear collisions allowed per scene")
+    AtFaultOnly: bool = Field(False, description="true: count only the collisions that are the ego's fault")
 
 
 class RangeLimit(Section):
     """A per-frame figure must stay <= Max; up to Duration seconds above it are tolerated."""
 
-    Max: NonNegativeFloat
-    Duration: NonNegativeFloat = 0.0
+    Max: NonNegativeFloat = Field(description="the bound the per-frame figure must stay at or below")
+    Duration: NonNegativeFloat = Field(0.0, description="seconds above Max that are tolerated")
 
 
 class ReferenceLimit(RangeLimit):
@@ -241,7 +272,9 @@ class ReferenceLimit(RangeLimit):
     the nearest logged position, on the first 80 % of the unrolled frames only.
     The scene figures report the same measure."""
 
-    Measure: Literal["polyline", "l5kit"] = "polyline"
+    Measure: Literal["polyline", "l5kit"] = Field("polyline", description=(
+        "polyline: distance to the nearest point of the logged path, every frame; l5kit: l5kit's "
+        "DistanceToRefTrajectoryMetric, to the nearest logged position on the first 80 % of the frames"))
 
 
 class ScoreConditions(Section):
@@ -250,9 +283,13 @@ class ScoreConditions(Section):
     bound per term by nuPlan's metric name, e.g. ``{drivable_area_compliance: 1}``.  A term bounded
     here that a scene cannot compute (no map, no speed limit) fails that scene, saying why."""
 
-    AtLeast: float | None = Field(None, ge=0.0, le=1.0)
-    MeanAtLeast: float | None = Field(None, ge=0.0, le=1.0)
-    Terms: dict[str, float] | None = None
+    AtLeast: float | None = Field(None, ge=0.0, le=1.0, description=(
+        "the lowest nuPlan closed-loop score each scene may have"))
+    MeanAtLeast: float | None = Field(None, ge=0.0, le=1.0, description=(
+        "the lowest mean score over the item's scenes (nuPlan's final score)"))
+    Terms: dict[str, float] | None = Field(None, description=(
+        "a lower bound per score term, by nuPlan's metric name, e.g. {drivable_area_compliance: 1}; a bounded "
+        "term a scene cannot compute fails that scene"))
 
     @field_validator("Terms")
     @classmethod
@@ -272,18 +309,25 @@ class ScoreConditions(Section):
 
 
 class ClosedLoopConditions(Section):
-    Collisions: CollisionLimits = Field(default_factory=CollisionLimits)
-    Displacement: RangeLimit | None = None
-    DistanceToReference: ReferenceLimit | None = None
-    SpeedDifference: RangeLimit | None = None
-    MaxResets: NonNegativeInt | None = None
-    ScenePassRate: float = Field(100.0, ge=0.0, le=100.0)
-    Score: ScoreConditions | None = None
+    Collisions: CollisionLimits = Field(default_factory=CollisionLimits, description=(
+        "collisions allowed per scene, by kind"))
+    Displacement: RangeLimit | None = Field(None, description=(
+        "the ego's distance from its logged position: Max (m) and Duration (s tolerated above it)"))
+    DistanceToReference: ReferenceLimit | None = Field(None, description=(
+        "the ego's distance to the logged path: Max (m), Duration (s) and Measure"))
+    SpeedDifference: RangeLimit | None = Field(None, description=(
+        "the ego's speed against the logged speed: Max (m/s) and Duration (s)"))
+    MaxResets: NonNegativeInt | None = Field(None, description="drift resets allowed per scene")
+    ScenePassRate: float = Field(100.0, ge=0.0, le=100.0, description=(
+        "% of the unrolled scenes that must pass for the item to pass"))
+    Score: ScoreConditions | None = Field(None, description=(
+        "nuPlan's closed-loop score per scene and its mean; every scene's score is reported regardless"))
 
 
 class ArtefactSpec(Section):
-    Animations: Literal["all", "failing", "none"] = "failing"
-    Charts: bool = True
+    Animations: Literal["all", "failing", "none"] = Field("failing", description=(
+        "bird's-eye GIFs of all scenes, the failing ones, or none"))
+    Charts: bool = Field(True, description="true: a bar chart of collision frames by kind and drift resets")
 
 
 class ConstantVelocitySpec(Section):
@@ -291,7 +335,9 @@ class ConstantVelocitySpec(Section):
     without a past: ``heading`` (its speed along the heading) or
     ``logged_next`` (to the logged next position, as in l5kit's closed loop)."""
 
-    FirstStep: Literal["heading", "logged_next"] = "heading"
+    FirstStep: Literal["heading", "logged_next"] = Field("heading", description=(
+        "where the constant_velocity baseline goes from a frame without a past: heading (its speed along the "
+        "heading) or logged_next (the logged next position, as l5kit)"))
 
 
 class ClosedLoopPerturbation(StartSearchSpec):
@@ -299,13 +345,21 @@ class ClosedLoopPerturbation(StartSearchSpec):
 
 
 class ClosedLoopConfig(ConditionsModel):
-    Model: str | None = None
-    ConstantVelocity: ConstantVelocitySpec | None = None
-    Unroll: UnrollSpec = Field(default_factory=UnrollSpec)
-    Conditions: ClosedLoopConditions = Field(default_factory=ClosedLoopConditions)
-    Artefacts: ArtefactSpec = Field(default_factory=ArtefactSpec)
-    Perturbation: ClosedLoopPerturbation | None = None
-    Executor: ExecutorSpec | None = None
+    Model: str | None = Field(None, description=(
+        "the planning model: a .pt2 (torch.export) or TorchScript file relative to the scenario file, "
+        "constant_velocity, log_replay, or (with --driveeval-allow-scenario-code) weights.pt=pkg.mod:factory, "
+        "pkg.mod:factory or pickle:file; --driveeval-model or a driveeval_model fixture replaces it"))
+    ConstantVelocity: ConstantVelocitySpec | None = Field(None, description=(
+        "options of the constant_velocity baseline (only with Model: constant_velocity)"))
+    Unroll: UnrollSpec = Field(default_factory=UnrollSpec, description="which scenes and frames are driven, and how")
+    Conditions: ClosedLoopConditions = Field(default_factory=ClosedLoopConditions, description=(
+        "what each scene must meet to pass"))
+    Artefacts: ArtefactSpec = Field(default_factory=ArtefactSpec, description="the pictures each item leaves")
+    Perturbation: ClosedLoopPerturbation | None = Field(None, description=(
+        "a robustness search for the smallest start perturbation that fails a scene, instead of one evaluation"))
+    Executor: ExecutorSpec | None = Field(None, description=(
+        "run the scenes in chunks, here or as Ray tasks; --driveeval-executor replaces each key it gives; "
+        "default: local, one batch"))
 
     @field_validator("ConstantVelocity")
     @classmethod

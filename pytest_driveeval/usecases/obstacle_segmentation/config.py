@@ -66,8 +66,10 @@ RATE = Field(ge=0.0, le=100.0)
 class Window(Section):
     """Seconds of the cloud's header stamp (absolute ROS time, as driving_log_replayer compares)."""
 
-    Start: float | None = None
-    End: float | None = None
+    Start: float | None = Field(None, description=(
+        "s of the cloud's header stamp (absolute ROS time) from which the box is judged; null: from the start"))
+    End: float | None = Field(None, description=(
+        "s of the cloud's header stamp up to which the box is judged; null: to the end"))
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -77,8 +79,10 @@ class Window(Section):
 
 
 class DetectionCondition(Section):
-    PassRate: float = RATE
-    BoundingBoxConfig: list[dict[str, Window | None]] | None = None
+    PassRate: float = Field(ge=0.0, le=100.0, description=(
+        "% of the judged frames in which every target box must have enough points"))
+    BoundingBoxConfig: list[dict[str, Window | None]] | None = Field(None, description=(
+        "the target boxes by annotation UUID, each with an optional time Window; overrides target_uuids"))
 
     def windows(self) -> dict[str, tuple[float, float]] | None:
         if self.BoundingBoxConfig is None:
@@ -92,7 +96,8 @@ class DetectionCondition(Section):
 
 
 class LegacyDetectionCondition(Section):
-    PassRate: float = RATE
+    PassRate: float = Field(ge=0.0, le=100.0, description=(
+        "% of the judged frames in which every target box must have enough points"))
 
 
 def polygon_problem(vertices: np.ndarray) -> str | None:
@@ -115,9 +120,9 @@ def polygon_problem(vertices: np.ndarray) -> str | None:
 
 
 class ProposedAreaSpec(Section):
-    polygon_2d: list[tuple[float, float]]
-    z_min: float
-    z_max: float
+    polygon_2d: list[tuple[float, float]] = Field(description="the area's vertices [x, y] in base_link, clockwise")
+    z_min: float = Field(description="m, the area's floor in base_link")
+    z_max: float = Field(description="m, the area's ceiling in base_link, at least z_min")
 
     @field_validator("polygon_2d")
     @classmethod
@@ -139,14 +144,18 @@ class ProposedAreaSpec(Section):
 
 
 class NonDetectionCondition(Section):
-    PassRate: float = RATE
-    ProposedArea: ProposedAreaSpec
+    PassRate: float = Field(ge=0.0, le=100.0, description=(
+        "% of frames in which the proposed area must hold no obstacle point"))
+    ProposedArea: ProposedAreaSpec = Field(description="the area in front of the vehicle that must stay empty")
 
 
 class ConditionsSpec(Section):
-    Detection: DetectionCondition | None = None
-    ObstacleDetection: LegacyDetectionCondition | None = None  # 0.1.0 / 0.2.0 name
-    NonDetection: NonDetectionCondition | None = None
+    Detection: DetectionCondition | None = Field(None, description=(
+        "the annotated boxes must hold points (format 0.3.0); null: not judged"))
+    ObstacleDetection: LegacyDetectionCondition | None = Field(None, description=(
+        "the 0.1.0 / 0.2.0 name of Detection, with the targets from target_uuids"))  # 0.1.0 / 0.2.0 name
+    NonDetection: NonDetectionCondition | None = Field(None, description=(
+        "no obstacle point in the proposed area; null: not judged"))
 
     @model_validator(mode="after")
     def _by_version(self, info: ValidationInfo):
@@ -173,26 +182,34 @@ class ConditionsSpec(Section):
 
 
 class EvaluationConfigDict(Section):
-    evaluation_task: Literal["sensing"] = "sensing"
-    target_uuids: list[str] | None = None
-    box_scale_0m: PositiveFloat = 1.0
-    box_scale_100m: PositiveFloat = 1.0
-    min_points_threshold: NonNegativeInt = 1
-    label_prefix: str | None = None  # driving_log_replayer sets it to "autoware"; unused here
+    evaluation_task: Literal["sensing"] = Field("sensing", description=(
+        "driving_log_replayer's task; sensing is the one there is"))
+    target_uuids: list[str] | None = Field(None, description=(
+        "annotation UUIDs judged for Detection; null: every annotated box"))
+    box_scale_0m: PositiveFloat = Field(1.0, description=(
+        "scale of a box at 0 m from the vehicle (interpolated linearly to box_scale_100m)"))
+    box_scale_100m: PositiveFloat = Field(1.0, description="scale of a box at 100 m from the vehicle")
+    min_points_threshold: NonNegativeInt = Field(1, description="points a target box must hold to count as detected")
+    label_prefix: str | None = Field(None, description=(
+        "driving_log_replayer sets it to autoware; not read here"))
 
 
 class SensingSpec(Section):
-    evaluation_config_dict: EvaluationConfigDict = Field(default_factory=EvaluationConfigDict)
+    evaluation_config_dict: EvaluationConfigDict = Field(default_factory=EvaluationConfigDict, description=(
+        "driving_log_replayer's sensing evaluation settings"))
 
 
 class PointCloudOptions(Section):
-    Topic: str = "/perception/obstacle_segmentation/pointcloud"
-    RawTopic: str | None = "/sensing/lidar/concatenated/pointcloud"  # None: the dataset's lidar sweeps
-    TopicRateDiagnostic: str = "topic_state_monitor_obstacle_segmentation_pointcloud"
+    Topic: str = Field("/perception/obstacle_segmentation/pointcloud", description=(
+        "the bag's topic of the obstacle points that are judged"))
+    RawTopic: str | None = Field("/sensing/lidar/concatenated/pointcloud", description=(
+        "the raw cloud handed to a driveeval_pointclouds filter; null: the dataset's lidar sweeps"))
+    TopicRateDiagnostic: str = Field("topic_state_monitor_obstacle_segmentation_pointcloud", description=(
+        "the diagnostics name whose topic rate state each frame reports (Unknown when the bag has none)"))
 
 
 class ArtefactOptions(Section):
-    FailingFramePlots: NonNegativeInt = 5
+    FailingFramePlots: NonNegativeInt = Field(5, description="bird's-eye PNGs of the first failing frames")
 
 
 #: memory a ghost point takes while a cloud is perturbed: the point (up to 32 bytes with its
@@ -209,11 +226,14 @@ class ObstaclePerturbation(SearchSpec):
         "RangeNoise": (0.0, float("inf"), "a standard deviation (m) cannot be negative")}
     WHOLE: ClassVar[frozenset[str]] = frozenset({"GhostPoints"})
 
-    Dropout: tuple[float, float] | None = None
-    RangeNoise: tuple[float, float] | None = None
-    GhostPoints: tuple[NonNegativeInt, NonNegativeInt] | None = None
+    Dropout: tuple[float, float] | None = Field(None, description=(
+        "[low, high]: the fraction of raw points dropped; the range holds 0"))
+    RangeNoise: tuple[float, float] | None = Field(None, description=(
+        "[low, high] m: standard deviation of noise along each point's ray; the range holds 0"))
+    GhostPoints: tuple[NonNegativeInt, NonNegativeInt] | None = Field(None, description=(
+        "[low, high]: points of a ghost (spray, dust) cluster put in the non-detection area; the range holds 0"))
     # Each searched frame's raw cloud is read once and kept: this bounds the memory of a long bag.
-    Frames: PositiveInt = 200
+    Frames: PositiveInt = Field(200, description="the first judged frames searched (their raw clouds stay in memory)")
 
     def strategy_ranges(self) -> dict[str, tuple]:
         """The ranges as ``cloud_perturbations`` takes them (ghost points as whole numbers)."""
@@ -224,11 +244,15 @@ class ObstaclePerturbation(SearchSpec):
 
 
 class ObstacleSegmentationConfig(ConditionsModel):
-    Conditions: ConditionsSpec
-    SensingEvaluationConfig: SensingSpec = Field(default_factory=SensingSpec)
-    PointCloud: PointCloudOptions = Field(default_factory=PointCloudOptions)
-    Artefacts: ArtefactOptions = Field(default_factory=ArtefactOptions)
-    Perturbation: ObstaclePerturbation | None = None
+    Conditions: ConditionsSpec = Field(description=(
+        "what each frame must meet: Detection (or ObstacleDetection) and NonDetection"))
+    SensingEvaluationConfig: SensingSpec = Field(default_factory=SensingSpec, description=(
+        "driving_log_replayer's sensing settings: targets, box scales, minimum points"))
+    PointCloud: PointCloudOptions = Field(default_factory=PointCloudOptions, description=(
+        "which topics hold the clouds (keys of our own; a driving_log_replayer file needs none)"))
+    Artefacts: ArtefactOptions = Field(default_factory=ArtefactOptions, description="the pictures each item leaves")
+    Perturbation: ObstaclePerturbation | None = Field(None, description=(
+        "a robustness search of the point-cloud filter (needs driveeval_pointclouds overridden with a filter)"))
 
     @model_validator(mode="after")
     def _ghosts_need_an_area(self):

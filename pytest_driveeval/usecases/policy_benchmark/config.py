@@ -50,6 +50,7 @@ one of ``FailOn``; the Conditions are not judged then.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from typing import Any, ClassVar, Literal
@@ -81,11 +82,20 @@ class BlueprintSpec(Section):
     the recorded cars on their recorded paths at the speed IDM gives them).  ``Params``: the
     blueprint's own parameters, or sim.commonroad_scene.CommonRoadParams for a CommonRoad scene."""
 
-    Name: Literal["highway", "merging", "intersection"] | None = None
-    CommonRoad: str | None = Field(None, min_length=1)
-    PlanningProblem: int | None = None
-    Traffic: Literal["replay", "reactive"] | None = None
-    Params: dict[str, Any] = Field(default_factory=dict)
+    Name: Literal["highway", "merging", "intersection"] | None = Field(None, description=(
+        "a blueprint: highway, merging or intersection; give either Name or CommonRoad"))
+    CommonRoad: str | None = Field(None, min_length=1, description=(
+        "a CommonRoad scenario file (XML), relative to the scenario file: its lanelets, planning problem and "
+        "recorded obstacles"))
+    PlanningProblem: int | None = Field(None, description=(
+        "the CommonRoad planning problem's id; default: one item per planning problem of the file (CommonRoad "
+        "only)"))
+    Traffic: Literal["replay", "reactive"] | None = Field(None, description=(
+        "replay (default): the recorded obstacles; reactive: the recorded cars on their recorded paths at the "
+        "speed IDM gives them (CommonRoad only)"))
+    Params: dict[str, Any] = Field(default_factory=dict, description=(
+        "the blueprint's own parameters (make_blueprint's), or a CommonRoad scene's (the ego's size, seeded start "
+        "offsets): see the tables below"))
 
     @property
     def label(self) -> str:
@@ -119,8 +129,10 @@ class BlueprintSpec(Section):
 
 
 class RateLimit(Section):
-    AtLeast: float | None = Field(None, ge=0.0, le=100.0)
-    AtMost: float | None = Field(None, ge=0.0, le=100.0)
+    AtLeast: float | None = Field(None, ge=0.0, le=100.0, description=(
+        "% the rate must reach, decided on its interval's lower bound"))
+    AtMost: float | None = Field(None, ge=0.0, le=100.0, description=(
+        "% the rate may reach at most, decided on its interval's upper bound"))
 
     @model_validator(mode="after")
     def _one_bound(self):
@@ -130,22 +142,28 @@ class RateLimit(Section):
 
 
 class BeatsSpec(Section):
-    Baseline: str
-    Metric: Literal["goal_rate", "collision_rate", "return"] = "goal_rate"
-    Rule: Literal["improvement", "difference"] = "improvement"
+    Baseline: str = Field(description="the policy (one of Policies, not judged) this one must beat")
+    Metric: Literal["goal_rate", "collision_rate", "return"] = Field("goal_rate", description=(
+        "the figure compared: goal_rate, collision_rate or return"))
+    Rule: Literal["improvement", "difference"] = Field("improvement", description=(
+        "improvement: P(this policy better than the baseline) > 0.5 with confidence; difference: the difference "
+        "of means (IQMs) excludes 0"))
 
 
 class BenchmarkConditions(Section):
-    Confidence: float = Field(95.0, gt=50.0, lt=100.0)
-    GoalRate: RateLimit | None = None
-    CollisionRate: RateLimit | None = None
-    OffRoadRate: RateLimit | None = None
-    Beats: list[BeatsSpec] = Field(default_factory=list)
+    Confidence: float = Field(95.0, gt=50.0, lt=100.0, description="% level of every interval of the conditions")
+    GoalRate: RateLimit | None = Field(None, description="% of episodes that reach the goal: AtLeast or AtMost")
+    CollisionRate: RateLimit | None = Field(None, description=(
+        "% of episodes that end in a collision: AtLeast or AtMost"))
+    OffRoadRate: RateLimit | None = Field(None, description="% of episodes that leave the road: AtLeast or AtMost")
+    Beats: list[BeatsSpec] = Field(default_factory=list, description=(
+        "paired comparisons the judged policy must win, on the same seeded episodes"))
 
 
 class BenchmarkArtefacts(Section):
-    Animations: Literal["all", "failing", "none"] = "failing"
-    ComparisonPlot: bool = True
+    Animations: Literal["all", "failing", "none"] = Field("failing", description=(
+        "GIFs of all episodes, of one that missed its goal (failing), or none"))
+    ComparisonPlot: bool = Field(True, description="true: a plot of the policies' rates with their intervals")
 
 
 FAILURES = ("collision", "off_road", "step_limit")
@@ -159,9 +177,11 @@ class PolicyPerturbation(StartSearchSpec):
     BOUNDS: ClassVar[dict[str, tuple[float, float, str]]] = {
         **StartSearchSpec.BOUNDS, "GapScale": (1e-3, math.inf, "a gap scale must stay above 0")}
 
-    GapScale: tuple[float, float] | None = None
-    FailOn: list[Literal["collision", "off_road", "step_limit"]] = Field(default_factory=lambda: list(FAILURES),
-                                                                          min_length=1)
+    GapScale: tuple[float, float] | None = Field(None, description=(
+        "[low, high]: the blueprint's spawn gaps scaled (below 1 denser traffic); the range holds 1"))
+    FailOn: list[Literal["collision", "off_road", "step_limit"]] = Field(
+        default_factory=lambda: list(FAILURES), min_length=1,
+        description="episode outcomes that fail an example: collision, off_road, step_limit")
 
     @model_validator(mode="after")
     def _each_outcome_once(self):
@@ -171,20 +191,32 @@ class PolicyPerturbation(StartSearchSpec):
 
 
 class PolicyBenchmarkConfig(ConditionsModel):
-    Blueprint: BlueprintSpec
-    Episodes: PositiveInt = 64
-    FirstSeed: NonNegativeInt = 0
-    Strata: PositiveInt = 8
-    AgentLimit: int = 12
-    StepLimit: PositiveInt | None = None
-    Policies: dict[str, str] = Field(min_length=1)
-    Judged: list[str] | None = None
+    Blueprint: BlueprintSpec = Field(description="the road and traffic: a blueprint by Name or a CommonRoad file")
+    Episodes: PositiveInt = Field(64, description="episodes per policy, seeds FirstSeed .. FirstSeed + Episodes - 1")
+    FirstSeed: NonNegativeInt = Field(0, description="the first episode's seed")
+    Strata: PositiveInt = Field(8, description="seed groups the stratified bootstrap resamples within")
+    AgentLimit: int = Field(12, description=(
+        "agents an episode holds, the ego counted; the graph observation's node count"))
+    StepLimit: PositiveInt | None = Field(None, description=(
+        "steps after which an episode ends as step_limit; default: the blueprint's max_steps"))
+    Policies: dict[str, str] = Field(min_length=1, description=(
+        "name: model spec (.pt2, TorchScript, or with --driveeval-allow-scenario-code weights.pt=module:factory) "
+        "or a baseline (random, constant, idm_expert); one item per policy"))
+    Judged: list[str] | None = Field(None, description=(
+        "the policies whose items the Conditions decide; default: every policy that is not a baseline"))
     #: policies a judged item is compared with, paired on its episodes, reported and never decided
-    Compare: list[str] = Field(default_factory=list)
-    Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions)
-    Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts)
-    Perturbation: PolicyPerturbation | None = None
-    Executor: ExecutorSpec | None = None
+    Compare: list[str] = Field(default_factory=list, description=(
+        "policies a judged item is compared with, paired on its episodes, reported and never decided"))
+    Conditions: BenchmarkConditions = Field(default_factory=BenchmarkConditions, description=(
+        "what a judged policy must meet, decided on intervals"))
+    Artefacts: BenchmarkArtefacts = Field(default_factory=BenchmarkArtefacts, description=(
+        "the pictures each item leaves"))
+    Perturbation: PolicyPerturbation | None = Field(None, description=(
+        "a robustness search for an episode start and traffic that breaks the policy, instead of the benchmark; "
+        "the Conditions are not judged then"))
+    Executor: ExecutorSpec | None = Field(None, description=(
+        "run the episodes in chunks of seeds, here or as Ray tasks; --driveeval-executor replaces each key it "
+        "gives; default: local, one batch"))
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -242,6 +274,21 @@ class PolicyBenchmarkConfig(ConditionsModel):
                                                "grows with the agents squared)")
         check_fits("Episodes", self.Episodes, episodes * one,
                    f"{episodes} episodes of {agents} agents stepped together")
+
+    @classmethod
+    def parameter_tables(cls) -> list[tuple[str, type, tuple[str, ...] | None]]:
+        """The dataclasses ``Blueprint.Params`` is read into, for the scenario keys' page
+        (scenario.reference): (title, dataclass, the fields that apply, None for all)."""
+        from pytest_driveeval.sim.blueprints import BLUEPRINTS, BlueprintParams
+        from pytest_driveeval.sim.commonroad_scene import CommonRoadParams
+
+        tables: list[tuple[str, type, tuple[str, ...] | None]] = [
+            (f"`Name: {name}`", params, None) for name, (params, _) in sorted(BLUEPRINTS.items())]
+        # What check_params accepts: the blueprint fields that mean something there, and its own.
+        base = {f.name for f in dataclasses.fields(BlueprintParams)}
+        own = tuple(f.name for f in dataclasses.fields(CommonRoadParams) if f.name not in base)
+        tables.append(("a `CommonRoad` scene", CommonRoadParams, (*CommonRoadParams.USED, *own)))
+        return tables
 
     def blueprint_params(self) -> dict[str, Any]:
         """make_blueprint's keyword arguments: the blueprint's Params and the StepLimit."""
