@@ -51,6 +51,9 @@ def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
     if version not in VERSIONS:
         raise doc.error(root, f"unknown commonRoadVersion {version!r}: this reader knows {', '.join(VERSIONS)}")
     dt = doc.number(root, root.get("timeStepSize"), "timeStepSize")
+    if not dt > 0:
+        raise doc.error(root, f"timeStepSize: expected the seconds of one time step, above 0, got {dt:g}: "
+                              "give the step of the recording (CommonRoad's benchmarks: 0.1)")
     lanelets = _lanelets(doc, root)
     obstacles = _obstacles(doc, root, version)
     problems: dict[int, PlanningProblem] = {}
