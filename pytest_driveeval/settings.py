@@ -112,7 +112,8 @@ def add_options(parser: pytest.Parser) -> None:
                     help="fail a scenario item that runs longer, naming where it was (a scenario's TimeLimit "
                          f"key wins; ini: driveeval_time_limit; default: {DEFAULT_TIME_LIMIT:g}; 0: none)")
     group.addoption("--driveeval-memory-limit", metavar="GIB", default=None,
-                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points) "
+                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points, "
+                         "a CommonRoad scene's steps) "
                          "would need more memory per item (ini: driveeval_memory_limit; default: half this "
                          "machine's memory; 0: no check)")
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
