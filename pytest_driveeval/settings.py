@@ -280,6 +280,19 @@ def _time_limit(text: str | None) -> float | None:
     return _non_negative(text, math.inf, "time limit must be a number of seconds >= 0 (0: none)") or None
 
 
+def time_limit_header(settings: Settings) -> str:
+    """The session header's line on the time limit: a hang ends only there, so say at the start what
+    it is and how to change it."""
+    own = "a scenario's TimeLimit key sets its own"
+    if settings.time_limit is None:
+        return f"driveeval: no time limit on scenario items ({TIME_LIMIT_KEYS} is 0); {own}"
+    if settings.time_limit_source == "default":
+        return (f"driveeval: each scenario item may run {settings.time_limit:g} s (the default time limit); "
+                f"{TIME_LIMIT_KEYS} SECONDS sets another, 0: none; {own}")
+    return (f"driveeval: each scenario item may run {settings.time_limit:g} s ({TIME_LIMIT_KEYS}); "
+            f"{own}, 0: none")
+
+
 def _memory_limit(text: str | None) -> int | None:
     if not text:
         return None
