@@ -180,6 +180,9 @@ BAD = {
     "inf_lanelet_point": (HEAD.format(v="2020a") + LANELET.format(i=7, extra="", refs="").replace(
                               "<x>10</x><y>1</y>", "<x>10</x><y>-inf</y>") + "</commonRoad>",
                           r":4: <y> in <lanelet id=\"7\">: y: expected a finite number, got '-inf'"),
+    "huge_time_step": (scenario(dynamic(9, f"<trajectory>{state(1)}</trajectory>").replace(
+                           "<exact>1</exact></time>", "<exact>1e30</exact></time>")),
+                       r'<dynamicObstacle id="9">: <state>: time step 1e\+30 is beyond 1e\+09'),
     "nan_time_step": (scenario("").replace('timeStepSize="0.1"', 'timeStepSize="NaN"'),
                       r":2: <commonRoad>: timeStepSize: expected a finite number, got 'NaN'"),
     "zero_time_step": (scenario("").replace('timeStepSize="0.1"', 'timeStepSize="0"'),
