@@ -11,7 +11,7 @@ from .deadline import session, session_ended, session_finishing
 from .execute import disconnect
 from .progress import close_terminal, open_terminal, share_with_worker
 from .results import ResultsReporter, annotate_report
-from .settings import add_options, check_output_dir, get_settings
+from .settings import add_options, check_output_dir, get_settings, time_limit_header
 from .usecase import set_memory_budget
 
 pytest_plugins = ["pytest_driveeval.fixtures"]
@@ -53,6 +53,10 @@ def pytest_configure(config: pytest.Config) -> None:
     if not hasattr(config, "workerinput"):  # only the controller (or a plain run) writes results
         check_output_dir(settings.output_dir)
         config.pluginmanager.register(ResultsReporter(config), "driveeval-results")
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    return [time_limit_header(get_settings(config))]
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

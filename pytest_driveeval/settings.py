@@ -112,7 +112,8 @@ def add_options(parser: pytest.Parser) -> None:
                     help="fail a scenario item that runs longer, naming where it was (a scenario's TimeLimit "
                          f"key wins; ini: driveeval_time_limit; default: {DEFAULT_TIME_LIMIT:g}; 0: none)")
     group.addoption("--driveeval-memory-limit", metavar="GIB", default=None,
-                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points) "
+                    help="refuse, at its line, a scenario whose sizes (episodes, agents, raster, ghost points, "
+                         "a CommonRoad scene's steps) "
                          "would need more memory per item (ini: driveeval_memory_limit; default: half this "
                          "machine's memory; 0: no check)")
     group.addoption("--driveeval-allow-scenario-code", action="store_true", default=None,
@@ -277,6 +278,19 @@ def _time_limit(text: str | None) -> float | None:
     if not text:
         return DEFAULT_TIME_LIMIT
     return _non_negative(text, math.inf, "time limit must be a number of seconds >= 0 (0: none)") or None
+
+
+def time_limit_header(settings: Settings) -> str:
+    """The session header's line on the time limit: a hang ends only there, so say at the start what
+    it is and how to change it."""
+    own = "a scenario's TimeLimit key sets its own"
+    if settings.time_limit is None:
+        return f"driveeval: no time limit on scenario items ({TIME_LIMIT_KEYS} is 0); {own}"
+    if settings.time_limit_source == "default":
+        return (f"driveeval: each scenario item may run {settings.time_limit:g} s (the default time limit); "
+                f"{TIME_LIMIT_KEYS} SECONDS sets another, 0: none; {own}")
+    return (f"driveeval: each scenario item may run {settings.time_limit:g} s ({TIME_LIMIT_KEYS}); "
+            f"{own}, 0: none")
 
 
 def _memory_limit(text: str | None) -> int | None:

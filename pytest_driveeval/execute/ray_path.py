@@ -33,24 +33,61 @@ def _ray():
     return ray
 
 
-#: seconds the reachability probe waits for a TCP connection: a cluster's port answers in
-#: milliseconds even across a data centre; a dead one must not cost each item Ray's own timeouts
+#: seconds the reachability probe waits for a TCP connection, and then for the answer to its
+#: gRPC greeting: a cluster's port answers in milliseconds even across a data centre; a dead one,
+#: or a listener that accepts and never answers, must not cost each item Ray's own timeouts
 PROBE_SECONDS = 3.0
 # Per process and address, the message of a cluster that could not be reached: every item that
 # asks for it again fails at once with the same words instead of waiting for Ray once more.
 _unreachable: dict[str | None, str] = {}
 
+# Both a GCS address and a Ray Client (ray://) address are gRPC servers, which speak HTTP/2: to a
+# client's connection preface and SETTINGS frame a server answers with its own SETTINGS frame
+# (RFC 9113, 3.4).  A port that accepts and stays silent (or speaks something else) would
+# otherwise leave ray.init retrying for ever, deaf to SIGTERM.
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_SETTINGS_FRAME = 4
+
+
+def _tls() -> bool:
+    # With RAY_USE_TLS the gRPC ports expect a TLS handshake first: the plain greeting cannot tell.
+    return os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true")
+
+
+def _greeting_unanswered(connection: socket.socket, host: str, port: int) -> str | None:
+    """Why the peer at ``host:port`` is no gRPC server (None: it answered as one)."""
+    try:
+        connection.sendall(_HTTP2_PREFACE)
+        reply = b""
+        while len(reply) < 9:  # a frame's header: 3 bytes length, 1 type, 1 flags, 4 stream
+            chunk = connection.recv(9 - len(reply))
+            if not chunk:
+                break
+            reply += chunk
+    except TimeoutError:
+        return (f"{host}:{port} accepted the connection but did not answer a gRPC (HTTP/2) greeting within "
+                f"{PROBE_SECONDS:g} s: check that the address is the cluster's GCS port ('ray start --head' "
+                "prints it) or its Ray Client port (ray://, default 10001)")
+    except OSError as exc:
+        return f"{host}:{port} accepted the connection, then: {exc.strerror or exc}"
+    if len(reply) == 9 and reply[3] == _SETTINGS_FRAME:
+        return None
+    what = f"answered {reply[:9]!r}" if reply else "closed the connection"
+    return (f"{host}:{port} {what} where a gRPC (HTTP/2) server sends its settings: no Ray cluster listens there; "
+            "check the port ('ray start --head' prints the GCS address)")
+
 
 def _probe(address: str) -> str | None:
-    """Why nothing answers at ``host:port`` / ``ray://host:port`` (None: something listens).  Ray
-    itself retries a GCS address forever and a Ray Client address for ~30 s, deaf to SIGTERM."""
+    """Why nothing answers at ``host:port`` / ``ray://host:port`` as Ray would (None: a gRPC server
+    answers).  Ray itself retries a GCS address forever and a Ray Client address for ~30 s, deaf to
+    SIGTERM."""
     endpoint = host_port(address)
     if endpoint is None:  # auto, local: Ray finds the cluster itself
         return None
     host, port = endpoint
     try:
-        with socket.create_connection((host, port), timeout=PROBE_SECONDS):
-            return None
+        with socket.create_connection((host, port), timeout=PROBE_SECONDS) as connection:
+            return None if _tls() else _greeting_unanswered(connection, host, port)
     except ConnectionRefusedError:
         return f"nothing listens on port {port} of {host} (connection refused)"
     except socket.gaierror as exc:

@@ -39,6 +39,8 @@ __all__ = ["read_commonroad", "planning_problem", "CommonRoadError"]
 VERSIONS = ("2018b", "2020a")
 SPEED_LIMIT_SIGNS = {"274", "R2-1"}  # German "Zulässige Höchstgeschwindigkeit" and the US speed limit sign
 _NAN = float("nan")
+#: time steps count from a recording's start; far beyond this, step arithmetic leaves int64
+MAX_TIME_STEP = 10 ** 9
 
 
 def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
@@ -51,6 +53,9 @@ def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
     if version not in VERSIONS:
         raise doc.error(root, f"unknown commonRoadVersion {version!r}: this reader knows {', '.join(VERSIONS)}")
     dt = doc.number(root, root.get("timeStepSize"), "timeStepSize")
+    if not dt > 0:
+        raise doc.error(root, f"timeStepSize: expected the seconds of one time step, above 0, got {dt:g}: "
+                              "give the step of the recording (CommonRoad's benchmarks: 0.1)")
     lanelets = _lanelets(doc, root)
     obstacles = _obstacles(doc, root, version)
     problems: dict[int, PlanningProblem] = {}
@@ -139,6 +144,9 @@ def _state(doc: XmlDoc, node: ET.Element | None, owner: ET.Element, exact: bool)
         raise doc.error(owner, f"<{node.tag}> without <time>")
     if time != int(time):
         raise doc.error(owner, f"<{node.tag}>: time step {time} is not an integer")
+    if abs(time) > MAX_TIME_STEP:
+        raise doc.error(owner, f"<{node.tag}>: time step {time:g} is beyond {MAX_TIME_STEP:g} (over three years of "
+                               "0.1 s steps): give the step's number, counted from the recording's start")
     fields = {name: doc.value(node.find(tag), owner, exact=True)
               for name, tag in (("orientation", "orientation"), ("velocity", "velocity"),
                                 ("acceleration", "acceleration"), ("yaw_rate", "yawRate"),

@@ -32,7 +32,9 @@ once, so that a step only indexes arrays:
 
 The step time is the file's ``timeStepSize``; the episode's step limit is the
 end of the goal's time interval (the latest over its goal states) unless
-``max_steps`` is given, and :data:`DEFAULT_MAX_STEPS` when a goal has no time.
+``max_steps`` is given, and :data:`DEFAULT_MAX_STEPS` when a goal has no time.  The obstacles'
+arrays take :func:`scene_bytes` (the caller bounds them before they are allocated), the drivable
+area's raster at most ``MAX_GRID_CELLS`` cells (a ParameterError on ``resolution`` beyond).
 
 Each episode's start is the initial state moved by offsets drawn from its seed
 (:func:`~pytest_driveeval.sim.commonroad_episodes.start_offsets`): **seed 0 is the recorded initial state itself**, seed
@@ -51,15 +53,17 @@ from typing import ClassVar
 
 import numpy as np
 
+from pytest_driveeval.errors import display_path
 from pytest_driveeval.geometry.planar import arc_lengths
 from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem, read_commonroad
 from pytest_driveeval.io.commonroad_geometry import shape_outline
 from pytest_driveeval.io.commonroad_types import (Circle, CommonRoadScenario, Obstacle, PlanningProblem, Polygon,
                                                   Rectangle, Shape)
 from pytest_driveeval.sim.blueprints.base import BlueprintParams, ParameterError, positive, span
-from pytest_driveeval.sim.blueprints.road import Lane, Road
+from pytest_driveeval.sim.blueprints.road import Lane, Road, RoadTooLarge
 
-__all__ = ["CommonRoadParams", "CommonRoadScene", "DEFAULT_MAX_STEPS", "commonroad_scene", "read_cached"]
+__all__ = ["CommonRoadParams", "CommonRoadScene", "DEFAULT_MAX_STEPS", "commonroad_scene", "read_cached",
+           "scene_bytes", "step_limit"]
 
 DEFAULT_MAX_STEPS = 200
 
@@ -249,7 +253,16 @@ def _goal(scenario: CommonRoadScenario, problem: PlanningProblem) -> tuple[np.nd
     return centre, float(heading), float(speed), tuple(outlines)
 
 
-def _step_limit(problem: PlanningProblem) -> int:
+def scene_bytes(max_steps: int, obstacles: int) -> float:
+    """About the memory :func:`commonroad_scene` takes for ``max_steps`` steps of ``obstacles``
+    obstacles: the time steps and each obstacle's box, heading, speed and presence at every step
+    (33 bytes kept, as much again while they are stacked), plus one obstacle's temporaries."""
+    return (max_steps + 1.0) * (128.0 + 72.0 * obstacles)
+
+
+def step_limit(problem: PlanningProblem) -> int:
+    """The steps of an episode of ``problem`` when no ``max_steps`` is given: to the end of its goal's
+    time interval (the latest over its goal states), DEFAULT_MAX_STEPS when a goal has no time."""
     ends = [g.time.end for g in problem.goals if g.time is not None]
     if len(ends) < len(problem.goals):
         return DEFAULT_MAX_STEPS
@@ -272,8 +285,13 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: st
     if not (math.isfinite(init.orientation) and math.isfinite(init.velocity)):
         raise CommonRoadError(f"{path}: planning problem {problem.id}: the initial state needs an orientation and "
                               f"a velocity (got {init.orientation}, {init.velocity})")
-    max_steps = params.pop("max_steps", None) or _step_limit(problem)
+    max_steps = params.pop("max_steps", None) or step_limit(problem)
     p = CommonRoadParams(dt=scenario.dt, max_steps=max_steps, **params)
+    try:  # first: its size check allocates nothing
+        road = _road(scenario, p.resolution)
+    except RoadTooLarge as exc:
+        raise ParameterError(CommonRoadParams.name, "resolution", f"{display_path(Path(path))}'s lanelets: {exc}; give a coarser "
+                                                                  "resolution") from None
     times = init.time_step + np.arange(p.max_steps + 1)
     obstacles = list(scenario.obstacles.values())
     replay = [_replay(o, times) for o in obstacles]
@@ -284,7 +302,7 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: st
     sizes = np.array([r[4] for r in replay]).reshape(n, 2)
     centre, heading, goal_speed, outlines = _goal(scenario, problem)
     name = f"{scenario.benchmark_id or Path(path).stem} problem {problem.id}"
-    return CommonRoadScene(name, p, _road(scenario, p.resolution), scenario, problem, init.time_step,
+    return CommonRoadScene(name, p, road, scenario, problem, init.time_step,
                            tuple(l.polygon for l in scenario.lanelets.values()),
                            np.array([o.id for o in obstacles], np.int64), sizes, xy, yaw, speed, valid.astype(bool),
                            centre, heading, goal_speed, outlines,

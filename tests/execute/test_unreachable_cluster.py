@@ -79,3 +79,71 @@ def test_only_an_explicit_host_and_port_is_probed(address, host_port):
 
     why = ray_path._probe(address)
     assert (why is not None) == host_port
+
+
+@pytest.fixture
+def silent_port():
+    """A port that accepts connections (the kernel's backlog) and never answers."""
+    import socket
+
+    with socket.socket() as listener:
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(8)
+        yield listener.getsockname()[1]
+
+
+def test_a_listener_that_never_answers_fails_the_probe_within_its_time(silent_port, monkeypatch):
+    from pytest_driveeval.execute import ray_path
+
+    monkeypatch.setattr(ray_path, "PROBE_SECONDS", 0.2)
+    monkeypatch.delenv("RAY_USE_TLS", raising=False)
+    for address in (f"127.0.0.1:{silent_port}", f"ray://127.0.0.1:{silent_port}"):
+        assert ray_path._probe(address) == (
+            f"127.0.0.1:{silent_port} accepted the connection but did not answer a gRPC (HTTP/2) greeting within "
+            "0.2 s: check that the address is the cluster's GCS port ('ray start --head' prints it) or its Ray "
+            "Client port (ray://, default 10001)")
+
+
+def serve_once(reply: bytes):
+    """A port whose first connection gets ``reply`` to whatever it sends, then is closed."""
+    import socket
+    import threading
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+
+    def answer():
+        connection, _ = listener.accept()
+        with connection, listener:
+            connection.recv(64)
+            connection.sendall(reply)
+
+    threading.Thread(target=answer, daemon=True).start()
+    return listener.getsockname()[1]
+
+
+def test_a_grpc_server_passes_the_probe_and_another_server_does_not(monkeypatch):
+    from pytest_driveeval.execute import ray_path
+
+    monkeypatch.delenv("RAY_USE_TLS", raising=False)
+    settings = bytes([0, 0, 6, 4, 0, 0, 0, 0, 0, 0, 3, 0, 0, 0, 100])  # an HTTP/2 SETTINGS frame, as gRPC sends
+    assert ray_path._probe(f"127.0.0.1:{serve_once(settings)}") is None
+    port = serve_once(b"HTTP/1.1 400 Bad Request\r\n\r\n")
+    assert ray_path._probe(f"127.0.0.1:{port}") == (
+        f"127.0.0.1:{port} answered b'HTTP/1.1 ' where a gRPC (HTTP/2) server sends its settings: no Ray cluster "
+        "listens there; check the port ('ray start --head' prints the GCS address)")
+
+
+def test_an_item_whose_address_never_answers_fails_at_its_line_and_the_good_one_passes(pytester, silent_port):
+    pytester.makefile(".scenario.yaml", good=BENCH.format(name="good", executor=""),
+                      silent=BENCH.format(name="silent",
+                                          executor=f'  Executor: {{Kind: ray, Address: "127.0.0.1:{silent_port}"}}\n'))
+    # In a subprocess with a timeout: ray.init at such a port waits for ever and ignores SIGTERM.
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines([
+        f"*UnreachableCluster: silent.scenario.yaml:11: Evaluation.Executor.Address: cannot reach a Ray cluster at "
+        f"127.0.0.1:{silent_port}: 127.0.0.1:{silent_port} accepted the connection but did not answer a gRPC (HTTP/2) "
+        "greeting within 3 s*"])
+    assert "Traceback" not in result.stdout.str()

@@ -107,3 +107,18 @@ def test_the_default_is_half_an_hour_and_documented():
     from conftest import REPO_ROOT
 
     assert "default 1800, half an hour per item" in (REPO_ROOT / "docs" / "options.md").read_text()
+
+
+@pytest.mark.parametrize("args, line", [
+    ([], "driveeval: each scenario item may run 1800 s (the default time limit); --driveeval-time-limit / "
+         "driveeval_time_limit SECONDS sets another, 0: none; a scenario's TimeLimit key sets its own"),
+    (["--driveeval-time-limit", "90"], "driveeval: each scenario item may run 90 s (--driveeval-time-limit / "
+                                       "driveeval_time_limit); a scenario's TimeLimit key sets its own, 0: none"),
+    (["--driveeval-time-limit", "0"], "driveeval: no time limit on scenario items (--driveeval-time-limit / "
+                                      "driveeval_time_limit is 0); a scenario's TimeLimit key sets its own"),
+])
+def test_the_session_header_says_which_time_limit_applies_and_how_to_change_it(pytester, args, line):
+    result = pytester.runpytest(*args)
+    result.stdout.fnmatch_lines([line])
+    header = result.stdout.lines.index(line)
+    assert header < next(i for i, text in enumerate(result.stdout.lines) if text.startswith("collected"))

@@ -2,7 +2,9 @@
 bad input written here, and the goal test on each shape and interval edge."""
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -172,6 +174,19 @@ BAD = {
                                                    "</position><time><intervalStart>1</intervalStart><intervalEnd>2"
                                                    "</intervalEnd></time></state></trajectory>")),
                                r'<dynamicObstacle id="9">: <time> holds an interval'),
+    # Not a number, or no end: each is refused at its element, not later as a lane "width nan" or a raster.
+    "nan_state": (scenario(dynamic(9, f"<trajectory>{state(1, x='nan')}</trajectory>")),
+                  r"<x> in <dynamicObstacle id=\"9\">: x: expected a finite number, got 'nan': give the value"),
+    "inf_lanelet_point": (HEAD.format(v="2020a") + LANELET.format(i=7, extra="", refs="").replace(
+                              "<x>10</x><y>1</y>", "<x>10</x><y>-inf</y>") + "</commonRoad>",
+                          r":4: <y> in <lanelet id=\"7\">: y: expected a finite number, got '-inf'"),
+    "huge_time_step": (scenario(dynamic(9, f"<trajectory>{state(1)}</trajectory>").replace(
+                           "<exact>1</exact></time>", "<exact>1e30</exact></time>")),
+                       r'<dynamicObstacle id="9">: <state>: time step 1e\+30 is beyond 1e\+09'),
+    "nan_time_step": (scenario("").replace('timeStepSize="0.1"', 'timeStepSize="NaN"'),
+                      r":2: <commonRoad>: timeStepSize: expected a finite number, got 'NaN'"),
+    "zero_time_step": (scenario("").replace('timeStepSize="0.1"', 'timeStepSize="0"'),
+                       r":2: <commonRoad>: timeStepSize: expected the seconds of one time step, above 0, got 0: give"),
 }
 
 
@@ -188,6 +203,88 @@ def test_bad_input_names_file_and_element(tmp_path, case):
 def test_missing_file_is_an_error(tmp_path):
     with pytest.raises(CommonRoadError, match="nope.xml: cannot read"):
         read_commonroad(tmp_path / "nope.xml")
+
+
+def test_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path):
+    pipe = tmp_path / "pipe.xml"
+    os.mkfifo(pipe)
+    with pytest.raises(CommonRoadError, match=r"pipe\.xml: is a FIFO \(named pipe\), not a CommonRoad XML file: "
+                                              r"name the scenario's \.xml file itself"):
+        read_commonroad(pipe)
+
+
+def test_a_device_is_refused_unread_also_through_a_symlink(tmp_path):
+    link = tmp_path / "zero.xml"
+    link.symlink_to("/dev/zero")
+    for path in (Path("/dev/zero"), link):
+        with pytest.raises(CommonRoadError, match=rf"{path.name}: is a character device, not a CommonRoad XML file"):
+            read_commonroad(path)
+
+
+def test_a_file_above_the_size_bound_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    from pytest_driveeval.io import commonroad_xml
+
+    assert commonroad_xml.MAX_FILE_BYTES == 128 * 2 ** 20
+    monkeypatch.setattr(commonroad_xml, "MAX_FILE_BYTES", 2 ** 20)
+    path = tmp_path / "big.xml"
+    path.write_text(scenario("<!-- " + "x" * 2 ** 20 + " -->"))
+    with pytest.raises(CommonRoadError, match=r"big\.xml: is 1\.0 MiB, more than the 1 MiB a CommonRoad file may "
+                                              r"have here .*check that this is the scenario file you meant"):
+        read_commonroad(path)
+
+
+def test_an_open_interval_end_is_read_and_nan_is_not(tmp_path):
+    path = tmp_path / "open.xml"
+    path.write_text(scenario(problem("<velocity><intervalStart>5</intervalStart><intervalEnd>inf</intervalEnd>"
+                                     "</velocity>")))
+    assert read_commonroad(path).planning_problems[5].goals[0].velocity == Interval(5.0, math.inf)
+    path.write_text(scenario(problem("<velocity><intervalStart>nan</intervalStart><intervalEnd>1</intervalEnd>"
+                                     "</velocity>")))
+    with pytest.raises(CommonRoadError, match=r"<intervalStart> in <planningProblem id=\"5\">: intervalStart: "
+                                              r"expected a finite number, got 'nan'"):
+        read_commonroad(path)
+
+
+def digest(s) -> str:
+    """Everything the reader returns, hashed: lanelets, obstacles with their states, planning problems."""
+    h = hashlib.sha256(repr((s.version, s.dt, s.benchmark_id)).encode())
+    for i, ll in s.lanelets.items():
+        h.update(repr((i, ll.predecessors, ll.successors, ll.adjacent_left, ll.adjacent_right, ll.speed_limit,
+                       ll.traffic_signs)).encode() + ll.left.tobytes() + ll.right.tobytes())
+    for i, ob in s.obstacles.items():
+        h.update(repr((i, ob.role, ob.type, ob.initial, type(ob.shape).__name__)).encode())
+        for name in ("t", "x", "y", "orientation", "velocity", "acceleration"):
+            h.update(getattr(ob.trajectory, name).tobytes())
+    for i, pp in s.planning_problems.items():
+        h.update(repr((i, pp.initial, [(g.lanelets, g.orientation, g.velocity, g.time, len(g.shapes))
+                                       for g in pp.goals])).encode())
+    return h.hexdigest()[:16]
+
+
+# What the reader made of every real file before the checks for finite numbers and regular files came in.
+READ_BEFORE = {
+    "DEU_Starnberg-1_1_T-1.xml": "e314e242842b55bf", "FRA_Anglet-1_1_T-1.xml": "c71e836668c00bcb",
+    "USA_Lanker-1_1_T-1.xml": "7f75e5751f2f4cf5", "USA_US101-3_3_T-1.xml": "1f02e058b62771d6",
+    "ZAM_Loading_Bay-1_1_T.xml": "2ad8218d9b7711c3", "ZAM_Tutorial-1_2_T-1.xml": "766289f13e085e61",
+    "test_3d_points.xml": "6eb854aaf70e6033", "test_reading_complex_tl.xml": "51a9937b638a43f6",
+    "test_reading_custom_state.xml": "a887f3299c3bc04c", "test_reading_intersection_traffic_sign.xml": "53937b938054bebb",
+    "test_reading_ks_state.xml": "a887f3299c3bc04c", "test_reading_lanelets.xml": "c3a1af8424bb056f",
+    "test_reading_planning_problem.xml": "0c1ef07a5085dd87", "test_reading_pm_state.xml": "8c5de7055571cc77",
+    "test_reading_st_state.xml": "a887f3299c3bc04c", "test_reading_std_state.xml": "a887f3299c3bc04c",
+    # occupancy sets: refused as before
+    "test_reading_all.xml": "occupancy set", "test_reading_obstacles.xml": "occupancy set",
+}
+
+
+def test_real_files_read_as_before(commonroad_dir):
+    found = {}
+    for path in sorted(commonroad_dir.glob("*.xml")):
+        try:
+            found[path.name] = digest(read_commonroad(path))
+        except CommonRoadError as exc:
+            found[path.name] = "occupancy set" if "occupancy set" in str(exc) else str(exc)
+    assert found == READ_BEFORE
+    assert digest(read_commonroad(TUTORIAL)) == READ_BEFORE[TUTORIAL.name]
 
 
 def test_unsorted_states_are_sorted(tmp_path):

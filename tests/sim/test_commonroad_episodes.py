@@ -237,3 +237,20 @@ def test_constructed_goal_states_of_the_shared_scenarios_reach_the_goal(shared_d
         assert judged(scene, centre, heading, goal.velocity.end + 1.0, k)[0] is False
     far = scene.road.bounds[2:] + 50.0
     assert judged(scene, far, heading, speed, k)[2] is True
+
+
+def test_a_raster_too_fine_for_the_lanelets_is_a_parameter_error_on_resolution():
+    with pytest.raises(ParameterError, match=r"ZAM_Tutorial-1_2_T-1\.xml's lanelets: the road's drivable area "
+                                             r"\(209 m x 20\.5 m\) would be a raster of 4\.28e\+15 cells at 1e-06 m, "
+                                             r"above the limit .*; give a coarser resolution") as raised:
+        scene_of(TUTORIAL, resolution=1e-6)
+    assert raised.value.parameter == "resolution"
+
+
+def test_scene_bytes_grow_with_steps_and_obstacles_and_cover_the_arrays():
+    from pytest_driveeval.sim.commonroad_scene import scene_bytes
+
+    scene = scene_of(TUTORIAL, max_steps=1000)
+    held = sum(a.nbytes for a in (scene.xy, scene.yaw, scene.speed, scene.valid))
+    assert scene_bytes(1000, len(scene.obstacle_ids)) > 2 * held
+    assert scene_bytes(10 ** 9, 0) > 2 ** 36 and scene_bytes(10, 3) > scene_bytes(10, 2)

@@ -5,14 +5,18 @@ The file is read when the items are collected, to make one item per planning pro
 scenario names none; a file that cannot be read then still makes its items (one per policy), and
 each fails with the reader's error when it runs, so the scenario's other items run.  Errors name
 the scenario file and the line of the key at fault (``CommonRoad``, or ``PlanningProblem`` for a
-planning problem the file does not have), then the CommonRoad file and its element.
+planning problem the file does not have), then the CommonRoad file and its element.  The scene's
+arrays are bounded before they are allocated: its steps (``StepLimit``, ``Params.max_steps`` or the
+goal's time interval) times its obstacles must fit the item's memory budget, and the drivable
+area's raster at ``Params.resolution`` the raster's cell limit.
 """
 from __future__ import annotations
 
 from typing import Any
 
 from pytest_driveeval.errors import DataError, display_path
-from pytest_driveeval.io.commonroad import CommonRoadError
+from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem
+from pytest_driveeval.usecase import gib, memory_budget
 
 __all__ = ["planning_problems", "scene_for"]
 
@@ -33,12 +37,13 @@ def planning_problems(scenario: Any) -> list[int] | None:
 
 def scene_for(config: Any, ctx: Any, params: dict) -> Any:
     """The item's CommonRoad scene; a DataError naming the YAML line, the file and the element."""
+    from pytest_driveeval.sim.blueprints import ParameterError
     from pytest_driveeval.sim.commonroad_scene import commonroad_scene, read_cached
 
     spec = config.Blueprint
     path = ctx.scenario.resolve(spec.CommonRoad)
     problem = ctx.case.params.get("problem", spec.PlanningProblem)
-    key = "CommonRoad"
+    key: tuple = ("Blueprint", "CommonRoad")
     try:
         if problem is None:
             ids = sorted(read_cached(path).planning_problems)
@@ -47,16 +52,44 @@ def scene_for(config: Any, ctx: Any, params: dict) -> Any:
                                       f"({', '.join(map(str, ids)) or 'none'}): name one in PlanningProblem")
             problem = ids[0]
         elif "problem" not in ctx.case.params and problem not in read_cached(path).planning_problems:
-            key = "PlanningProblem"
+            key = ("Blueprint", "PlanningProblem")
+        _check_fits(config, ctx, path, problem, params)
         return commonroad_scene(path, problem, traffic=spec.Traffic or "replay", **params)
     except OSError as exc:
         raise DataError(f"{_where(ctx, key)}: CommonRoad scenario {display_path(path)} cannot be read: "
                         f"{exc.strerror or exc}") from None
     except CommonRoadError as exc:
         raise DataError(f"{_where(ctx, key)}: {exc}") from None
+    except ParameterError as exc:
+        given = exc.parameter in spec.Params
+        where = _where(ctx, ("Blueprint", "Params", exc.parameter) if given else key)
+        raise DataError(f"{where}: {str(exc).split(': ', 2)[-1]}"
+                        + ("" if given else f" (Params.{exc.parameter} sets it)")) from None
 
 
-def _where(ctx: Any, key: str) -> str:
-    line = ctx.scenario.line_of("Evaluation", "Blueprint", key)
+def _check_fits(config: Any, ctx: Any, path: Any, problem: int, params: dict) -> None:
+    """Refuse, at the key that set them, steps times obstacles whose arrays exceed the memory budget."""
+    from pytest_driveeval.sim.commonroad_scene import read_cached, scene_bytes, step_limit
+
+    scenario = read_cached(path)
+    steps = params.get("max_steps")
+    if steps is None:
+        steps = step_limit(planning_problem(scenario, problem))
+        key, whose = ("Blueprint", "CommonRoad"), f"the end of planning problem {problem}'s goal time interval"
+    elif config.StepLimit is not None:
+        key, whose = ("StepLimit",), "StepLimit"
+    else:
+        key, whose = ("Blueprint", "Params", "max_steps"), "max_steps"
+    needed = scene_bytes(int(steps), len(scenario.obstacles))
+    budget, source = memory_budget()
+    if budget is not None and needed > budget:
+        raise DataError(f"{_where(ctx, key)}: {int(steps)} steps ({whose}) of the {len(scenario.obstacles)} recorded "
+                        f"obstacles of {display_path(path)} would need about {gib(needed)} of memory, more than the "
+                        f"{gib(budget)} an item may use ({source}): give fewer steps")
+
+
+def _where(ctx: Any, keys: tuple) -> str:
+    line = ctx.scenario.line_of("Evaluation", *keys)
     place = display_path(ctx.scenario.path)
-    return f"{place}:{line}: Evaluation.Blueprint.{key}" if line else f"{place}: Evaluation.Blueprint.{key}"
+    dotted = ".".join(map(str, ("Evaluation", *keys)))
+    return f"{place}:{line}: {dotted}" if line else f"{place}: {dotted}"

@@ -264,6 +264,15 @@ class PolicyBenchmarkConfig(ConditionsModel):
                 raise located_error(("Perturbation", key), getattr(self.Perturbation, key),
                                     "a CommonRoad scene replays its recorded obstacles: only the ego's start "
                                     "(Lateral, Longitudinal, Heading, SpeedScale) can be perturbed")
+        # The scene holds every step's recording from the start: bounded here, before the file is
+        # read; with the file's obstacles counted again when the item builds its scene.
+        from pytest_driveeval.sim.commonroad_scene import scene_bytes
+
+        steps = self.blueprint_params().get("max_steps")
+        if steps is not None:
+            loc = "StepLimit" if self.StepLimit is not None else ("Blueprint", "Params", "max_steps")
+            check_fits(loc, steps, scene_bytes(int(steps), 0),
+                       f"a CommonRoad scene of {int(steps)} steps (its recording is held for every step)")
 
     def _fits_in_memory(self) -> None:
         agents, episodes = self.AgentLimit, self.Episodes

@@ -187,3 +187,50 @@ def test_chunks_of_seeds_give_the_figures_of_one_batch(pytester):
     chunked = records(pytester)
     assert {k: (r["figures"], r["details"]["episode_outcomes"]) for k, r in chunked.items()} == one_batch
     assert all("executor" in r["details"] for r in chunked.values())
+
+
+def test_bad_numbers_special_files_and_sizes_fail_their_own_item_at_their_line(pytester):
+    """Each case ends as its item's located error: the YAML line, the CommonRoad file, its line and
+    element; sizes are refused before the arrays are allocated.  The good scenario beside them runs."""
+    import os
+
+    text = TUTORIAL.read_text()
+    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+    # the first <x> of the file is lanelet 1's first left point, on line 15
+    (pytester.path / "nan.xml").write_text(text.replace("<x>0.0</x>", "<x>nan</x>", 1))
+    (pytester.path / "dt.xml").write_text(text.replace('timeStepSize="0.1"', 'timeStepSize="0"'))
+    os.mkfifo(pytester.path / "pipe.xml")
+    (pytester.path / "zero.xml").symlink_to("/dev/zero")
+    pytester.makefile(".scenario.yaml", good=scenario(name="good"), nan=scenario(name="nan", path="nan.xml"),
+                      dt=scenario(name="dt", path="dt.xml"), pipe=scenario(name="pipe", path="pipe.xml"),
+                      zero=scenario(name="zero", path="zero.xml"),
+                      fine=scenario(name="fine", extra="\n    Params: {resolution: 1.0e-6}"),
+                      long=scenario(name="long", extra="\n    Params: {max_steps: 1.0e+9}"),
+                      many=scenario(name="many", extra="\n    Params: {max_steps: 1000000}"))
+    # 0.2 GiB: 10^6 steps of no obstacle fit when the scenario loads, of the file's 3 obstacles not.
+    # In a subprocess with a timeout: a FIFO would block a reader that waits for its writer for ever.
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", "--driveeval-memory-limit", "0.2",
+                                           timeout=300)
+    assert all(r["status"] == "passed" for k, r in records(pytester).items() if k.startswith("good"))
+    out = " ".join(result.stdout.str().split())  # the table wraps its lines
+    for expected in [
+        "nan.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: nan.xml:15: <x> in <lanelet id=\"1\">: x: expected a "
+        "finite number, got 'nan': give the value this element stands for",
+        "dt.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: dt.xml:2: <commonRoad>: timeStepSize: expected the "
+        "seconds of one time step, above 0, got 0",
+        "pipe.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: pipe.xml: is a FIFO (named pipe), not a CommonRoad "
+        "XML file: name the scenario's .xml file itself",
+        "zero.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: /dev/zero: is a character device, not a CommonRoad "
+        "XML file",
+        "fine.scenario.yaml:8: Evaluation.Blueprint.Params.resolution: zam.xml's lanelets: the road's drivable area "
+        "(209 m x 20.5 m) would be a raster of 4.28e+15 cells at 1e-06 m, above the limit of 1.07e+09 cells (1 GiB); "
+        "give a coarser resolution",
+        "long.scenario.yaml:8: Evaluation.Blueprint.Params.max_steps: a CommonRoad scene of 1000000000 steps (its "
+        "recording is held for every step) would need about 119 GiB of memory, more than the 205 MiB an item may use "
+        "(--driveeval-memory-limit / driveeval_memory_limit)",
+        "many.scenario.yaml:8: Evaluation.Blueprint.Params.max_steps: 1000000 steps (max_steps) of the 3 recorded "
+        "obstacles of zam.xml would need about 328 MiB of memory, more than the 205 MiB an item may use "
+        "(--driveeval-memory-limit / driveeval_memory_limit): give fewer steps",
+    ]:
+        assert expected in out, expected
+    assert "Traceback" not in out and "MemoryError" not in out
