@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import ModelError
+from ..core.errors import ModelError
 from .fx_forward import fast_forward
 
 PICKLE_PREFIX = "pickle:"

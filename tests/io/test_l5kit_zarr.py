@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pytest_driveeval.io.l5kit_zarr import (
+from pytest_driveeval.io.l5.l5kit_zarr import (
     AGENT_DTYPE,
     ARRAY_NAMES,
     FRAME_DTYPE,

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from pytest_driveeval.errors import DataError, display_path
-from pytest_driveeval.io.commonroad import CommonRoadError
+from pytest_driveeval.core.errors import DataError, display_path
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError
 
 __all__ = ["planning_problems", "scene_for"]
 

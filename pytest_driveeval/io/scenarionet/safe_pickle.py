@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DataError, display_path
+from ...core.errors import DataError, display_path
 
 
 class UnsafePickleError(DataError, ValueError):

@@ -11,7 +11,7 @@ from xml.parsers import expat
 
 import numpy as np
 
-from ..errors import display_path
+from ...core.errors import display_path
 from .commonroad_types import Circle, CommonRoadError, Interval, Polygon, Rectangle, Shape
 
 __all__ = ["XmlDoc", "parse_xml"]

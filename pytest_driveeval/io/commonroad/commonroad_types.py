@@ -1,6 +1,6 @@
 """What a CommonRoad scenario holds, as plain numpy arrays: lanelets, obstacles, planning problems.
 
-The reader is ``pytest_driveeval.io.commonroad``; the goal test ``commonroad_geometry``.  Values the file
+The reader is ``pytest_driveeval.io.commonroad.commonroad``; the goal test ``commonroad_geometry``.  Values the file
 leaves out are ``nan`` (floats) or ``None`` (intervals, neighbours, speed limits).  Classes that hold
 arrays compare by identity (``eq=False``): an array's ``==`` has no single truth value.
 """
@@ -12,7 +12,7 @@ from typing import Union
 
 import numpy as np
 
-from ..errors import DataError
+from ...core.errors import DataError
 
 __all__ = ["CommonRoadError", "Rectangle", "Circle", "Polygon", "Shape", "Neighbour", "Lanelet", "State",
            "Trajectory", "Obstacle", "Interval", "GoalState", "PlanningProblem", "CommonRoadScenario"]

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import display_path
+from ...core.errors import display_path
 from .commonroad_types import (CommonRoadError, CommonRoadScenario, GoalState, Lanelet, Neighbour, Obstacle,
                                PlanningProblem, Shape, State, Trajectory)
 from .commonroad_xml import XmlDoc, parse_xml

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
+from ...core.errors import DataError
 
 __all__ = ["Lanelet2Error", "Lanelet", "LaneletMap", "load_lanelet_map", "road_lanelets"]
 

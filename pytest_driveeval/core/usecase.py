@@ -22,7 +22,7 @@ from .errors import DataError, ModelError
 
 if TYPE_CHECKING:
     from .outcome import Outcome
-    from .scenario.loaded import DatasetRef, Scenario
+    from ..scenario.loaded import DatasetRef, Scenario
 
 ENTRY_POINT_GROUP = "pytest_driveeval.usecases"
 #: RunContext.notes key of the --driveeval-model spec, so that the reports say it ran; a use case

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-import pytest_driveeval.usecase as registry
+import pytest_driveeval.core.usecase as registry
 from pytest_driveeval import UseCase, load_scenario
 
 from conftest import speed_scenario

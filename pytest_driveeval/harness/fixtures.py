@@ -16,21 +16,21 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
-from .baseline.gate import PAYLOAD_ATTR, ItemBaseline
-from .baseline.payload import make_payload
-from .baseline.session import session_gate
-from .deadline import time_limit
-from .errors import DriveEvalError, display_path
-from .execute import ExecutorSpec, executor_from_option
-from .outcome import OUTCOME_ATTR, Outcome
+from ..baseline.gate import PAYLOAD_ATTR, ItemBaseline
+from ..baseline.payload import make_payload
+from ..baseline.session import session_gate
+from ..core.deadline import time_limit
+from ..core.errors import DriveEvalError, display_path
+from ..execute import ExecutorSpec, executor_from_option
+from ..core.outcome import OUTCOME_ATTR, Outcome
 from .progress import item_progress
-from .report.attachments import allure_wanted, attach_to_allure, junit_properties
+from ..report.attachments import allure_wanted, attach_to_allure, junit_properties
 from .results import item_trend
-from .scenario import Scenario, load_scenario
-from .search.spec import SearchOptions, parse_replay
+from ..scenario import Scenario, load_scenario
+from ..search.spec import SearchOptions, parse_replay
 from .runs import start_run
 from .settings import TIME_LIMIT_KEYS, Settings, get_settings, item_seed
-from .usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
+from ..core.usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
 
 
 _EXECUTOR_KEY = pytest.StashKey["ExecutorSpec | None"]()

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.planar import arc_lengths
-from ..geometry.polygons import outline_distance
-from .l5_semantic_map import GREEN, RED, YELLOW, Polylines, SemanticMap
+from ...geometry.planar import arc_lengths
+from ...geometry.polygons import outline_distance
+from ..l5.l5_semantic_map import GREEN, RED, YELLOW, Polylines, SemanticMap
 from .scenarionet import ScenarioNetScene
 
 #: metres: a typical urban lane, for lanes whose data gives no surface to measure

@@ -1,4 +1,4 @@
-"""CommonRoad's goal test, road test and obstacle outlines on what ``pytest_driveeval.io.commonroad`` reads.
+"""CommonRoad's goal test, road test and obstacle outlines on what ``pytest_driveeval.io.commonroad.commonroad`` reads.
 
 The semantics follow commonroad-io's ``GoalRegion.is_reached`` (checked against it by
 tests/io/test_commonroad_oracle.py): a planning problem's goal is reached when any of its goal states
@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from ..geometry import points_in_polygon
-from ..geometry.polygons import outline_distance
+from ...geometry import points_in_polygon
+from ...geometry.polygons import outline_distance
 from .commonroad_types import (Circle, CommonRoadScenario, GoalState, Obstacle, PlanningProblem, Polygon, Rectangle,
                                Shape)
 

@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from pytest_driveeval.atomic import atomic_path, create_exclusive, write_text_atomic
+from pytest_driveeval.core.atomic import atomic_path, create_exclusive, write_text_atomic
 
 
 def test_a_writer_that_fails_half_way_leaves_the_old_file_and_no_temporary(tmp_path):

@@ -12,11 +12,11 @@ from typing import Iterable
 
 import pytest
 
-from .errors import Problem, ScenarioError
+from ..core.errors import Problem, ScenarioError
 from .failure import ScenarioFailed
-from .scenario import NotAScenario, Scenario, load_scenario
+from ..scenario import NotAScenario, Scenario, load_scenario
 from .settings import DECLARED_SUFFIXES, get_settings
-from .usecase import Case, usecase_of
+from ..core.usecase import Case, usecase_of
 
 
 #: config.stash: scenario file -> the names of the items it collected in this process, so that the

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DataError, display_path
-from ..geometry import yaw_as_rotation33
-from .l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
+from ...core.errors import DataError, display_path
+from ...geometry import yaw_as_rotation33
+from ..l5.l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
 from .scenarionet_map import ScenarioMap, active_faces, merged, scenario_map
 

@@ -38,7 +38,7 @@ from typing import NamedTuple
 import numcodecs
 import numpy as np
 
-from ..geometry import yaw_from_rotation33
+from ...geometry import yaw_from_rotation33
 from .zarr_v2 import ZarrArray1D, ZarrFormatError, describe_dtype, dtype_mismatch, write_array, zarr_json
 
 __all__ = [

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import DataError
+from ...core.errors import DataError
 from .mcap_index import chunk_problem
 
 __all__ = ["STORAGE_SUFFIXES", "BagError", "storage_files", "storage_for"]

@@ -14,15 +14,15 @@ from typing import Any
 
 import pytest
 
-from .baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, prune, unused_baselines, update_baselines
+from ..baseline.gate import COMPARISON_ATTR, PAYLOAD_ATTR, prune, unused_baselines, update_baselines
 from .collect import InvalidScenarioItem, scenario_item_names
-from .errors import DriveEvalError, display_path
+from ..core.errors import DriveEvalError, display_path
 from .failure import Failure
-from .baseline.session import COMPARE_KEY, session_gate
-from .outcome import OUTCOME_ATTR, Outcome, replaced_model
-from .report.attachments import comparison_cell, html_extras, html_wanted
-from .report.summary import SUMMARY_NAME, TERMINAL_MARKUP, policy_table_html, terminal_rows, verdict_reason
-from .report.trends import DEFAULT_RUNS, trend_png
+from ..baseline.session import COMPARE_KEY, session_gate
+from ..core.outcome import OUTCOME_ATTR, Outcome, replaced_model
+from ..report.attachments import comparison_cell, html_extras, html_wanted
+from ..report.summary import SUMMARY_NAME, TERMINAL_MARKUP, policy_table_html, terminal_rows, verdict_reason
+from ..report.trends import DEFAULT_RUNS, trend_png
 from .runs import HISTORY_NAME, finish_run
 from .settings import RUN_KEY, get_settings
 

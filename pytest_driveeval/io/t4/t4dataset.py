@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
-from ..geometry.quaternions import (
+from ...core.errors import DataError
+from ...geometry.quaternions import (
     matrix_to_quat_wxyz,
     quat_wxyz_to_matrix,
     yaw_from_quat_wxyz,

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import DataError
-from ..geometry.quaternions import rigid_inverse, slerp, transform_matrix
+from ...core.errors import DataError
+from ...geometry.quaternions import rigid_inverse, slerp, transform_matrix
 
 __all__ = ["TransformError", "TFBuffer"]
 

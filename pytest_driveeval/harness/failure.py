@@ -12,9 +12,9 @@ from typing import NamedTuple
 
 import pytest
 
-from .errors import DriveEvalError, ScenarioError, display_path
-from .outcome import Outcome, format_figure, replaced_model
-from .scenario import Scenario
+from ..core.errors import DriveEvalError, ScenarioError, display_path
+from ..core.outcome import Outcome, format_figure, replaced_model
+from ..scenario import Scenario
 
 
 class ScenarioFailed(DriveEvalError, AssertionError):
@@ -54,7 +54,7 @@ class Failure:
     """Why a scenario item failed, located in its scenario file: a report's
     ``longrepr`` (pytest asks it ``toterminal``; xdist and JUnit take ``str``).
 
-    Our errors (:class:`~pytest_driveeval.errors.DriveEvalError`) render as
+    Our errors (:class:`~pytest_driveeval.core.errors.DriveEvalError`) render as
     the scenario, the verdict or error, each finding with the YAML line that
     set its limit, the figures and the artefacts; any other exception as its
     one-line message.

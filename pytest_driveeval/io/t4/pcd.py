@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataError
+from ...core.errors import DataError
 
 __all__ = [
     "PCDError",

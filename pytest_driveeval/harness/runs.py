@@ -29,8 +29,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Callable
 
-from .atomic import create_exclusive, write_json_atomic
-from .report.trends import history_entries
+from ..core.atomic import create_exclusive, write_json_atomic
+from ..report.trends import history_entries
 
 RUNS_FOLDER = "runs"
 RUN_FILE = "run.json"
@@ -108,7 +108,7 @@ def _kind(path: Path) -> str | None:
 def damaged_entry(output_dir: Path, folders: tuple[str, ...] = ()) -> str | None:
     """Why the output folder's own files cannot take this session's results,
     or None: each is absent or of its kind, and none is a symbolic link."""
-    from .report.summary import MARKDOWN_NAME, SUMMARY_NAME
+    from ..report.summary import MARKDOWN_NAME, SUMMARY_NAME
 
     wanted = {RUNS_FOLDER: "folder", HISTORY_NAME: "file", SUMMARY_NAME: "file", MARKDOWN_NAME: "file",
               **{name: "folder" for name in folders}}
@@ -137,7 +137,7 @@ def finish_run(output_dir: Path, identity: RunIdentity, summary: dict[str, Any],
     add it to the history and prune runs beyond the ``keep`` newest.  Returns
     warnings: each step that fails (the folder damaged while the session ran)
     is one, and the other steps still write what they can."""
-    from .report.summary import write_summary
+    from ..report.summary import write_summary
 
     warnings: list[str] = []
 

@@ -39,10 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pytest_driveeval.atomic import write_bytes_atomic
-from pytest_driveeval.errors import DataError
-from pytest_driveeval.io import wgs84
-from pytest_driveeval.io.protowire import (FIXED32, LENGTH, VARINT, WireError, decode_sint32_spans, encode_sint32,
+from pytest_driveeval.core.atomic import write_bytes_atomic
+from pytest_driveeval.core.errors import DataError
+from pytest_driveeval.io.l5 import wgs84
+from pytest_driveeval.io.l5.protowire import (FIXED32, LENGTH, VARINT, WireError, decode_sint32_spans, encode_sint32,
                                            fields, length_field, sfixed32, sfixed32_field, varint_field)
 
 __all__ = ["FACE_COLOUR_NAMES", "GREEN", "RED", "UNKNOWN", "YELLOW", "Polylines", "SemanticMap",

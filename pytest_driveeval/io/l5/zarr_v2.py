@@ -14,7 +14,7 @@ from typing import Any
 import numcodecs
 import numpy as np
 
-from ..errors import DataError
+from ...core.errors import DataError
 
 __all__ = ["ZarrArray1D", "ZarrFormatError", "describe_dtype", "dtype_from_zarr", "dtype_mismatch", "dtype_to_zarr",
            "write_array", "zarr_json"]

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DataError, display_path
+from ...core.errors import DataError, display_path
 from .safe_pickle import load_data_pickle
 
 TRACK_TYPES = ("VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER", "UNSET",
