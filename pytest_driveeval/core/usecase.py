@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from .errors import DataError, ModelError
+from .section import Section
 
 if TYPE_CHECKING:
     from .outcome import Outcome
@@ -36,13 +37,6 @@ _BUILTIN: dict[str, str] = {
     "obstacle_segmentation": "pytest_driveeval.usecases.obstacle_segmentation",
     "policy_benchmark": "pytest_driveeval.usecases.policy_benchmark",
 }
-
-
-class Section(BaseModel):
-    """A mapping of a scenario: unknown keys are errors, so typos are caught; a number is finite,
-    since ``.inf`` or ``.nan`` in a YAML file is a slip, and would surface only deep in a run."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class ConditionsModel(Section):
