@@ -127,7 +127,7 @@ def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
 def test_compiled_track_table_is_the_numpy_one(sparse, repeat):
     from pytest_driveeval.io.l5.l5kit_zarr import track_table as numpy_track_table
     from pytest_driveeval.sim.logreplay import logarrays_jit
-    from tests.io.test_l5kit_zarr import random_rows
+    from l5kit_rows import random_rows  # tests/l5kit_rows.py
 
     for seed in range(6):
         rows = random_rows(seed, sparse, repeat)
