@@ -31,9 +31,9 @@ sys.path.insert(0, str(REPO))
 
 from pytest_driveeval.baseline.gate import BaselineOptions, Gate, unused_baselines  # noqa: E402
 from pytest_driveeval.baseline.payload import make_payload  # noqa: E402
-from pytest_driveeval.outcome import Outcome  # noqa: E402
+from pytest_driveeval.core.outcome import Outcome  # noqa: E402
 from pytest_driveeval.scenario import load_scenario  # noqa: E402
-from pytest_driveeval.usecase import get_usecase, usecase_of  # noqa: E402
+from pytest_driveeval.core.usecase import get_usecase, usecase_of  # noqa: E402
 
 BLUEPRINTS = ("merging", "highway", "intersection")
 POLICIES = ("constant", "random")

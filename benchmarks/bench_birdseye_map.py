@@ -62,7 +62,7 @@ def generated_scene(frames: int, agents: int = 30, seed: int = 0):
 
 
 def scenario_scene(path: Path, frames: int):
-    from pytest_driveeval.io.scenarionet import read_scenario
+    from pytest_driveeval.io.scenarionet.scenarionet import read_scenario
     from pytest_driveeval.usecases.closed_loop.scene_map import drawn_map
 
     scene = read_scenario(path)

@@ -46,7 +46,7 @@ from hypothesis import strategies as st
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pytest_driveeval.io.l5kit_zarr import L5Dataset  # noqa: E402
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
 from pytest_driveeval.scenario import load_scenario  # noqa: E402
 from pytest_driveeval.search.engine import Example, SearchSettings, search  # noqa: E402

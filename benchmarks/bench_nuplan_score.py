@@ -100,11 +100,11 @@ def scene_source() -> tuple[Path | None, str]:
 def dataset_of(source: Path | None, scenes: int, tmp: Path):
     """A dataset of ``scenes`` scenes: the source's scenes linked round-robin into ``tmp``."""
     if source is None:
-        from pytest_driveeval.io.l5kit_zarr import L5Dataset
+        from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
         dataset = L5Dataset.open(GENERATED)
         return dataset, list(range(scenes)) if scenes <= dataset.num_scenes else None
-    from pytest_driveeval.io.scenarionet_l5 import ScenarioNetDataset
+    from pytest_driveeval.io.scenarionet.scenarionet_l5 import ScenarioNetDataset
 
     files = sorted(source.glob("*.pkl"))
     for i in range(scenes):

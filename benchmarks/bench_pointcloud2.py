@@ -3,7 +3,7 @@
 Writes a bag of Autoware PointXYZIRC clouds (16 bytes/point) to a temp dir,
 then reads it back in separate child processes (so each peak RSS is its own):
 
-* ``stream``: ``pytest_driveeval.io.rosbag.iter_pointclouds`` (zero-copy views,
+* ``stream``: ``pytest_driveeval.io.ros.rosbag.iter_pointclouds`` (zero-copy views,
   one message alive at a time);
 * ``naive``: the usual recipe, rosbags deserialize + ``np.frombuffer(...).copy()``
   of every message into a list;
@@ -46,8 +46,8 @@ SMOKE_HELP = "every part at tiny sizes in seconds, reference venvs skipped: chec
 
 
 def write_bag(path: Path, size_mb: float, points: int, storage: str) -> tuple[int, int]:
-    from pytest_driveeval.io.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, make_cloud
-    from pytest_driveeval.io.rosbag import BagWriter
+    from pytest_driveeval.io.ros.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, make_cloud
+    from pytest_driveeval.io.ros.rosbag import BagWriter
 
     cloud = make_cloud(points, XYZIRC_FIELDS)
     per_msg = cloud.nbytes
@@ -79,7 +79,7 @@ def _result(t: float, cpu: float, nbytes: int, frames: int, check: float, syscal
 def run_stream(path: str) -> dict:
     import rosbags.rosbag2  # noqa: F401  (imported outside the timing, as for the naive reader)
 
-    from pytest_driveeval.io.rosbag import default_typestore, iter_pointclouds
+    from pytest_driveeval.io.ros.rosbag import default_typestore, iter_pointclouds
 
     default_typestore()  # one-off setup, built outside the timing as for the naive reader
     calls = _read_syscalls()

@@ -27,8 +27,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from pytest_driveeval.io.l5_semantic_map import Polylines, SemanticMap, write_semantic_map  # noqa: E402
-from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene  # noqa: E402
+from pytest_driveeval.io.l5.l5_semantic_map import Polylines, SemanticMap, write_semantic_map  # noqa: E402
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset, L5Scene  # noqa: E402
 from pytest_driveeval.raster import RasterParams, Rasterizer  # noqa: E402
 from pytest_driveeval.sim.logreplay.logarrays import stack_scenes  # noqa: E402
 

@@ -34,8 +34,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from pytest_driveeval.io.l5_semantic_map import read_semantic_map  # noqa: E402
-from pytest_driveeval.io.l5kit_zarr import L5Dataset  # noqa: E402
+from pytest_driveeval.io.l5.l5_semantic_map import read_semantic_map  # noqa: E402
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset  # noqa: E402
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy  # noqa: E402
 from pytest_driveeval.raster import RasterParams, Rasterizer  # noqa: E402
 from pytest_driveeval.sim.logreplay import UnrollConfig, stack_scenes, unroll  # noqa: E402

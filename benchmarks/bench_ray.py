@@ -255,7 +255,7 @@ def policy_benchmark(args) -> None:
 
 
 def closed_loop(args) -> None:
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.policies.loading import load_model
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.usecases.closed_loop import replayed_agents

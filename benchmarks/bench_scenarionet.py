@@ -34,9 +34,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy and torch start th
 
 import torch
 
-from pytest_driveeval.io.scenarionet import read_scenario, scenario_files
-from pytest_driveeval.io.scenarionet_l5 import l5_scene
-from pytest_driveeval.io.scenarionet_map import scenario_map
+from pytest_driveeval.io.scenarionet.scenarionet import read_scenario, scenario_files
+from pytest_driveeval.io.scenarionet.scenarionet_l5 import l5_scene
+from pytest_driveeval.io.scenarionet.scenarionet_map import scenario_map
 from pytest_driveeval.policies.loading import load_model
 from pytest_driveeval.sim.logreplay import UnrollConfig, jit, stack_scenes, unroll
 

@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pytest_driveeval.io.l5_semantic_map import (  # noqa: E402
+from pytest_driveeval.io.l5.l5_semantic_map import (  # noqa: E402
     GREEN, RED, YELLOW, Polylines, SemanticMap, read_semantic_map, write_semantic_map)
 from pytest_driveeval.synth.scenegen import WORLD_TO_ECEF  # noqa: E402
 

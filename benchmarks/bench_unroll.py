@@ -68,7 +68,7 @@ except ImportError:  # pip install -e ".[test]" brings it
     LineString = Polygon = None
 
 from pytest_driveeval.geometry import box_corners
-from pytest_driveeval.io.l5kit_zarr import L5Dataset, L5Scene, write_l5_zarr
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset, L5Scene, write_l5_zarr
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.loading import load_model
 from pytest_driveeval.sim.logreplay import (EGO_EXTENT, LogArrays, UnrollConfig, jit, scenes_from_arrays,

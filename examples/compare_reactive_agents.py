@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from pytest_driveeval import load_scenario
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.policies.loading import load_model
 from pytest_driveeval.usecases.closed_loop import baseline, replayed_agents
 from pytest_driveeval.usecases.closed_loop.evaluate import KIND_CODE, unroll_scenes

@@ -30,7 +30,7 @@ L5 = ROOT / "fixtures" / "l5kit"
 
 
 def planning_inputs() -> list[tuple]:
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay import build_batch, stack_scenes
 
     log = stack_scenes([L5Dataset.open(L5 / "single_scene.zarr").scene(0)])
@@ -50,7 +50,7 @@ def raster_params():
 
 
 def raster_inputs_on_generated() -> list[tuple]:
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay import build_batch, stack_scenes
     from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map, raster_inputs
 

@@ -41,10 +41,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pytest_driveeval.baseline.compare import Comparison, compare  # noqa: E402
 from pytest_driveeval.baseline.paired import PairedRate, paired_rate, two_sided_p  # noqa: E402
 from pytest_driveeval.baseline.payload import make_payload  # noqa: E402
-from pytest_driveeval.outcome import PASSED, Outcome  # noqa: E402
+from pytest_driveeval.core.outcome import PASSED, Outcome  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
 from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
-from pytest_driveeval.usecase import get_usecase  # noqa: E402
+from pytest_driveeval.core.usecase import get_usecase  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark import regression  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark.regression import FIGURES  # noqa: E402
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun, run_policy, seeds_for  # noqa: E402

@@ -37,7 +37,7 @@ from typing import Callable, Dict
 import numpy as np
 import torch
 
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
 from pytest_driveeval.policies.planning_model import PlanningModel
 from pytest_driveeval.sim.logreplay import (LogArrays, UnrollConfig, UnrollResult, build_batch, scenes_from_arrays,

@@ -36,8 +36,8 @@ import numpy as np
 import torch
 
 from pytest_driveeval.geometry import wrap_angle
-from pytest_driveeval.io.l5_semantic_map import read_semantic_map
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5_semantic_map import read_semantic_map
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.policies.raster_model import RasterPlanningModel
 from pytest_driveeval.raster import RasterParams, Rasterizer
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy

@@ -29,10 +29,10 @@ from .assertions import (  # noqa: E402
     assert_time_to_collision_within_bound,
     assert_values_within,
 )
-from .errors import DataError, DriveEvalError, ModelError, ScenarioError  # noqa: E402
-from .outcome import FAILED, PASSED, Finding, Outcome  # noqa: E402
+from .core.errors import DataError, DriveEvalError, ModelError, ScenarioError  # noqa: E402
+from .core.outcome import FAILED, PASSED, Finding, Outcome  # noqa: E402
 from .scenario import Scenario, load_scenario  # noqa: E402
-from .usecase import Case, ConditionsModel, RunContext, UseCase, register_usecase  # noqa: E402
+from .core.usecase import Case, ConditionsModel, RunContext, UseCase, register_usecase  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = [

@@ -11,7 +11,7 @@ from typing import Sequence
 import numpy as np
 
 from .baseline.gate import assert_no_regression
-from .outcome import Outcome, format_figure
+from .core.outcome import Outcome, format_figure
 from .verdict import within
 
 # A use case's own helpers live with the use case, which knows its results;

@@ -6,15 +6,15 @@ from pathlib import Path
 import pytest
 
 from .baseline.session import session_gate
-from .collect import ScenarioFile, broken_scenario_links, is_scenario_file
-from .deadline import session, session_ended, session_finishing
+from .harness.collect import ScenarioFile, broken_scenario_links, is_scenario_file
+from .core.deadline import session, session_ended, session_finishing
 from .execute import disconnect
-from .progress import close_terminal, open_terminal, share_with_worker
-from .results import ResultsReporter, annotate_report
-from .settings import add_options, check_output_dir, get_settings, time_limit_header
-from .usecase import set_memory_budget
+from .harness.progress import close_terminal, open_terminal, share_with_worker
+from .harness.results import ResultsReporter, annotate_report
+from .harness.settings import add_options, check_output_dir, get_settings, time_limit_header
+from .core.usecase import set_memory_budget
 
-pytest_plugins = ["pytest_driveeval.fixtures"]
+pytest_plugins = ["pytest_driveeval.harness.fixtures"]
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -42,7 +42,7 @@ def pytest_configure(config: pytest.Config) -> None:
     )
     # Not imported at the top: pytest imports fixtures.py itself (pytest_plugins above) to rewrite
     # its asserts, and warns that it cannot when this module has imported it first.
-    from .fixtures import session_executor, session_search_options
+    from .harness.fixtures import session_executor, session_search_options
 
     settings = get_settings(config)  # fail early on a bad option value
     set_memory_budget(settings.memory_limit)

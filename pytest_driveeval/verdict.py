@@ -10,7 +10,7 @@ Three shapes of rule cover what the use cases judge, after nuPlan's
 * :class:`PassRate`: frames judged Success / Warn / Fail, and the share that
   passed against a required percentage.
 
-Each returns a :class:`~pytest_driveeval.outcome.Finding` (or None) whose
+Each returns a :class:`~pytest_driveeval.core.outcome.Finding` (or None) whose
 message names the failing frames with :func:`listing`, so every failure
 reads the same way: the first few, "... N more", and the worst.
 """
@@ -21,7 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .outcome import Finding, format_figure
+from .core.outcome import Finding, format_figure
 
 MAX_FRAMES_LISTED = 5
 

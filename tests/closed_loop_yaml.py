@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from pytest_driveeval import load_scenario
-from pytest_driveeval.errors import ScenarioError
+from pytest_driveeval.core.errors import ScenarioError
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0

@@ -1,4 +1,4 @@
-"""Create or check the venv that holds commonroad-io, the oracle for pytest_driveeval.io.commonroad.
+"""Create or check the venv that holds commonroad-io, the oracle for pytest_driveeval.io.commonroad.commonroad.
 
 commonroad-io pins protobuf 3.20.2 and brings rtree, omegaconf, networkx, lxml, iso3166 and the
 vehicle models, which is why the package reads CommonRoad XML itself and commonroad-io lives only

@@ -47,8 +47,8 @@ def _load(name: str, path: Path):
 
 
 def _ours(zarr: Path, scene_index: int, frames: list[int], params, map_dir: Path | None) -> np.ndarray:
-    from pytest_driveeval.io.l5_semantic_map import read_semantic_map
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5_semantic_map import read_semantic_map
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.raster import Rasterizer
     from pytest_driveeval.sim.logreplay import stack_scenes
 
@@ -69,8 +69,8 @@ def compare(case: str, python: Path | None = None, size: int = 112, history: int
         if case == "real_box":
             runs = [(REAL_SCENE, 0, [0, 3, 50, 120, 200, 247], None)]
         elif case == "real_semantic":
-            from pytest_driveeval.io.l5_semantic_map import write_semantic_map
-            from pytest_driveeval.io.l5kit_zarr import L5Dataset
+            from pytest_driveeval.io.l5.l5_semantic_map import write_semantic_map
+            from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
             bench = _load("bench_raster", ROOT / "benchmarks" / "bench_raster.py")
             smap = bench.scene_map(L5Dataset.open(REAL_SCENE).scene(0))

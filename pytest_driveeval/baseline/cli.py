@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import display_path
-from ..outcome import format_figure, is_number
-from ..runs import RUN_FILE, RUNS_FOLDER
-from ..settings import DEFAULT_OUTPUT
+from ..core.errors import display_path
+from ..core.outcome import format_figure, is_number
+from ..harness.runs import RUN_FILE, RUNS_FOLDER
+from ..harness.settings import DEFAULT_OUTPUT
 from .compare import ERROR, IMPROVED, REGRESSED, STALE, UNCHANGED, Comparison, against_text, compare
 from .rules import effective_rules
 from .store import LAST, BaselineError, BaselineStore, RunReference, check_baseline, resolve_compare
@@ -153,7 +153,7 @@ def _with_rules(current: dict[str, Any], reference: dict[str, Any]) -> dict[str,
         return current
     rules = reference.get("rules")
     if not rules:
-        from ..usecase import get_usecase
+        from ..core.usecase import get_usecase
 
         name = current.get("use_case")
         use_case = get_usecase(name) if isinstance(name, str) else None

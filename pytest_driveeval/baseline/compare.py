@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..outcome import format_figure, is_number
+from ..core.outcome import format_figure, is_number
 from .paired import paired_rate
 from .rules import FigureRule, Rules
 from .units import Units, unit_changes

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import DriveEvalError, display_path
-from ..outcome import OUTCOME_ATTR, Outcome
+from ..core.errors import DriveEvalError, display_path
+from ..core.outcome import OUTCOME_ATTR, Outcome
 from .compare import ERROR, MISSING, STALE, Comparison, against_text, compare
 from .payload import make_payload
 from .store import BaselineError, BaselineStore, RunReference, relative_path
@@ -97,7 +97,7 @@ def payload_of(item: Any, outcome: Outcome) -> dict[str, Any]:
     made = getattr(item, PAYLOAD_ATTR, None)
     if made is not None and getattr(item, OUTCOME_ATTR, None) is outcome:
         return made
-    from ..usecase import get_usecase
+    from ..core.usecase import get_usecase
 
     return make_payload(outcome, item.nodeid, use_case=get_usecase(outcome.use_case), item=item.name)
 
@@ -130,13 +130,13 @@ def assert_no_regression(outcome: Outcome, baseline: Any) -> Comparison:
         comparison = baseline.gate(outcome)
         return comparison if comparison is not None else Comparison(MISSING, note="no baseline option given")
     if isinstance(baseline, Outcome):
-        from ..usecase import get_usecase
+        from ..core.usecase import get_usecase
 
         baseline = make_payload(baseline, "", use_case=get_usecase(baseline.use_case))
     if not isinstance(baseline, dict):
         raise TypeError(f"assert_no_regression: baseline is a {type(baseline).__name__}; give the "
                         "driveeval_baseline fixture, a baseline's content (dict) or an earlier Outcome")
-    from ..usecase import get_usecase
+    from ..core.usecase import get_usecase
 
     current = make_payload(outcome, "", use_case=get_usecase(outcome.use_case))
     if not baseline.get("rules"):

@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..outcome import Outcome, jsonable
+from ..core.outcome import Outcome, jsonable
 from .rules import Rules, effective_rules
 
 if TYPE_CHECKING:

@@ -20,7 +20,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from ..usecase import Section
+from ..core.section import Section
 
 DEFAULT_CONFIDENCE = 95.0
 DEFAULT_SEARCH_RELATIVE = 0.1

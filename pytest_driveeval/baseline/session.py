@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from ..settings import get_settings
+from ..harness.settings import get_settings
 from .gate import BaselineOptions, Gate
 from .store import resolve_compare
 

@@ -14,9 +14,9 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from ..atomic import write_text_atomic
-from ..errors import DriveEvalError, display_path
-from ..runs import HISTORY_NAME, RUNS_FOLDER, history_runs
+from ..core.atomic import write_text_atomic
+from ..core.errors import DriveEvalError, display_path
+from ..harness.runs import HISTORY_NAME, RUNS_FOLDER, history_runs
 
 BASELINE_FORMAT = 1
 SUFFIX = ".json"

@@ -8,7 +8,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Generic, TypeVar
 
-from pytest_driveeval.errors import DriveEvalError
+from pytest_driveeval.core.errors import DriveEvalError
 
 __all__ = ["ChunkError", "ChunkRun", "ExecutorError", "Placement", "Progress", "Tally", "UnreachableCluster",
            "describe_chunk", "failure_message"]

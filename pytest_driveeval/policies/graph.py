@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 import torch
 from torch import Tensor
 
-from ..errors import DriveEvalError
+from ..core.errors import DriveEvalError
 
 __all__ = [
     "EDGE_FEATURES", "HEADER", "NODE_FEATURES", "GraphObservation", "GraphObservationError",

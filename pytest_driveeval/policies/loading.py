@@ -18,7 +18,7 @@ import zipfile
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import ModelError
+from ..core.errors import ModelError
 from .fx_forward import fast_forward
 from .pt2_archive import ProgramRefused, load_exported_program
 

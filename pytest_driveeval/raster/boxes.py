@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..io.l5kit_zarr import L5Scene
+from ..io.l5.l5kit_zarr import L5Scene
 from .draw import compiled, fill_polygons
 
 if TYPE_CHECKING:

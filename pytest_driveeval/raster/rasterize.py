@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..io.l5kit_zarr import L5Scene
+from ..io.l5.l5kit_zarr import L5Scene
 from .boxes import BoxTable, agent_keep, draw_box_channels, ego_corners
 from .draw import compiled
 from .params import RasterParams
@@ -26,7 +26,7 @@ from .semantic import ActiveFaces, PreparedMap, active_faces, draw_semantic_batc
 from .transforms import raster_centre_in_world, raster_from_local, world_matrices
 
 if TYPE_CHECKING:
-    from ..io.l5_semantic_map import SemanticMap
+    from ..io.l5.l5_semantic_map import SemanticMap
     from ..sim.logreplay.logarrays import LogArrays
 
 __all__ = ["LUT", "Canvas", "Rasterizer", "rasterize"]

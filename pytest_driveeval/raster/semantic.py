@@ -36,11 +36,11 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from ..geometry.planar import arc_lengths
-from ..io.l5kit_zarr import L5Scene
+from ..io.l5.l5kit_zarr import L5Scene
 from .draw import compiled, fill_polygons, polylines
 
 if TYPE_CHECKING:
-    from ..io.l5_semantic_map import SemanticMap
+    from ..io.l5.l5_semantic_map import SemanticMap
 
 __all__ = ["COLOURS", "INTERPOLATION_POINTS", "ActiveFaces", "PreparedMap", "active_faces", "draw_semantic",
            "draw_semantic_batch"]

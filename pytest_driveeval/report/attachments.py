@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from ..outcome import Outcome, format_figure, replaced_model
+from ..core.outcome import Outcome, format_figure, replaced_model
 from .deltas import comparison_of, figure_deltas, status_text, status_tone
 from .score_table import score_html, score_text
 

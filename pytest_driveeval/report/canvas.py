@@ -12,7 +12,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from ..atomic import atomic_path
+from ..core.atomic import atomic_path
 
 Pixels = Callable[[np.ndarray], list[tuple[float, float]]]
 

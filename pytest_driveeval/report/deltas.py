@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ..outcome import format_figure, is_number
+from ..core.outcome import format_figure, is_number
 
 #: the statuses under which figures were compared (missing, stale and error ones were not)
 COMPARED = ("regressed", "improved", "unchanged")

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from ..atomic import atomic_path
+from ..core.atomic import atomic_path
 
 
 def bar_chart(path: Path, counts: Mapping[str, float], title: str, ylabel: str = "frames") -> Path:

@@ -6,7 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..atomic import atomic_path
+from ..core.atomic import atomic_path
 
 COLOURS = {"Success": "tab:green", "Fail": "tab:red", "Warn": "tab:orange", "Other": "0.6"}
 MAX_POINTS = 60_000  # enough to read the scene; keeps the PNG quick to draw

@@ -1,7 +1,7 @@
 """The session's summary from its item records: summary.json, summary.md (also
 a CI step summary) and the verdict table in the terminal.
 
-Reads records only (see :mod:`pytest_driveeval.results` for where they come
+Reads records only (see :mod:`pytest_driveeval.harness.results` for where they come
 from); files are written atomically, so a reader sees the old summary or the
 new one, never half of one.
 """
@@ -12,8 +12,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..atomic import write_json_atomic, write_text_atomic
-from ..outcome import format_figure, replaced_model
+from ..core.atomic import write_json_atomic, write_text_atomic
+from ..core.outcome import format_figure, replaced_model
 from .deltas import COMPARED, MARKDOWN_MARK, comparison_of, figure_deltas, status_text, status_tone
 from .paired import paired_table
 from .score_table import score_markdown

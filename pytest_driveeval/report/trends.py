@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
-from ..outcome import is_number
+from ..core.outcome import is_number
 
 #: runs a trend shows besides the current one when the output folder keeps all (keep_runs 0)
 DEFAULT_RUNS = 20

@@ -11,8 +11,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from ..errors import Problem, ScenarioError
-from ..usecase import UseCase, get_usecase, known_usecases
+from ..core.errors import Problem, ScenarioError
+from ..core.usecase import UseCase, get_usecase, known_usecases
 from .envelope import DatasetOptions, Envelope, EvaluationHead, XFailSpec
 from .loaded import DatasetRef, Scenario
 from .problems import did_you_mean, problems_from_validation

@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 from pydantic import BaseModel, ValidationError
 
-from ..errors import Problem
+from ..core.errors import Problem
 from .source import SourceMap
 
 

@@ -26,7 +26,7 @@ from pydantic_core import PydanticUndefined
 
 # Kept to the envelope, the use-case registry and the config modules that it loads.
 from pytest_driveeval.scenario.envelope import Envelope
-from pytest_driveeval.usecase import get_usecase
+from pytest_driveeval.core.usecase import get_usecase
 
 PAGE = Path(__file__).resolve().parents[2] / "docs" / "reference" / "scenario-keys.md"
 COMMAND = "python -m pytest_driveeval.scenario.reference"

@@ -11,7 +11,7 @@ from typing import Any
 
 import yaml
 
-from ..errors import Problem, ScenarioError
+from ..core.errors import Problem, ScenarioError
 
 
 @dataclass

@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, Phase, given, settings as hypothesis_setting
 from hypothesis.database import ExampleDatabase
 from hypothesis.errors import Found
 
-from pytest_driveeval.errors import DriveEvalError
+from pytest_driveeval.core.errors import DriveEvalError
 
 from pytest_driveeval.search.examples import EvaluateMany, Example, Verdict, rank, size_of
 from pytest_driveeval.search.shrink import shrink_candidates, tighten_many

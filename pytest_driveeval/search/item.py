@@ -17,8 +17,8 @@ from typing import Any, Callable
 from hypothesis import strategies as st
 from hypothesis.database import DirectoryBasedExampleDatabase
 
-from pytest_driveeval.errors import DataError
-from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
+from pytest_driveeval.core.errors import DataError
+from pytest_driveeval.core.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.search.engine import EvaluateMany, Example, SearchResult, SearchSettings, database_key, search
 from pytest_driveeval.strategies import changed_fields
 from pytest_driveeval.search.spec import SearchOptions, SearchSpec, key_name, parse_replay

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
 
-from pytest_driveeval.usecase import located_error
+from pytest_driveeval.core.usecase import located_error
 
 __all__ = ["SearchOptions", "SearchSpec", "StartSearchSpec", "field_name", "key_name", "parse_replay"]
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from pytest_driveeval.geometry import box_corners, oriented_boxes_overlap
-from pytest_driveeval.io.commonroad_geometry import goal_reached
+from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached
 from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, classify,
                                                        off_road, step_reward)
 from pytest_driveeval.sim.agents import TrafficModel

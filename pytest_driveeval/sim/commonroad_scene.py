@@ -1,7 +1,7 @@
 """A CommonRoad scenario and one of its planning problems as the policy benchmark's scene.
 
 ``commonroad_scene(path, problem_id, **params)`` reads the file
-(:mod:`pytest_driveeval.io.commonroad`) and builds what the episodes need,
+(:mod:`pytest_driveeval.io.commonroad.commonroad`) and builds what the episodes need,
 once, so that a step only indexes arrays:
 
 * the road: one :class:`~pytest_driveeval.sim.blueprints.road.Lane` per
@@ -11,7 +11,7 @@ once, so that a step only indexes arrays:
   past a lanelet that narrows).  Off the road is a corner of the ego's box
   outside every lanelet, as in the blueprints; the raster's cells are
   ``resolution`` m, so it agrees with the exact test
-  (:func:`~pytest_driveeval.io.commonroad_geometry.on_road`) except within a
+  (:func:`~pytest_driveeval.io.commonroad.commonroad_geometry.on_road`) except within a
   cell's diagonal of a lanelet's edge.
 * the obstacles, recorded: their box centre, heading, speed and presence at
   every step ``k`` of an episode (time step ``t0 + k``, ``t0`` the planning
@@ -23,7 +23,7 @@ once, so that a step only indexes arrays:
   A missing orientation is 0, a missing velocity 0.
 * the ego's start, the planning problem's initial state (its position is the
   centre of the ego's box, as an obstacle's is of its shape), and the goal:
-  reached by CommonRoad's rule (:func:`~pytest_driveeval.io.commonroad_geometry.goal_reached`,
+  reached by CommonRoad's rule (:func:`~pytest_driveeval.io.commonroad.commonroad_geometry.goal_reached`,
   including its time interval), judged on the ego's box centre.  For the
   observation the goal is one point and speed: the centre of the first goal
   position (a shape's centre, or the middle of a goal lanelet's centre line;
@@ -53,11 +53,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from pytest_driveeval.errors import display_path
+from pytest_driveeval.core.errors import display_path
 from pytest_driveeval.geometry.planar import arc_lengths
-from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem, read_commonroad
-from pytest_driveeval.io.commonroad_geometry import shape_outline
-from pytest_driveeval.io.commonroad_types import (Circle, CommonRoadScenario, Obstacle, PlanningProblem, Polygon,
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_problem, read_commonroad
+from pytest_driveeval.io.commonroad.commonroad_geometry import shape_outline
+from pytest_driveeval.io.commonroad.commonroad_types import (Circle, CommonRoadScenario, Obstacle, PlanningProblem, Polygon,
                                                   Rectangle, Shape)
 from pytest_driveeval.sim.blueprints.base import BlueprintParams, ParameterError, positive, span
 from pytest_driveeval.sim.blueprints.road import Lane, Road, RoadTooLarge

@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from pytest_driveeval.geometry import oriented_boxes_overlap, yaw_as_rotation33
-from pytest_driveeval.io.l5_semantic_map import (GREEN, RED, YELLOW, Polylines, SemanticMap, encode_semantic_map,
+from pytest_driveeval.io.l5.l5_semantic_map import (GREEN, RED, YELLOW, Polylines, SemanticMap, encode_semantic_map,
                                                   write_semantic_map)
-from pytest_driveeval.io.l5kit_zarr import (
+from pytest_driveeval.io.l5.l5kit_zarr import (
     AGENT_DTYPE,
     FRAME_DTYPE,
     SCENE_DTYPE,

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.boxes import points_in_boxes
-from ..io.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, fields_dtype
-from ..io.rosbag import BagWriter, default_typestore, diagnostic_array, tf_message
+from ..io.ros.pointcloud2 import XYZIRC_FIELDS, encode_pointcloud2, fields_dtype
+from ..io.ros.rosbag import BagWriter, default_typestore, diagnostic_array, tf_message
 from .lidar import scan
 from .road import Road
 from .t4tables import token, write_annotation, write_lanelet2_map

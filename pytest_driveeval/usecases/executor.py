@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from pytest_driveeval.errors import DriveEvalError, display_path
+from pytest_driveeval.core.errors import DriveEvalError, display_path
 from pytest_driveeval.execute import ChunkError, ChunkRun, ExecutorSpec, UnreachableCluster, run_chunks
 from pytest_driveeval.execute.reuse import reused
 

@@ -17,9 +17,9 @@ from pytest_driveeval.baseline.payload import (NOT_FINGERPRINT, PAYLOAD_VERSION,
                                                make_payload, settings_of)
 from pytest_driveeval.baseline.rules import RegressionSpec
 from pytest_driveeval.baseline.units import Units
-from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
+from pytest_driveeval.core.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.scenario.loaded import DatasetRef
-from pytest_driveeval.usecase import get_usecase
+from pytest_driveeval.core.usecase import get_usecase
 from pytest_driveeval.usecases.policy_benchmark.regression import episode_outcomes
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from pytest_driveeval.errors import DataError, DriveEvalError
+from pytest_driveeval.core.errors import DataError, DriveEvalError
 from pytest_driveeval.execute import (ChunkError, ExecutorError, ExecutorSpec, executor_from_option, run_chunks, split)
 
 LOCAL = ExecutorSpec()

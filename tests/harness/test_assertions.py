@@ -8,7 +8,7 @@ import pytest
 
 import pytest_driveeval.assertions as assertions
 from pytest_driveeval import Outcome, assert_figure_within, assert_passed, assert_values_within
-from pytest_driveeval.outcome import Finding
+from pytest_driveeval.core.outcome import Finding
 from pytest_driveeval.verdict import within
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-import pytest_driveeval.collect as collect
+import pytest_driveeval.harness.collect as collect
 from conftest import speed_scenario
 
 UNUSED = "of items that no longer exist"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from pytest_driveeval import settings
+from pytest_driveeval.harness import settings
 
 pytest.importorskip("torch")
 

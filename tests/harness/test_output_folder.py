@@ -193,7 +193,7 @@ def test_a_folder_that_refuses_a_file_is_a_usage_error_whatever_its_permission_b
     # Root, or a read-only mount, passes os.access; only creating a file tells.
     import tempfile
 
-    from pytest_driveeval.settings import check_output_dir
+    from pytest_driveeval.harness.settings import check_output_dir
 
     def refuse(dir, **kw):
         raise PermissionError(13, "Permission denied", str(dir))

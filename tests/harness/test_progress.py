@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from pytest_driveeval.progress import ERASE_RIGHT, RESTORE, SAVE, StatusLine
+from pytest_driveeval.harness.progress import ERASE_RIGHT, RESTORE, SAVE, StatusLine
 
 STEPPING_USECASE = '''
 import time

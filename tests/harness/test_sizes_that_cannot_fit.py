@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from conftest import POLICY_BENCHMARK_HEAD, REPO_ROOT
-from pytest_driveeval.usecase import memory_budget, set_memory_budget
+from pytest_driveeval.core.usecase import memory_budget, set_memory_budget
 
 pytest.importorskip("torch")
 
@@ -108,7 +108,7 @@ def test_running_out_of_memory_while_loading_fails_that_file_alone(pytester):
     # a use case whose validation allocates what no check foresaw
     pytester.makeconftest('''
 from pydantic import model_validator
-from pytest_driveeval.usecase import ConditionsModel, UseCase, register_usecase
+from pytest_driveeval.core.usecase import ConditionsModel, UseCase, register_usecase
 
 
 class Greedy(ConditionsModel):
@@ -127,7 +127,7 @@ class GreedyUseCase(UseCase):
     config_model = Greedy
 
     def run(self, config, ctx):
-        from pytest_driveeval.outcome import Outcome, PASSED
+        from pytest_driveeval.core.outcome import Outcome, PASSED
         return Outcome(use_case="greedy", verdict=PASSED, summary="fine")
 ''')
     scenario = ("ScenarioFormatVersion: 3.0.0\nScenarioName: {name}\nEvaluation:\n  UseCaseName: greedy\n"

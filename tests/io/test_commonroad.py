@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from pytest_driveeval.errors import DriveEvalError
-from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem, read_commonroad
-from pytest_driveeval.io.commonroad_geometry import goal_reached, in_shape, on_road
-from pytest_driveeval.io.commonroad_types import Circle, GoalState, Interval, PlanningProblem, Polygon, Rectangle, State
+from pytest_driveeval.core.errors import DriveEvalError
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_problem, read_commonroad
+from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached, in_shape, on_road
+from pytest_driveeval.io.commonroad.commonroad_types import Circle, GoalState, Interval, PlanningProblem, Polygon, Rectangle, State
 
 TUTORIAL = REPO_ROOT / "fixtures" / "commonroad" / "ZAM_Tutorial-1_2_T-1.xml"
 

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from pytest_driveeval.io.commonroad import read_commonroad
-from pytest_driveeval.io.commonroad_geometry import goal_reached, lanelets_at, obstacle_outline
-from pytest_driveeval.io.commonroad_types import Circle, Polygon, Rectangle
+from pytest_driveeval.io.commonroad.commonroad import read_commonroad
+from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached, lanelets_at, obstacle_outline
+from pytest_driveeval.io.commonroad.commonroad_types import Circle, Polygon, Rectangle
 
 FILES = ["FRA_Anglet-1_1_T-1", "USA_Lanker-1_1_T-1", "USA_US101-3_3_T-1", "ZAM_Tutorial-1_2_T-1"]
 

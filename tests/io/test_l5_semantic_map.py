@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from pytest_driveeval.errors import DataError
-from pytest_driveeval.io.l5_semantic_map import (GREEN, RED, YELLOW, Polylines, SemanticMap, read_semantic_map,
+from pytest_driveeval.core.errors import DataError
+from pytest_driveeval.io.l5.l5_semantic_map import (GREEN, RED, YELLOW, Polylines, SemanticMap, read_semantic_map,
                                                  write_semantic_map)
 
 MOCK = REPO_ROOT / "fixtures" / "l5kit" / "semantic_map"

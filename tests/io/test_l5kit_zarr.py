@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pytest_driveeval.io.l5kit_zarr import (
+from pytest_driveeval.io.l5.l5kit_zarr import (
     AGENT_DTYPE,
     ARRAY_NAMES,
     FRAME_DTYPE,
@@ -22,6 +22,8 @@ from pytest_driveeval.io.l5kit_zarr import (
     track_table,
     write_l5_zarr,
 )
+
+from l5kit_rows import random_rows  # tests/l5kit_rows.py
 
 
 @pytest.fixture(scope="module")
@@ -305,22 +307,6 @@ def track_table_by_rows(ids, frame, probabilities, num_frames):
         seen.add((a, f))
     return (np.array(track_ids, ids.dtype), np.array(track, np.int64), np.array(first, np.int64),
             np.array(last, np.int64), votes.argmax(axis=1), min(repeated, default=-1))
-
-
-def random_rows(seed: int, sparse: bool, repeat: bool):
-    """Rows frame by frame with ids dense or sparse (the lookup table or the sort), label
-    probabilities with ties and NaNs, and optionally an id twice in one frame."""
-    rng = np.random.default_rng(seed)
-    counts = rng.integers(0, 12, 30)
-    frame = np.repeat(np.arange(counts.size), counts)
-    pool = rng.choice(2**40 if sparse else 60, 40, replace=False).astype(np.uint64)
-    ids = np.concatenate([rng.choice(pool, c, replace=False) for c in counts]).astype(np.uint64)
-    if repeat:
-        r = int(np.flatnonzero(np.diff(frame) == 0)[len(frame) // 3])
-        ids[r + 1] = ids[r]
-    probabilities = rng.integers(0, 3, (frame.size, 17)).astype(np.float32)  # many ties
-    probabilities[rng.random(frame.size) < 0.1, rng.integers(0, 17)] = np.nan
-    return ids, frame, probabilities, counts.size
 
 
 @pytest.mark.parametrize("sparse", [False, True])

@@ -8,9 +8,9 @@ import struct
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.mcap_index import chunk_problem
-from pytest_driveeval.io.pointcloud2 import encode_pointcloud2, make_cloud
-from pytest_driveeval.io.rosbag import (
+from pytest_driveeval.io.ros.mcap_index import chunk_problem
+from pytest_driveeval.io.ros.pointcloud2 import encode_pointcloud2, make_cloud
+from pytest_driveeval.io.ros.rosbag import (
     Bag,
     BagError,
     BagWriter,

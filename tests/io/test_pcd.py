@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pytest_driveeval.io.pcd import (
+from pytest_driveeval.io.t4.pcd import (
     PCDError,
     lzf_compress,
     lzf_decompress,

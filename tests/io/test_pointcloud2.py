@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.pcd import read_pcd
-from pytest_driveeval.io.pointcloud2 import Field, PointCloud2Error, decode_pointcloud2
+from pytest_driveeval.io.t4.pcd import read_pcd
+from pytest_driveeval.io.ros.pointcloud2 import Field, PointCloud2Error, decode_pointcloud2
 
 
 class Msg:

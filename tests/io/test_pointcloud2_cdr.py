@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from pytest_driveeval.io.pointcloud2_cdr import read_pointcloud2_cdr, standard_layout
-from pytest_driveeval.io.rosbag import POINTCLOUD2, default_typestore
+from pytest_driveeval.io.ros.pointcloud2_cdr import read_pointcloud2_cdr, standard_layout
+from pytest_driveeval.io.ros.rosbag import POINTCLOUD2, default_typestore
 
 pytest.importorskip("rosbags")
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.pointcloud2 import (
+from pytest_driveeval.io.ros.pointcloud2 import (
     XYZI_FIELDS,
     XYZIRC_FIELDS,
     Field,
@@ -22,7 +22,7 @@ from pytest_driveeval.io.pointcloud2 import (
     encode_pointcloud2,
     make_cloud,
 )
-from pytest_driveeval.io.rosbag import (
+from pytest_driveeval.io.ros.rosbag import (
     POINTCLOUD2,
     Bag,
     BagError,

@@ -6,7 +6,7 @@ import pickle
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.safe_pickle import UnsafePickleError, load_data_pickle
+from pytest_driveeval.io.scenarionet.safe_pickle import UnsafePickleError, load_data_pickle
 
 
 class Boom:

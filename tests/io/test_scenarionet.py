@@ -5,8 +5,8 @@ import pickle
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.safe_pickle import UnsafePickleError
-from pytest_driveeval.io.scenarionet import (ScenarioNetError, feature_group, read_scenario, scenario_files)
+from pytest_driveeval.io.scenarionet.safe_pickle import UnsafePickleError
+from pytest_driveeval.io.scenarionet.scenarionet import (ScenarioNetError, feature_group, read_scenario, scenario_files)
 
 from scenarionet_made import scenario, write
 

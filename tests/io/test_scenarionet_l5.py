@@ -3,9 +3,9 @@ nuScenes-mini scenes unrolled."""
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5kit_zarr import label_index
-from pytest_driveeval.io.scenarionet import ScenarioNetError, read_scenario
-from pytest_driveeval.io.scenarionet_l5 import ScenarioNetDataset, l5_scene
+from pytest_driveeval.io.l5.l5kit_zarr import label_index
+from pytest_driveeval.io.scenarionet.scenarionet import ScenarioNetError, read_scenario
+from pytest_driveeval.io.scenarionet.scenarionet_l5 import ScenarioNetDataset, l5_scene
 
 from scenarionet_made import scenario, write
 

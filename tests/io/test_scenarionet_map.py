@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.geometry.polygons import points_in_polygon
-from pytest_driveeval.io.l5_semantic_map import GREEN, RED
-from pytest_driveeval.io.scenarionet import read_scenario, scenario_files
-from pytest_driveeval.io.scenarionet_l5 import l5_scene
-from pytest_driveeval.io.scenarionet_map import DEFAULT_LANE_WIDTH, active_faces, scenario_map
+from pytest_driveeval.io.l5.l5_semantic_map import GREEN, RED
+from pytest_driveeval.io.scenarionet.scenarionet import read_scenario, scenario_files
+from pytest_driveeval.io.scenarionet.scenarionet_l5 import l5_scene
+from pytest_driveeval.io.scenarionet.scenarionet_map import DEFAULT_LANE_WIDTH, active_faces, scenario_map
 
 from scenarionet_made import scenario, write
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.geometry import yaw_from_quat_wxyz
-from pytest_driveeval.io.t4dataset import T4Dataset, T4DatasetError
+from pytest_driveeval.io.t4.t4dataset import T4Dataset, T4DatasetError
 
 TS = 1532402927647951
 

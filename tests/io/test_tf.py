@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.rosbag import Bag, read_tf
+from pytest_driveeval.io.ros.rosbag import Bag, read_tf
 from pytest_driveeval.geometry import matrix_to_quat, quat_to_matrix, slerp, transform_matrix
-from pytest_driveeval.io.tf import TFBuffer, TransformError
+from pytest_driveeval.io.ros.tf import TFBuffer, TransformError
 
 
 def yaw_quat(yaw):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from pytest_driveeval.io.lanelet2 import Lanelet2Error, load_lanelet_map
+from pytest_driveeval.io.t4.lanelet2 import Lanelet2Error, load_lanelet_map
 from pytest_driveeval.metrics import cloud_jit
 from pytest_driveeval.geometry import points_in_polygon, polygon_edges, polygon_self_intersects, polygon_signed_area
 from pytest_driveeval.metrics.pointcloud import Area, BoxSet, box_corners_3d, box_scale, crop_reference, evaluate_cloud

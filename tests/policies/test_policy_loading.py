@@ -5,7 +5,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from pytest_driveeval.errors import ModelError  # noqa: E402
+from pytest_driveeval.core.errors import ModelError  # noqa: E402
 from pytest_driveeval.policies.loading import load_model, model_files, names_factory, runs_code  # noqa: E402
 from conftest import save_torchscript
 

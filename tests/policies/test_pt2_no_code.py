@@ -18,7 +18,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from conftest import REPO_ROOT  # noqa: E402
-from pytest_driveeval.errors import ModelError  # noqa: E402
+from pytest_driveeval.core.errors import ModelError  # noqa: E402
 from pytest_driveeval.policies.loading import load_model  # noqa: E402
 
 SHIPPED = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"

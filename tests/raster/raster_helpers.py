@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pytest_driveeval.io.l5_semantic_map import Polylines, SemanticMap
+from pytest_driveeval.io.l5.l5_semantic_map import Polylines, SemanticMap
 from pytest_driveeval.sim.logreplay.logarrays import LogArrays
 
 

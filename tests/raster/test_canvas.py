@@ -14,7 +14,7 @@ PARAMS = RasterParams(map_type="box_debug", raster_size=(112, 112), history_num_
 
 @pytest.fixture(scope="module")
 def real():
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay.logarrays import stack_scenes
     scene = L5Dataset.open(SCENE).scene(0)
     copies = 4

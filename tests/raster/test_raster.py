@@ -189,7 +189,7 @@ def test_rows_and_frames_are_checked():
 
 @pytest.fixture(scope="module")
 def real(shared_data):
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay.logarrays import stack_scenes
     path = shared_data / "l5kit" / "single_scene.zarr"
     if not path.is_dir():

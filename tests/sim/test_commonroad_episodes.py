@@ -7,8 +7,8 @@ import pytest
 from conftest import REPO_ROOT
 
 from pytest_driveeval.geometry.polygons import outline_distance
-from pytest_driveeval.io.commonroad import CommonRoadError
-from pytest_driveeval.io.commonroad_geometry import on_road
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError
+from pytest_driveeval.io.commonroad.commonroad_geometry import on_road
 from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, STEP_LIMIT
 from pytest_driveeval.sim.blueprints import ParameterError
 from pytest_driveeval.sim.commonroad_episodes import start_offsets

@@ -111,7 +111,7 @@ def test_a_scene_without_agents_stacks_beside_others():
 
 
 def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     scene = L5Dataset.open(shared_data / "l5kit" / "single_scene.zarr").scene(0)
     log = stack_scenes([scene] * 2)
     compiled = {**_batches(log), **{f"stack.{f}": getattr(log, f) for f in log.__dataclass_fields__}}
@@ -125,9 +125,9 @@ def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
 @pytest.mark.parametrize("sparse", [False, True])
 @pytest.mark.parametrize("repeat", [False, True])
 def test_compiled_track_table_is_the_numpy_one(sparse, repeat):
-    from pytest_driveeval.io.l5kit_zarr import track_table as numpy_track_table
+    from pytest_driveeval.io.l5.l5kit_zarr import track_table as numpy_track_table
     from pytest_driveeval.sim.logreplay import logarrays_jit
-    from tests.io.test_l5kit_zarr import random_rows
+    from l5kit_rows import random_rows  # tests/l5kit_rows.py
 
     for seed in range(6):
         rows = random_rows(seed, sparse, repeat)

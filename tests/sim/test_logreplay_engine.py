@@ -8,7 +8,7 @@ import pytest
 import torch
 from shapely.geometry import Polygon
 
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.metrics.collisions import FRONT
 from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
 from pytest_driveeval.sim.logreplay import (EGO_EXTENT, UnrollConfig, build_batch, scenes_from_arrays, stack_scenes,

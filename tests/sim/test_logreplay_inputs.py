@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.sim.logreplay import build_batch, collate_training_samples, scenes_from_arrays, stack_scenes
 from pytest_driveeval.synth.scenegen import generate_scenes
 

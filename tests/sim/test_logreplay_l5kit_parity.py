@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5kit_zarr import (
+from pytest_driveeval.io.l5.l5kit_zarr import (
     AGENT_DTYPE,
     FRAME_DTYPE,
     TL_FACE_DTYPE,

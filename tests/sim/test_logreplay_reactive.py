@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from pytest_driveeval.io.l5kit_zarr import label_index
+from pytest_driveeval.io.l5.l5kit_zarr import label_index
 from pytest_driveeval.metrics.collisions import REAR
 from pytest_driveeval.policies.baselines import ReplayLogPolicy
 from pytest_driveeval.sim.agents import TrafficModel

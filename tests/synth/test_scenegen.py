@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5kit_zarr import L5Dataset, label_index
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset, label_index
 from pytest_driveeval.synth.scenegen import EGO_EXTENT, generate_scenes, generate_zarr, road_layout
 
 NUM_SCENES, NUM_FRAMES = 8, 100

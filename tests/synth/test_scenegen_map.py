@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from pytest_driveeval.io.l5_semantic_map import GREEN, RED, YELLOW, read_meta, read_semantic_map
-from pytest_driveeval.io.l5kit_zarr import L5Dataset
+from pytest_driveeval.io.l5.l5_semantic_map import GREEN, RED, YELLOW, read_meta, read_semantic_map
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 from pytest_driveeval.synth.scenegen import LANE_WIDTH, generate_zarr, road_layout, semantic_map
 
 NUM_FRAMES = 60

@@ -6,8 +6,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.rosbag import Bag
-from pytest_driveeval.io.t4dataset import T4Dataset
+from pytest_driveeval.io.ros.rosbag import Bag
+from pytest_driveeval.io.t4.t4dataset import T4Dataset
 from pytest_driveeval.geometry import points_in_boxes
 from pytest_driveeval.synth.t4gen import DIAG_NAME, TARGET_TOKEN, generate_t4_dataset
 

@@ -35,9 +35,9 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from pytest_driveeval.deadline import TimeLimitExceeded, guarded_call, note
+from pytest_driveeval.core.deadline import TimeLimitExceeded, guarded_call, note
 from pytest_driveeval.geometry import norm2d, oriented_boxes_overlap
-from pytest_driveeval.io.l5kit_zarr import L5Scene
+from pytest_driveeval.io.l5.l5kit_zarr import L5Scene
 from pytest_driveeval.metrics.collisions import detect_collisions, max_or_zero
 from pytest_driveeval.metrics.drift import displacement_error, distance_to_reference, speed_difference
 from pytest_driveeval.sim.dynamics import KinematicLimits, PoseTarget, Unicycle

@@ -33,7 +33,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from pytest_driveeval.io.l5kit_zarr import L5Scene
+from pytest_driveeval.io.l5.l5kit_zarr import L5Scene
 from pytest_driveeval.sim.logreplay import jit
 from pytest_driveeval.sim.logreplay.agents import LogCells, agent_histories
 from pytest_driveeval.sim.logreplay.logarrays import EGO_EXTENT, STEP_TIME, LogArrays, stack_scenes, window_columns

@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from pytest_driveeval.io.l5kit_zarr import PERCEPTION_LABELS, L5Arrays, L5Scene
+from pytest_driveeval.io.l5.l5kit_zarr import PERCEPTION_LABELS, L5Arrays, L5Scene
 from pytest_driveeval.sim.logreplay import jit
 
 __all__ = ["EGO_EXTENT", "STEP_TIME", "LogArrays", "scenes_from_arrays", "stack_scenes", "window_columns"]

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pytest_driveeval.io.l5kit_zarr import DENSE_IDS, TrackTable
-from pytest_driveeval.io.l5kit_zarr import track_table as numpy_track_table
+from pytest_driveeval.io.l5.l5kit_zarr import DENSE_IDS, TrackTable
+from pytest_driveeval.io.l5.l5kit_zarr import track_table as numpy_track_table
 
 try:
     from numba import njit
@@ -102,7 +102,7 @@ def scatter_rows(i, cell, centroid, yaw, extent, velocity, track_id, label, keep
 
 
 def track_table(ids, frame, probabilities, num_frames):
-    """:func:`~pytest_driveeval.io.l5kit_zarr.track_table` in one pass over the rows, equal to
+    """:func:`~pytest_driveeval.io.l5.l5kit_zarr.track_table` in one pass over the rows, equal to
     it field for field; ids too sparse for a lookup table take the numpy path."""
     top = int(ids.max()) if ids.size else 0
     if not ids.size or top >= DENSE_IDS * ids.size:

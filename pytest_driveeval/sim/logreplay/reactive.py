@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pytest_driveeval.geometry import norm2d as norm
-from pytest_driveeval.io.l5kit_zarr import label_index
+from pytest_driveeval.io.l5.l5kit_zarr import label_index
 from pytest_driveeval.sim.agents import TrafficModel, idm_advance, idm_free, idm_interaction
 from pytest_driveeval.sim.logreplay.agents import LogCells
 from pytest_driveeval.sim.logreplay.logarrays import LogArrays

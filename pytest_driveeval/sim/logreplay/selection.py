@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pytest_driveeval.io.l5kit_zarr import L5Scene, label_index
+from pytest_driveeval.io.l5.l5kit_zarr import L5Scene, label_index
 from pytest_driveeval.sim.logreplay.logarrays import rows_by_frame
 
 __all__ = ["ReplayedAgents", "keep_agents"]

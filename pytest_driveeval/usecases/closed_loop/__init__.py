@@ -12,10 +12,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from pytest_driveeval.errors import ModelError, display_path
+from pytest_driveeval.core.errors import ModelError, display_path
 from pytest_driveeval.metrics.nuplan_score.score import item_figures
-from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
-from pytest_driveeval.usecase import RunContext, UseCase, register_usecase
+from pytest_driveeval.core.outcome import FAILED, PASSED, Finding, Outcome
+from pytest_driveeval.core.usecase import RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.closed_loop import regression
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
@@ -29,7 +29,7 @@ from pytest_driveeval.usecases.closed_loop.evaluate import (
 )
 
 if TYPE_CHECKING:
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.strategies import StartPerturbation
 
 
@@ -220,7 +220,7 @@ class ClosedLoop(UseCase):
                          executor: Any) -> Outcome:
         """The scenes as chunks on the executor: each worker opens the dataset by its path, loads
         the model by its spec, and returns its scenes' verdicts, collisions and GIFs."""
-        from pytest_driveeval.atomic import write_bytes_atomic
+        from pytest_driveeval.core.atomic import write_bytes_atomic
         from pytest_driveeval.usecases.closed_loop.artefacts import write_scene_artefacts
         from pytest_driveeval.usecases.closed_loop.chunked import merged, run_scene_chunk, scene_chunks
         from pytest_driveeval.usecases.executor import executor_details, run_item_chunks

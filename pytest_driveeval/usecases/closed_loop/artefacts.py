@@ -12,8 +12,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.atomic import write_text_atomic
-from pytest_driveeval.usecase import RunContext
+from pytest_driveeval.core.atomic import write_text_atomic
+from pytest_driveeval.core.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
 

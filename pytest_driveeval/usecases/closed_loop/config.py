@@ -47,7 +47,7 @@ from pydantic import (Field, NonNegativeFloat, NonNegativeInt, PositiveFloat, Po
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
 from pytest_driveeval.sim.agents import TrafficModel
-from pytest_driveeval.usecase import ConditionsModel, Section, check_fits
+from pytest_driveeval.core.usecase import ConditionsModel, Section, check_fits
 
 
 _IDM = TrafficModel()
@@ -122,7 +122,7 @@ class AgentsSpec(Section):
     @field_validator("Labels")
     @classmethod
     def _known_labels(cls, labels):
-        from pytest_driveeval.io.l5kit_zarr import label_index
+        from pytest_driveeval.io.l5.l5kit_zarr import label_index
 
         for name in labels or ():
             label_index(name)  # ValueError listing the known labels

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pytest_driveeval.errors import DataError, display_path
+from pytest_driveeval.core.errors import DataError, display_path
 
 FORMATS = ("l5kit", "scenarionet")
 
@@ -32,9 +32,9 @@ def open_dataset(path: str | Path, declared: str | None = None) -> Any:
         if declared != found:
             raise DataError(f"dataset {display_path(path)}: Format says {declared}, but the files are {found}'s")
     if found == "scenarionet":
-        from pytest_driveeval.io.scenarionet_l5 import ScenarioNetDataset
+        from pytest_driveeval.io.scenarionet.scenarionet_l5 import ScenarioNetDataset
 
         return ScenarioNetDataset.open(path)
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
     return L5Dataset.open(path)

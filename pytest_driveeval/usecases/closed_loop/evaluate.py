@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.errors import DataError
+from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.metrics.drift import distance_to_reference_l5kit
-from pytest_driveeval.outcome import Finding
+from pytest_driveeval.core.outcome import Finding
 from pytest_driveeval.verdict import violations, within
 
 if TYPE_CHECKING:  # the reader imports numcodecs, the engine torch; a dataset arrives already open
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.sim.logreplay import ReplayedAgents
     from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents
     from pytest_driveeval.strategies import StartPerturbation

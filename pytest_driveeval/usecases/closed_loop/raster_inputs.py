@@ -15,7 +15,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.errors import DataError
+from pytest_driveeval.core.errors import DataError
 
 __all__ = ["KEPT_MAPS", "load_semantic_map", "raster_inputs", "semantic_map_files", "semantic_map_for"]
 
@@ -61,7 +61,7 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
                       folder: str | os.PathLike | None = None) -> Any:
     """The semantic map of a dataset: ``pb`` / ``meta`` (relative to ``folder``, the scenario's),
     by default ``semantic_map.pb`` and ``meta.json`` beside the dataset, as l5kit lays them out."""
-    from pytest_driveeval.io.l5_semantic_map import read_semantic_map
+    from pytest_driveeval.io.l5.l5_semantic_map import read_semantic_map
 
     pb_path, meta_path = semantic_map_files(dataset_path, pb, meta, folder)
     for path, key in ((pb_path, "SemanticMap"), (meta_path, "Meta")):

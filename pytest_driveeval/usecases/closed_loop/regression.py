@@ -8,7 +8,7 @@ from typing import Any
 
 from pytest_driveeval.baseline.rules import FigureRule
 from pytest_driveeval.baseline.units import Units
-from pytest_driveeval.outcome import Outcome
+from pytest_driveeval.core.outcome import Outcome
 
 FIGURES = {
     "at_fault": FigureRule("lower"),

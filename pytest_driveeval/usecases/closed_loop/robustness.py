@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.outcome import Outcome
+from pytest_driveeval.core.outcome import Outcome
 from pytest_driveeval.sim.logreplay.agents import LogCells
 from pytest_driveeval.sim.logreplay.logarrays import LogArrays, window_columns
 from pytest_driveeval.search.engine import Example, Verdict

@@ -1,7 +1,7 @@
 """The map a scene's bird's-eye GIF draws under its boxes, from the dataset's own map.
 
 A ScenarioNet scenario carries its map: lane surfaces (each lane's polygon, or its measured
-boundaries, as :func:`~pytest_driveeval.io.scenarionet_map.scenario_map` builds them), road lines,
+boundaries, as :func:`~pytest_driveeval.io.scenarionet.scenarionet_map.scenario_map` builds them), road lines,
 road edges and crosswalks.  An L5 zarr carries none (its semantic map is a separate file a raster
 model reads), so its GIFs stay on a blank background.  Built here, not in ``io``: the report's
 :class:`DrawnMap` is what the renderer takes, and ``io`` does not import the report.
@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from pytest_driveeval.io.scenarionet import ScenarioNetScene
-from pytest_driveeval.io.scenarionet_l5 import ScenarioNetDataset
-from pytest_driveeval.io.scenarionet_map import scenario_map
+from pytest_driveeval.io.scenarionet.scenarionet import ScenarioNetScene
+from pytest_driveeval.io.scenarionet.scenarionet_l5 import ScenarioNetDataset
+from pytest_driveeval.io.scenarionet.scenarionet_map import scenario_map
 from pytest_driveeval.report.map_layers import DrawnMap
 
 __all__ = ["drawn_map", "drawn_map_of"]
@@ -27,7 +27,7 @@ def _outline(feature: Any) -> np.ndarray | None:
 
 def drawn_map(scene: ScenarioNetScene, made: Any = None) -> DrawnMap:
     """The scenario's map as the GIF draws it, in the scenario's world frame (the unroll's);
-    ``made``: its io.scenarionet_map.ScenarioMap when the caller has one (measuring lanes costs)."""
+    ``made``: its io.scenarionet.scenarionet_map.ScenarioMap when the caller has one (measuring lanes costs)."""
     surfaces = (made if made is not None else scenario_map(scene)).surfaces
 
     def group(name: str) -> list[np.ndarray]:

@@ -16,7 +16,7 @@ import numpy as np
 from pytest_driveeval.metrics.nuplan_score import (AgentCells, SceneScore, ScoreInputs, ScoreMap, ego_from_poses,
                                                    first_collisions, score_scene)
 from pytest_driveeval.metrics.nuplan_score.inputs import GROUPS
-from pytest_driveeval.outcome import Finding
+from pytest_driveeval.core.outcome import Finding
 
 #: l5kit perception labels by the collision group nuPlan gives such an object
 _VEHICLES = {"CAR", "VAN", "TRAM", "BUS", "TRUCK", "EMERGENCY_VEHICLE", "OTHER_VEHICLE"}
@@ -25,7 +25,7 @@ _VULNERABLE = {"BICYCLE", "MOTORCYCLE", "CYCLIST", "MOTORCYCLIST", "PEDESTRIAN"}
 
 @lru_cache(maxsize=1)
 def _label_groups() -> np.ndarray:
-    from pytest_driveeval.io.l5kit_zarr import PERCEPTION_LABELS
+    from pytest_driveeval.io.l5.l5kit_zarr import PERCEPTION_LABELS
 
     names = [label.rsplit("LABEL_", 1)[-1] for label in PERCEPTION_LABELS]
     return np.array([0 if n in _VEHICLES else 1 if n in _VULNERABLE else 2 for n in names], dtype=np.int8)

@@ -74,14 +74,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ...errors import DriveEvalError, Problem, ScenarioError
-from ...outcome import FAILED, PASSED, Finding, Outcome
-from ...usecase import RunContext, UseCase, register_usecase
+from ...core.errors import DriveEvalError, Problem, ScenarioError
+from ...core.outcome import FAILED, PASSED, Finding, Outcome
+from ...core.usecase import RunContext, UseCase, register_usecase
 from . import regression
 from .config import LEGACY, V3, ObstacleSegmentationConfig
 
 if TYPE_CHECKING:
-    from ...io.t4dataset import T4Dataset
+    from ...io.t4.t4dataset import T4Dataset
     from .evaluate import UnknownUUIDError
     from .result import ObstacleResult
 
@@ -100,7 +100,7 @@ class ObstacleSegmentation(UseCase):
     # The evaluation (numpy kernels, bag reader, plots) is imported when a scenario
     # runs, so that registering the use case stays cheap.
     def load_dataset(self, ctx: RunContext) -> T4Dataset:
-        from ...io.t4dataset import T4Dataset
+        from ...io.t4.t4dataset import T4Dataset
 
         return T4Dataset(super().load_dataset(ctx))
 

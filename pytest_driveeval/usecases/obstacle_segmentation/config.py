@@ -54,7 +54,7 @@ from pydantic import (
 
 from ...geometry.polygons import polygon_self_intersects, polygon_signed_area
 from ...search.spec import SearchSpec
-from ...usecase import ConditionsModel, Section, check_fits
+from ...core.usecase import ConditionsModel, Section, check_fits
 
 V3 = "0.3.0"
 LEGACY = ("0.1.0", "0.2.0")

@@ -21,10 +21,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ...deadline import note
-from ...errors import DataError, DriveEvalError
-from ...io.t4dataset import GroundTruth, T4Dataset
-from ...io.tf import TransformError
+from ...core.deadline import note
+from ...core.errors import DataError, DriveEvalError
+from ...io.t4.t4dataset import GroundTruth, T4Dataset
+from ...io.ros.tf import TransformError
 from ...metrics.pointcloud import Area, BoxSet, evaluate_cloud, xyz_columns
 from .config import ObstacleSegmentationConfig
 from .result import FrameVerdict, ObstacleResult
@@ -81,8 +81,8 @@ def _diagnostic_lookup(diagnostics, name_part: str) -> Callable[[int], bool | No
 
 
 def _auto_inputs(dataset: T4Dataset, tf, diagnostics, lanelets):
-    from ...io.lanelet2 import load_lanelet_map
-    from ...io.rosbag import Bag
+    from ...io.t4.lanelet2 import load_lanelet_map
+    from ...io.ros.rosbag import Bag
 
     bag = dataset.input_bag
     if bag is not None and (isinstance(tf, str) or isinstance(diagnostics, str)):

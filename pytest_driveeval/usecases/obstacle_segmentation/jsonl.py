@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ...atomic import atomic_path
+from ...core.atomic import atomic_path
 from ...geometry.quaternions import matrix_to_quat, matrix_to_rpy, quat_to_matrix
 from .result import FrameVerdict, ObstacleResult
 

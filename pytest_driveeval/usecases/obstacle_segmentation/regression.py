@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pytest_driveeval.baseline.rules import FigureRule
 from pytest_driveeval.baseline.units import Units
-from pytest_driveeval.outcome import Outcome
+from pytest_driveeval.core.outcome import Outcome
 
 FIGURES = {
     "detection_rate": FigureRule("higher", atol=1e-9, unit="%"),

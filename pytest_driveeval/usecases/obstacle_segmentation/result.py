@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...io.t4dataset import GroundTruth
+from ...io.t4.t4dataset import GroundTruth
 from ...metrics.pointcloud import Area, BoxSet, CloudCounts
 from ...verdict import MAX_FRAMES_LISTED, PassRate
 

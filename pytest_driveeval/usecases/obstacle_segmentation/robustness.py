@@ -20,12 +20,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...deadline import guarded_call, note
-from ...errors import DriveEvalError
-from ...io.t4dataset import GroundTruth
-from ...io.tf import TransformError
+from ...core.deadline import guarded_call, note
+from ...core.errors import DriveEvalError
+from ...io.t4.t4dataset import GroundTruth
+from ...io.ros.tf import TransformError
 from ...metrics.pointcloud import BoxSet
-from ...outcome import Outcome
+from ...core.outcome import Outcome
 from ...search.engine import Example, Verdict
 from ...search.item import Searchable
 from ...strategies import CloudPerturbation, cloud_perturbations

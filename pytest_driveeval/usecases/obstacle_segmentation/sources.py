@@ -10,15 +10,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...deadline import guarded_call, note
-from ...errors import DataError
-from ...io.t4dataset import T4Dataset
+from ...core.deadline import guarded_call, note
+from ...core.errors import DataError
+from ...io.t4.t4dataset import T4Dataset
 from ...metrics.pointcloud import xyz_columns
 
 
 def bag_pointclouds(dataset: T4Dataset | str | os.PathLike, topic: str) -> Iterator[tuple]:
     """Stream ``topic`` from the dataset's input_bag, one message in memory at a time."""
-    from ...io.rosbag import Bag
+    from ...io.ros.rosbag import Bag
 
     ds = dataset if isinstance(dataset, T4Dataset) else T4Dataset(dataset)
     if ds.input_bag is None:

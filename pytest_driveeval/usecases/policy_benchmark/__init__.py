@@ -13,9 +13,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from pytest_driveeval.errors import display_path
-from pytest_driveeval.outcome import FAILED, PASSED, Outcome
-from pytest_driveeval.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, register_usecase
+from pytest_driveeval.core.errors import display_path
+from pytest_driveeval.core.outcome import FAILED, PASSED, Outcome
+from pytest_driveeval.core.usecase import MODEL_OPTION_NOTE, Case, RunContext, UseCase, register_usecase
 from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 from pytest_driveeval.usecases.policy_benchmark import regression
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig

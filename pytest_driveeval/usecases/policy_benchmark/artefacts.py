@@ -15,10 +15,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from pytest_driveeval.atomic import write_text_atomic
+from pytest_driveeval.core.atomic import write_text_atomic
 from pytest_driveeval.geometry import box_corners
 from pytest_driveeval.metrics.episode_outcomes import GOAL
-from pytest_driveeval.usecase import RunContext
+from pytest_driveeval.core.usecase import RunContext
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
 
 __all__ = ["EpisodeRecorder", "episode_gif", "write_artefacts"]

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from pytest_driveeval.errors import DataError, display_path
-from pytest_driveeval.io.commonroad import CommonRoadError, planning_problem
-from pytest_driveeval.usecase import gib, memory_budget
+from pytest_driveeval.core.errors import DataError, display_path
+from pytest_driveeval.core.usecase import gib, memory_budget
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_problem
 
 __all__ = ["planning_problems", "scene_for"]
 

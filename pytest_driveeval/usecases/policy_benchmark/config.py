@@ -59,7 +59,7 @@ from pydantic import Field, NonNegativeInt, PositiveInt, model_validator
 
 from pytest_driveeval.execute import ExecutorSpec
 from pytest_driveeval.search.spec import StartSearchSpec
-from pytest_driveeval.usecase import ConditionsModel, Section, check_fits, located_error
+from pytest_driveeval.core.usecase import ConditionsModel, Section, check_fits, located_error
 
 BASELINES = ("random", "constant", "idm_expert")
 METRICS = ("goal_rate", "collision_rate", "return")

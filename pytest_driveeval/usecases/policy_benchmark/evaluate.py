@@ -14,8 +14,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.deadline import TimeLimitExceeded, guarded_call, note
-from pytest_driveeval.errors import ModelError
+from pytest_driveeval.core.deadline import TimeLimitExceeded, guarded_call, note
+from pytest_driveeval.core.errors import ModelError
 from pytest_driveeval.sim.torch_threads import one_torch_thread
 from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, OUTCOME_NAMES, STEP_LIMIT
 

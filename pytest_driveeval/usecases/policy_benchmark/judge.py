@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pytest_driveeval.metrics import benchmark_stats as stats
-from pytest_driveeval.outcome import Finding
+from pytest_driveeval.core.outcome import Finding
 from pytest_driveeval.usecases.policy_benchmark.config import BenchmarkConditions, RateLimit
 from pytest_driveeval.usecases.policy_benchmark.evaluate import PolicyRun
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pytest_driveeval.baseline.rules import FigureRule
 from pytest_driveeval.baseline.units import Units, compact_ids, expand_ids
-from pytest_driveeval.outcome import Outcome
+from pytest_driveeval.core.outcome import Outcome
 
 # One character per episode outcome (metrics.episode_outcomes.OUTCOME_NAMES).
 CODES = {"running": "r", "goal": "g", "collision": "c", "off_road": "o", "step_limit": "s"}

@@ -15,7 +15,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from pytest_driveeval.metrics.episode_outcomes import OUTCOME_NAMES
-from pytest_driveeval.outcome import FAILED, PASSED, Finding, Outcome
+from pytest_driveeval.core.outcome import FAILED, PASSED, Finding, Outcome
 from pytest_driveeval.search.engine import Example, Verdict
 from pytest_driveeval.search.item import Searchable
 from pytest_driveeval.sim.episodes import PERTURBATION_COLUMNS

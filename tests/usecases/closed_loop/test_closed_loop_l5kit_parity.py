@@ -90,7 +90,7 @@ def test_parked_and_constant_velocity_reproduce_l5kit(pytester):
 
 @pytest.fixture(scope="module")
 def real():
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
     return L5Dataset.open(REAL)
 

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from pytest_driveeval.errors import DataError
+from pytest_driveeval.core.errors import DataError
 
 import closed_loop_yaml
 from conftest import REPO_ROOT
@@ -65,7 +65,7 @@ class StandStill(torch.nn.Module):
 def test_the_raster_shows_the_driven_history():
     """An ego that stands still from frame 20 on: eleven frames later its ten history channels all show
     the same box, where the log (which drives on) has them apart; the agents' channels stay the log's."""
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.raster import RasterParams, rasterize
     from pytest_driveeval.usecases.closed_loop.evaluate import kept_scenes, stack_log, unroll_scenes
 
@@ -107,7 +107,7 @@ class RecordingConstantVelocity(torch.nn.Module):
 def test_with_reactive_agents_the_raster_shows_them_where_they_braked():
     """Generated scene 1: constant velocity stops short and the car behind brakes (reactive); every
     step's raster is the one drawn afresh from where the engine had the agents, not the log's."""
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.raster import RasterParams, rasterize
     from pytest_driveeval.sim.logreplay import ReactiveAgents
     from pytest_driveeval.usecases.closed_loop.evaluate import kept_scenes, stack_log, unroll_scenes

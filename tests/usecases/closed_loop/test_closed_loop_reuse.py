@@ -75,7 +75,7 @@ def test_the_semantic_map_is_read_once_per_item_again_when_changed_and_never_for
 
 @pytest.mark.skipif(not RASTER_MODEL.exists(), reason="fixtures/models/raster_model.pt2 is absent")
 def test_a_missing_map_is_named_as_before(tmp_path):
-    from pytest_driveeval.errors import DataError
+    from pytest_driveeval.core.errors import DataError
 
     inputs = {"Kind": "raster", "MapType": "py_semantic", "RasterSize": [112, 112], "SemanticMap": "none.pb"}
     with pytest.raises(DataError, match=r"none\.pb: no such file"):

@@ -35,7 +35,7 @@ def search_record(pytester, output="driveeval-results") -> dict:
 def lateral_fails(lateral: float) -> bool:
     """The demo's verdict on one lateral offset, from the Python API: an independent oracle."""
     from pytest_driveeval.closed_loop import judge_scene, unroll_scenes
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.policies.loading import load_model
     from pytest_driveeval.strategies import StartPerturbation
     from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions

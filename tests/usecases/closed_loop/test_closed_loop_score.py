@@ -69,7 +69,7 @@ def test_a_scene_scores_the_same_alone_as_among_the_unrolls_other_scenes(nuscene
 
 
 def test_a_scene_without_a_map_scores_without_the_map_terms():
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
     dataset = L5Dataset.open(REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr")
     score = score_unroll(unrolled(dataset, "log_replay", [0]))[0]

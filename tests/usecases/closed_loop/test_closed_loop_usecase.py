@@ -115,8 +115,8 @@ def test_start_frame_past_the_end_is_located_and_names_the_scene_and_its_length(
 
 
 def test_start_frame_past_the_end_in_python_is_a_data_error():
-    from pytest_driveeval.errors import DataError
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.core.errors import DataError
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.policies.baselines import ReplayLogPolicy
     from pytest_driveeval.usecases.closed_loop.evaluate import unroll_scenes
 

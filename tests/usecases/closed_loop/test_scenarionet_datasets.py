@@ -10,7 +10,7 @@ import pytest
 
 from conftest import REPO_ROOT
 from ray_items import assert_same_items, cluster, executor_section, results  # noqa: F401  (cluster: a fixture)
-from pytest_driveeval.errors import DataError
+from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.usecases.closed_loop.datasets import format_of, open_dataset
 
 #: three real nuScenes-mini scenes, all boston-seaport (fixtures/SOURCES.md): scene-0103, -0553, -0757

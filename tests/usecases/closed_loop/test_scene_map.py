@@ -9,8 +9,8 @@ import pytest
 
 from conftest import REPO_ROOT
 from pytest_driveeval.geometry.polygons import points_in_polygon
-from pytest_driveeval.io.scenarionet import MapFeature, ScenarioNetScene, read_scenario, scenario_files
-from pytest_driveeval.io.scenarionet_l5 import ScenarioNetDataset
+from pytest_driveeval.io.scenarionet.scenarionet import MapFeature, ScenarioNetScene, read_scenario, scenario_files
+from pytest_driveeval.io.scenarionet.scenarionet_l5 import ScenarioNetDataset
 from pytest_driveeval.usecases.closed_loop.scene_map import drawn_map, drawn_map_of
 
 
@@ -43,7 +43,7 @@ def test_each_kind_of_feature_goes_to_its_layer_in_two_columns():
 
 
 def test_an_l5_dataset_has_no_map_to_draw():
-    from pytest_driveeval.io.l5kit_zarr import L5Dataset
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
 
     assert drawn_map_of(L5Dataset.open(REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr"), 0) is None
 

@@ -8,7 +8,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT
 
-from pytest_driveeval.errors import DataError
+from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.obstacle import bag_pointclouds, evaluate_obstacle_segmentation
 from pytest_driveeval.usecases.obstacle_segmentation.artefacts import ObstacleArtefacts
 from pytest_driveeval.usecases.obstacle_segmentation.evaluate import ObstacleEvaluation

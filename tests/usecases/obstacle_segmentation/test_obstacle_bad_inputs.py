@@ -146,8 +146,8 @@ def test_a_missing_input_bag_is_named_once_and_the_dataset_beside_it_passes(pyte
 
 def test_a_bag_without_tf_under_a_map_is_named_before_any_frame(tmp_path):
     from conftest import REPO_ROOT
-    from pytest_driveeval.errors import DataError
-    from pytest_driveeval.io.t4dataset import T4Dataset
+    from pytest_driveeval.core.errors import DataError
+    from pytest_driveeval.io.t4.t4dataset import T4Dataset
     from pytest_driveeval.scenario import load_scenario
     from pytest_driveeval.usecases.obstacle_segmentation.evaluate import ObstacleEvaluation
 

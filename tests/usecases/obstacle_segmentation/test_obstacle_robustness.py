@@ -182,7 +182,7 @@ def frame_fails(seed: int, frame: int, dropout: float) -> bool:
     sys.path.insert(0, str(EXAMPLES))
     from ground_filter import ground_height_filter
 
-    from pytest_driveeval.io.t4dataset import T4Dataset
+    from pytest_driveeval.io.t4.t4dataset import T4Dataset
     from pytest_driveeval.usecases.obstacle_segmentation.evaluate import evaluate_obstacle_segmentation
     from pytest_driveeval.usecases.obstacle_segmentation.sources import sweep_pointclouds
 
@@ -197,7 +197,7 @@ def frame_fails(seed: int, frame: int, dropout: float) -> bool:
 
 
 def item_seed_of(nodeid: str) -> int:
-    from pytest_driveeval.settings import item_seed
+    from pytest_driveeval.harness.settings import item_seed
 
     return item_seed(0, nodeid)
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.execute import ExecutorSpec, executor_from_option
-from pytest_driveeval.outcome import PASSED, Outcome
+from pytest_driveeval.core.outcome import PASSED, Outcome
 from pytest_driveeval.report.attachments import executor_lines
 from pytest_driveeval.usecases.executor import chunked_executor
 

@@ -1,0 +1,240 @@
+"""ScenarioNet's scenario files (MetaDrive's "scenario description") as plain arrays.
+
+ScenarioNet converts nuPlan, Waymo Open Motion, nuScenes, Argoverse 2, Lyft L5 and others into one
+format: per scenario a pickled dict with ``id``, ``version``, ``length``, ``metadata`` (``sdc_id``,
+``ts``, ``sample_rate``, ``dataset``, ``map``), ``tracks`` (per object: ``type``, ``state`` with
+``position`` (T, 3), ``heading`` (T,), ``velocity`` (T, 2), ``valid`` (T,), ``length`` / ``width`` /
+``height`` (T,) or (T, 1)), ``map_features`` (per id: ``type`` and a ``polyline`` and / or
+``polygon``; lanes may carry ``speed_limit_kmh``, ``entry_lanes``, ``exit_lanes``, neighbours) and
+``dynamic_map_states`` (traffic lights: per id a ``state`` with ``object_state`` per step, the
+``lane`` it controls, its ``stop_point``).  Files are read with :mod:`.safe_pickle` (data only).
+
+Every documented type is known (MetaDrive's ``MetaDriveType``): a track or feature of another type
+is kept under that name, in the "other" group.  A problem names the file, the scenario id and the
+object or feature id.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...core.errors import DataError, display_path
+from .safe_pickle import load_data_pickle
+
+TRACK_TYPES = ("VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER", "UNSET",
+               "TRAFFIC_CONE", "TRAFFIC_BARRIER", "TRAFFIC_OBJECT", "TRAFFIC_LIGHT")
+LANE_TYPES = ("LANE_SURFACE_STREET", "LANE_SURFACE_UNSTRUCTURE", "LANE_UNKNOWN", "LANE_FREEWAY", "LANE_BIKE_LANE")
+ROAD_LINE_TYPES = ("UNKNOWN_LINE", "ROAD_LINE_UNKNOWN", "ROAD_LINE_BROKEN_SINGLE_WHITE", "ROAD_LINE_SOLID_SINGLE_WHITE",
+                   "ROAD_LINE_SOLID_DOUBLE_WHITE", "ROAD_LINE_BROKEN_SINGLE_YELLOW", "ROAD_LINE_BROKEN_DOUBLE_YELLOW",
+                   "ROAD_LINE_SOLID_SINGLE_YELLOW", "ROAD_LINE_SOLID_DOUBLE_YELLOW", "ROAD_LINE_PASSING_DOUBLE_YELLOW")
+ROAD_EDGE_TYPES = ("UNKNOWN", "ROAD_EDGE_UNKNOWN", "ROAD_EDGE_BOUNDARY", "ROAD_EDGE_MEDIAN", "ROAD_EDGE_SIDEWALK")
+AREA_TYPES = ("CROSSWALK", "SPEED_BUMP", "DRIVEWAY")
+POINT_TYPES = ("STOP_SIGN",)
+LIGHT_STATES = ("LANE_STATE_UNKNOWN", "LANE_STATE_ARROW_STOP", "LANE_STATE_ARROW_CAUTION", "LANE_STATE_ARROW_GO",
+                "LANE_STATE_STOP", "LANE_STATE_CAUTION", "LANE_STATE_GO", "LANE_STATE_FLASHING_STOP",
+                "LANE_STATE_FLASHING_CAUTION", "TRAFFIC_LIGHT_GREEN", "TRAFFIC_LIGHT_RED", "TRAFFIC_LIGHT_YELLOW",
+                "TRAFFIC_LIGHT_UNKNOWN")
+SUMMARY_FILES = ("dataset_summary.pkl", "dataset_mapping.pkl")
+
+
+class ScenarioNetError(DataError, ValueError):
+    """A scenario file that is not what ScenarioNet writes: names the file, scenario and object."""
+
+
+def feature_group(kind: str) -> str:
+    """lane, road_line, road_edge, area, point or other: what a map model does with a feature."""
+    for group, kinds in (("lane", LANE_TYPES), ("road_line", ROAD_LINE_TYPES), ("road_edge", ROAD_EDGE_TYPES),
+                         ("area", AREA_TYPES), ("point", POINT_TYPES)):
+        if kind in kinds:
+            return group
+    return "other"
+
+
+@dataclass
+class Tracks:
+    ids: list[str]
+    types: list[str]
+    position: np.ndarray  # (N, T, 3) float64
+    heading: np.ndarray   # (N, T)
+    velocity: np.ndarray  # (N, T, 2)
+    valid: np.ndarray     # (N, T) bool
+    size: np.ndarray      # (N, T, 3): length, width, height
+
+
+@dataclass
+class MapFeature:
+    id: str
+    type: str
+    group: str
+    polyline: np.ndarray | None = None  # (K, 2 or 3); nuScenes' lane centre lines carry (x, y, heading)
+    polygon: np.ndarray | None = None   # (K, 2 or 3)
+    position: np.ndarray | None = None  # a stop sign's point
+    speed_limit_kmh: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)  # entry / exit lanes, neighbours, ... as given
+
+
+@dataclass
+class TrafficLight:
+    id: str
+    lane: str | None
+    states: list[str]  # per step
+    stop_point: np.ndarray | None
+
+
+@dataclass
+class ScenarioNetScene:
+    path: Path
+    id: str
+    dataset: str
+    sample_rate: float  # seconds per step
+    timestamps: np.ndarray  # (T,)
+    sdc: int  # the self-driving car's row in tracks
+    tracks: Tracks
+    map_features: list[MapFeature]
+    lights: list[TrafficLight]
+    metadata: dict[str, Any]
+
+    @property
+    def steps(self) -> int:
+        return int(self.timestamps.shape[0])
+
+
+def scenario_files(path: str | Path) -> list[Path]:
+    """The scenario files of a file or folder (``sd_*.pkl`` and any other pickle but the summaries)."""
+    path = Path(path)
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise ScenarioNetError(f"{display_path(path)}: no ScenarioNet scenario file or folder there")
+    files = sorted(p for p in path.rglob("*.pkl") if p.name not in SUMMARY_FILES and p.is_file())
+    if not files:
+        raise ScenarioNetError(f"{display_path(path)}: a folder without scenario files (*.pkl)")
+    return files
+
+
+def read_scenario(path: str | Path) -> ScenarioNetScene:
+    path = Path(path)
+    data = load_data_pickle(path)
+    where = display_path(path)
+    if not isinstance(data, dict) or not isinstance(data.get("tracks"), dict):
+        raise ScenarioNetError(f"{where}: not a ScenarioNet scenario (a dict with 'tracks', 'map_features', "
+                               f"'metadata'); found {type(data).__name__}")
+    sid = str(data.get("id") or (data.get("metadata") or {}).get("scenario_id") or path.stem)
+    here = f"{where} (scenario {sid})"
+    metadata = data.get("metadata")
+    if not isinstance(metadata, dict):
+        raise ScenarioNetError(f"{here}: no 'metadata' mapping")
+    timestamps = _array(metadata.get("ts"), here, "metadata.ts", ndim=1)
+    steps = int(data.get("length") or timestamps.shape[0])
+    if timestamps.shape[0] != steps:
+        raise ScenarioNetError(f"{here}: metadata.ts has {timestamps.shape[0]} steps, 'length' says {steps}")
+    rate = metadata.get("sample_rate")
+    if rate is None and steps > 1:
+        rate = float(np.median(np.diff(timestamps)))
+    if not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
+        raise ScenarioNetError(f"{here}: metadata.sample_rate {rate!r} is not a positive number of seconds")
+    tracks = _tracks(data["tracks"], steps, here)
+    sdc_id = str(metadata.get("sdc_id"))
+    if sdc_id not in tracks.ids:
+        raise ScenarioNetError(f"{here}: the self-driving car's track (metadata.sdc_id {sdc_id!r}) is not among "
+                               f"its {len(tracks.ids)} tracks")
+    features = [_feature(str(fid), feat, here) for fid, feat in (data.get("map_features") or {}).items()]
+    lights = [_light(str(lid), light, steps, here) for lid, light in (data.get("dynamic_map_states") or {}).items()]
+    return ScenarioNetScene(path, sid, str(metadata.get("dataset") or ""), float(rate), timestamps,
+                            tracks.ids.index(sdc_id), tracks, features, lights,
+                            {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")})
+
+
+def _array(value: Any, here: str, key: str, ndim: int | None = None, width: tuple[int, ...] = ()) -> np.ndarray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ScenarioNetError(f"{here}: {key} is not an array of numbers") from None
+    if ndim is not None and array.ndim != ndim or width and (array.ndim < 2 or array.shape[1] not in width):
+        raise ScenarioNetError(f"{here}: {key} has shape {array.shape}, expected "
+                               f"{'(K, ' + ' or '.join(map(str, width)) + ')' if width else f'{ndim} dimension(s)'}")
+    return array
+
+
+def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
+    ids, types, rows = [], [], []
+    for tid, track in tracks.items():
+        what = f"{here}, track {tid}"
+        if not isinstance(track, dict) or not isinstance(track.get("state"), dict):
+            raise ScenarioNetError(f"{what}: no 'state' mapping")
+        state = track["state"]
+        position = _array(state.get("position"), what, "state.position", ndim=2, width=(2, 3))
+        if position.shape[1] == 2:
+            position = np.concatenate([position, np.zeros((position.shape[0], 1))], axis=1)
+        columns = {"position": position,
+                   "heading": _array(state.get("heading"), what, "state.heading").reshape(-1),
+                   "velocity": _array(state.get("velocity"), what, "state.velocity", ndim=2, width=(2,)),
+                   "valid": _array(state.get("valid"), what, "state.valid").reshape(-1)}
+        for key in ("length", "width", "height"):
+            columns[key] = _array(state.get(key, np.zeros(steps)), what, f"state.{key}").reshape(-1)
+        lengths = {key: value.shape[0] for key, value in columns.items()}
+        if set(lengths.values()) != {steps}:
+            odd = ", ".join(f"{k} {n}" for k, n in lengths.items() if n != steps)
+            raise ScenarioNetError(f"{what}: the scenario has {steps} steps, but {odd}")
+        valid = columns["valid"] > 0
+        moving = np.concatenate([columns["position"], columns["heading"][:, None], columns["velocity"]], axis=1)
+        if not np.isfinite(moving[valid]).all():
+            raise ScenarioNetError(f"{what}: NaN or infinite position, heading or velocity at a valid step "
+                                   f"(first at step {int(np.flatnonzero(~np.isfinite(moving).all(1) & valid)[0])})")
+        ids.append(str(tid))
+        types.append(str(track.get("type", "UNSET")))
+        rows.append(columns)
+    if not rows:
+        return Tracks([], [], np.zeros((0, steps, 3)), np.zeros((0, steps)), np.zeros((0, steps, 2)),
+                      np.zeros((0, steps), bool), np.zeros((0, steps, 3)))
+    stack = {key: np.stack([row[key] for row in rows]) for key in rows[0]}
+    return Tracks(ids, types, stack["position"], stack["heading"], stack["velocity"], stack["valid"] > 0,
+                  np.stack([stack["length"], stack["width"], stack["height"]], axis=-1))
+
+
+def _feature(fid: str, feature: Any, here: str) -> MapFeature:
+    what = f"{here}, map feature {fid}"
+    if not isinstance(feature, dict) or not isinstance(feature.get("type"), str):
+        raise ScenarioNetError(f"{what}: not a mapping with a 'type'")
+    kind = feature["type"]
+    out = MapFeature(fid, kind, feature_group(kind))
+    for key in ("polyline", "polygon"):
+        if feature.get(key) is None:
+            continue
+        points = _array(feature[key], what, key, ndim=2, width=(2, 3))
+        if points.shape[0] < 2:
+            raise ScenarioNetError(f"{what}: its {key} has {points.shape[0]} point(s); a line needs 2")
+        if not np.isfinite(points).all():
+            raise ScenarioNetError(f"{what}: its {key} holds NaN or infinite coordinates")
+        setattr(out, key, points)
+    if feature.get("position") is not None:
+        out.position = _array(feature["position"], what, "position").reshape(-1)
+    if out.group != "point" and out.polyline is None and out.polygon is None:
+        raise ScenarioNetError(f"{what}: a {kind} without polyline or polygon")
+    limit = feature.get("speed_limit_kmh")
+    if limit is not None:
+        try:
+            out.speed_limit_kmh = float(limit)
+        except (TypeError, ValueError):
+            raise ScenarioNetError(f"{what}: speed_limit_kmh {limit!r} is not a number") from None
+    out.extra = {k: v for k, v in feature.items() if k not in ("type", "polyline", "polygon", "position",
+                                                                 "speed_limit_kmh")}
+    return out
+
+
+def _light(lid: str, light: Any, steps: int, here: str) -> TrafficLight:
+    what = f"{here}, traffic light {lid}"
+    if not isinstance(light, dict):
+        raise ScenarioNetError(f"{what}: not a mapping")
+    state = light.get("state") or {}
+    raw = state.get("object_state", []) if isinstance(state, dict) else []
+    states = [str(s) if s is not None else "LANE_STATE_UNKNOWN" for s in list(raw)]
+    if states and len(states) != steps:
+        raise ScenarioNetError(f"{what}: {len(states)} states for {steps} steps")
+    stop = light.get("stop_point")
+    lane = light.get("lane")
+    return TrafficLight(lid, None if lane is None else str(lane), states or ["LANE_STATE_UNKNOWN"] * steps,
+                        None if stop is None else _array(stop, what, "stop_point").reshape(-1))
