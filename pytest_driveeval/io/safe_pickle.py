@@ -55,11 +55,12 @@ _KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device")
           (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder"))
 
 
-def read_regular_file(path: str | Path, limit: int = MAX_FILE_BYTES) -> bytes:
+def read_regular_file(path: str | Path, limit: int | None = None) -> bytes:
     """The bytes of ``path`` if it is a regular file (after links) of at most ``limit`` bytes; a
     device, FIFO or socket is refused without reading it (opened without blocking, so a FIFO does
     not wait for a writer)."""
     where = display_path(path)
+    limit = MAX_FILE_BYTES if limit is None else limit
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
@@ -73,12 +74,16 @@ def read_regular_file(path: str | Path, limit: int = MAX_FILE_BYTES) -> bytes:
             raise DataError(f"{where}{target} is {kind}, not a regular file: only regular files are read as data; "
                             "remove it or point it at a scenario file")
         if info.st_size > limit:
-            raise DataError(f"{where} is {info.st_size / 2 ** 20:.0f} MiB, more than the {limit >> 20} MiB a data file "
-                            "may be: split it (ScenarioNet writes one scenario per file)")
+            raise DataError(f"{where} is {_mib(info.st_size)}, more than the {_mib(limit)} a data file may be: split it "
+                            "(ScenarioNet writes one scenario per file)")
         raw = handle.read(limit + 1)
     if len(raw) > limit:  # it grew while read
-        raise DataError(f"{where} is more than the {limit >> 20} MiB a data file may be")
+        raise DataError(f"{where} is more than the {_mib(limit)} a data file may be")
     return raw
+
+
+def _mib(size: int) -> str:
+    return f"{size / 2 ** 20:.3g} MiB"
 
 
 def _scalar_keys(items: list, what: str) -> None:
