@@ -121,6 +121,12 @@ def test_a_scenario_of_0_steps_or_of_30_million_is_refused_before_anything_per_s
     with pytest.raises(ScenarioNetError, match=r"length is 30000000 steps, more than the 36000 a scenario may have "
                                                r"\(an hour at 10 Hz\): cut the log"):
         read_scenario(write(tmp_path, data))
+    # ... or from numpy.ndarray((3e7,)) called in the file, which would allocate what it asks
+    ndarray = (pickle.BINUNICODE + b"\x05\0\0\0numpy" + pickle.BINUNICODE + b"\x07\0\0\0ndarray" + pickle.STACK_GLOBAL
+               + pickle.BININT + (30_000_000).to_bytes(4, "little") + pickle.TUPLE1 + pickle.TUPLE1 + pickle.REDUCE)
+    with pytest.raises(UnsafePickleError, match=r"numpy.ndarray\(...\) called directly: it would allocate what the "
+                                                "file asks"):
+        read_scenario(write_crafted(tmp_path, scenario(metadata__ts=SPLICE), ndarray))
     data = scenario(metadata__ts=np.zeros(40_000))
     data.pop("length")
     with pytest.raises(ScenarioNetError, match=r"metadata.ts's length is 40000 steps, more than the 36000"):
