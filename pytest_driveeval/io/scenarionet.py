@@ -11,7 +11,15 @@ format: per scenario a pickled dict with ``id``, ``version``, ``length``, ``meta
 
 Every documented type is known (MetaDrive's ``MetaDriveType``): a track or feature of another type
 is kept under that name, in the "other" group.  A problem names the file, the scenario id and the
-object or feature id.
+object or feature id.  What is refused, rather than read into something else:
+
+- an id, type, lane or light state that is not text (an integer id is taken as its digits);
+- ``map_features`` / ``dynamic_map_states`` that are not mappings (absent: none; a scenario
+  without lanes then has no map, and the score's map terms are not available);
+- a ``length`` that is not a whole number, or outside 1 .. :data:`MAX_STEPS` (checked before
+  anything per step is made), and ``metadata.ts`` that is not finite and increasing;
+- a NaN, infinite or negative ``length`` / ``width`` / ``height`` where a track is valid: an agent
+  without a size could never be hit.
 """
 from __future__ import annotations
 
