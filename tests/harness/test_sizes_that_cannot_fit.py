@@ -138,3 +138,40 @@ class GreedyUseCase(UseCase):
     result.assert_outcomes(passed=1, failed=1)
     result.stdout.fnmatch_lines(["  big.scenario.yaml: loading it ran out of memory (MemoryError): a size in it is too "
                                  "large for this machine"])
+
+
+UNROLL = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: {name}
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - logs: {{Path: {data}}}
+  Model: constant_velocity
+  Unroll:
+    Scenes: [0]
+    Steps: 5
+    {key}: {value}
+"""
+
+
+def test_history_future_and_agent_counts_that_cannot_fit_fail_alone_at_their_line(pytester):
+    """One scene's inputs are built in one call per step, which --driveeval-time-limit cannot
+    interrupt: a count whose inputs cannot fit is refused when the scenario loads."""
+    data = REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr"
+    pytester.makefile(".scenario.yaml", **{
+        name: UNROLL.format(name=name, data=data, key=key, value=value) for name, key, value in (
+            ("good", "HistoryFrames", 10), ("history", "HistoryFrames", 1_000_000_000),
+            ("future", "FutureFrames", 10_000_000_000), ("agents", "MaxAgents", 1_000_000_000))})
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
+    result.assert_outcomes(passed=1, failed=3)
+    result.stdout.fnmatch_lines_random([
+        "  history.scenario.yaml:12: Evaluation.Unroll.HistoryFrames: one scene's policy inputs per step (1000000000 "
+        f"history frames of 30 agents, 12 future frames) would need about * TiB of memory, {BUDGET}",
+        "  future.scenario.yaml:12: Evaluation.Unroll.FutureFrames: one scene's policy inputs per step (10 history "
+        f"frames of 30 agents, 10000000000 future frames) would need about * TiB of memory, {BUDGET}",
+        "  agents.scenario.yaml:12: Evaluation.Unroll.MaxAgents: one scene's policy inputs per step (10 history "
+        f"frames of 1000000000 agents, 12 future frames) would need about * TiB of memory, {BUDGET}",
+    ])
+    assert "Traceback" not in result.stdout.str() and "MemoryError" not in result.stdout.str()

@@ -33,3 +33,22 @@ def write(tmp_path, data, name="sd_test.pkl"):
     path = tmp_path / name
     path.write_bytes(pickle.dumps(data, protocol=4))
     return path
+
+
+#: a value to put where a crafted value goes (see write_crafted)
+SPLICE = "SPLICE-HERE"
+
+
+def deep_list(depth):
+    """Pickle opcodes of a list ``depth`` levels deep ([[[...]]]), which pickle.dumps cannot write."""
+    return pickle.EMPTY_LIST * depth + pickle.APPEND * (depth - 1)
+
+
+def write_crafted(tmp_path, data, opcodes, name="sd_test.pkl"):
+    """``data`` pickled with ``opcodes`` in place of the value SPLICE (protocol 3: no frames to mend)."""
+    raw = pickle.dumps(data, protocol=3)
+    marker = pickle.BINUNICODE + len(SPLICE).to_bytes(4, "little") + SPLICE.encode()
+    assert raw.count(marker) == 1
+    path = tmp_path / name
+    path.write_bytes(raw.replace(marker, opcodes))
+    return path

@@ -65,3 +65,31 @@ def test_the_real_nuscenes_scenes_replay_their_log_exactly(shared_data):
     # within the engine's float32 steps, as the L5 scene's replay (tests/usecases/closed_loop)
     assert np.nanmax(unroll.result.displacement_error) < 0.01
     assert not unroll.result.collision_at_fault.any()
+
+
+def test_a_scene_whose_reading_fails_unforeseen_is_that_scenes_error_naming_its_file(tmp_path, monkeypatch):
+    import pytest_driveeval.io.scenarionet.scenarionet_l5 as scenarionet_l5
+
+    write(tmp_path, moving(), "sd_a.pkl")
+    write(tmp_path, moving(), "sd_b.pkl")
+    real = scenarionet_l5.read_scenario
+
+    def read(path):
+        if path.name == "sd_b.pkl":
+            raise TypeError("something no check foresaw")
+        return real(path)
+
+    monkeypatch.setattr(scenarionet_l5, "read_scenario", read)
+    dataset = ScenarioNetDataset.open(tmp_path)
+    assert dataset.problem(0) is None
+    assert "sd_b.pkl could not be read as a ScenarioNet scenario (TypeError: something no check foresaw)" \
+        in dataset.problem(1)
+    assert np.diff(dataset.scenes["frame_index_interval"], axis=1).ravel().tolist() == [5, 0]
+
+
+def test_a_dataset_path_that_links_to_a_device_is_read_as_scenarionet_and_named(tmp_path):
+    from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
+
+    (tmp_path / "sd_zero.pkl").symlink_to("/dev/zero")
+    dataset = open_dataset(tmp_path / "sd_zero.pkl")
+    assert "sd_zero.pkl (a link to /dev/zero) is a character device, not a regular file" in dataset.problem(0)

@@ -11,7 +11,15 @@ format: per scenario a pickled dict with ``id``, ``version``, ``length``, ``meta
 
 Every documented type is known (MetaDrive's ``MetaDriveType``): a track or feature of another type
 is kept under that name, in the "other" group.  A problem names the file, the scenario id and the
-object or feature id.
+object or feature id.  What is refused, rather than read into something else:
+
+- an id, type, lane or light state that is not text (an integer id is taken as its digits);
+- ``map_features`` / ``dynamic_map_states`` that are not mappings (absent: none; a scenario
+  without lanes then has no map, and the score's map terms are not available);
+- a ``length`` that is not a whole number, or outside 1 .. :data:`MAX_STEPS` (checked before
+  anything per step is made), and ``metadata.ts`` that is not finite and increasing;
+- a NaN, infinite or negative ``length`` / ``width`` / ``height`` where a track is valid: an agent
+  without a size could never be hit.
 """
 from __future__ import annotations
 
@@ -38,6 +46,9 @@ LIGHT_STATES = ("LANE_STATE_UNKNOWN", "LANE_STATE_ARROW_STOP", "LANE_STATE_ARROW
                 "LANE_STATE_FLASHING_CAUTION", "TRAFFIC_LIGHT_GREEN", "TRAFFIC_LIGHT_RED", "TRAFFIC_LIGHT_YELLOW",
                 "TRAFFIC_LIGHT_UNKNOWN")
 SUMMARY_FILES = ("dataset_summary.pkl", "dataset_mapping.pkl")
+#: the most steps a scenario may have: an hour at 10 Hz (ScenarioNet's scenarios last 9 to 20 s);
+#: checked before anything per step is made
+MAX_STEPS = 36_000
 
 
 class ScenarioNetError(DataError, ValueError):
@@ -103,16 +114,69 @@ class ScenarioNetScene:
 
 
 def scenario_files(path: str | Path) -> list[Path]:
-    """The scenario files of a file or folder (``sd_*.pkl`` and any other pickle but the summaries)."""
+    """The scenario files of a file or folder (``sd_*.pkl`` and any other pickle but the summaries).
+    A ``.pkl`` that is not a regular file (a link to ``/dev/zero``, a FIFO, a broken link) is listed
+    too: reading it says what it is, as that scene's error, rather than leaving it out unsaid."""
     path = Path(path)
-    if path.is_file():
+    if path.is_file() or path.suffix == ".pkl" and path.is_symlink() or path.suffix == ".pkl" and path.exists() \
+            and not path.is_dir():
         return [path]
     if not path.is_dir():
         raise ScenarioNetError(f"{display_path(path)}: no ScenarioNet scenario file or folder there")
-    files = sorted(p for p in path.rglob("*.pkl") if p.name not in SUMMARY_FILES and p.is_file())
+    files = sorted(p for p in path.rglob("*.pkl") if p.name not in SUMMARY_FILES and not p.is_dir())
     if not files:
         raise ScenarioNetError(f"{display_path(path)}: a folder without scenario files (*.pkl)")
     return files
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, (list, tuple, dict, set, np.ndarray)):
+        return f"a {type(value).__name__} of {len(value)} item(s)"
+    return f"{type(value).__name__} {str(value)[:40]!r}"
+
+
+def _text(value: Any, here: str, key: str) -> str:
+    """An id, a type or a state: text as ScenarioNet writes it (an integer id is taken as its digits)."""
+    if isinstance(value, (str, np.str_)) or isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        return str(value)
+    raise ScenarioNetError(f"{here}: {key} is {_kind(value)}, not text; ScenarioNet writes ids, types and states "
+                           "as text")
+
+
+def _mapping(value: Any, here: str, key: str) -> dict:
+    """A mapping of ids (``map_features``, ``dynamic_map_states``); absent: none."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ScenarioNetError(f"{here}: {key} is {_kind(value)}; ScenarioNet gives a mapping of id -> "
+                               f"{key.rstrip('s').replace('_', ' ')}")
+    return value
+
+
+def _count(steps: Any, here: str, key: str) -> int:
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+        raise ScenarioNetError(f"{here}: {key} is {_kind(steps)}, not a whole number of steps")
+    if steps > MAX_STEPS:
+        raise ScenarioNetError(f"{here}: {key} is {steps} steps, more than the {MAX_STEPS} a scenario may have (an "
+                               "hour at 10 Hz): cut the log into scenarios (ScenarioNet's last 9 to 20 s)")
+    if steps < 1:
+        raise ScenarioNetError(f"{here}: {key} is {steps} steps: a scenario has at least one step")
+    return int(steps)
+
+
+def _times(timestamps: np.ndarray, declared: int | None, here: str) -> int:
+    steps = _count(timestamps.shape[0], here, "metadata.ts's length")
+    if declared is not None and steps != declared:
+        raise ScenarioNetError(f"{here}: metadata.ts has {steps} steps, 'length' says {declared}")
+    bad = np.flatnonzero(~np.isfinite(timestamps))
+    if bad.size:
+        raise ScenarioNetError(f"{here}: metadata.ts is NaN or infinite at step {int(bad[0])}: each step needs its "
+                               "time in seconds")
+    back = np.flatnonzero(np.diff(timestamps) <= 0)
+    if back.size:
+        raise ScenarioNetError(f"{here}: metadata.ts does not increase at step {int(back[0]) + 1} "
+                               f"({timestamps[back[0]]:g} s, then {timestamps[back[0] + 1]:g} s)")
+    return steps
 
 
 def read_scenario(path: str | Path) -> ScenarioNetScene:
@@ -120,31 +184,36 @@ def read_scenario(path: str | Path) -> ScenarioNetScene:
     data = load_data_pickle(path)
     where = display_path(path)
     if not isinstance(data, dict) or not isinstance(data.get("tracks"), dict):
-        raise ScenarioNetError(f"{where}: not a ScenarioNet scenario (a dict with 'tracks', 'map_features', "
-                               f"'metadata'); found {type(data).__name__}")
-    sid = str(data.get("id") or (data.get("metadata") or {}).get("scenario_id") or path.stem)
-    here = f"{where} (scenario {sid})"
+        found = type(data).__name__ if not isinstance(data, dict) else f"'tracks' as {_kind(data.get('tracks'))}"
+        raise ScenarioNetError(f"{where}: not a ScenarioNet scenario (a dict with 'tracks' (a mapping of id -> "
+                               f"track), 'map_features', 'metadata'); found {found}")
     metadata = data.get("metadata")
     if not isinstance(metadata, dict):
-        raise ScenarioNetError(f"{here}: no 'metadata' mapping")
+        raise ScenarioNetError(f"{where}: no 'metadata' mapping (found {_kind(metadata)})")
+    sid = _text(data.get("id") or metadata.get("scenario_id") or path.stem, where, "id")
+    here = f"{where} (scenario {sid})"
+    declared = None if data.get("length") is None else _count(data["length"], here, "length")
     timestamps = _array(metadata.get("ts"), here, "metadata.ts", ndim=1)
-    steps = int(data.get("length") or timestamps.shape[0])
-    if timestamps.shape[0] != steps:
-        raise ScenarioNetError(f"{here}: metadata.ts has {timestamps.shape[0]} steps, 'length' says {steps}")
+    steps = _times(timestamps, declared, here)
     rate = metadata.get("sample_rate")
     if rate is None and steps > 1:
         rate = float(np.median(np.diff(timestamps)))
-    if not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
         raise ScenarioNetError(f"{here}: metadata.sample_rate {rate!r} is not a positive number of seconds")
     tracks = _tracks(data["tracks"], steps, here)
-    sdc_id = str(metadata.get("sdc_id"))
+    if metadata.get("sdc_id") is None:
+        raise ScenarioNetError(f"{here}: no metadata.sdc_id, the self-driving car's track id")
+    sdc_id = _text(metadata.get("sdc_id"), here, "metadata.sdc_id")
     if sdc_id not in tracks.ids:
         raise ScenarioNetError(f"{here}: the self-driving car's track (metadata.sdc_id {sdc_id!r}) is not among "
                                f"its {len(tracks.ids)} tracks")
-    features = [_feature(str(fid), feat, here) for fid, feat in (data.get("map_features") or {}).items()]
-    lights = [_light(str(lid), light, steps, here) for lid, light in (data.get("dynamic_map_states") or {}).items()]
-    return ScenarioNetScene(path, sid, str(metadata.get("dataset") or ""), float(rate), timestamps,
-                            tracks.ids.index(sdc_id), tracks, features, lights,
+    features = [_feature(str(fid), feat, here)
+                for fid, feat in _mapping(data.get("map_features"), here, "map_features").items()]
+    lights = [_light(str(lid), light, steps, here)
+              for lid, light in _mapping(data.get("dynamic_map_states"), here, "dynamic_map_states").items()]
+    dataset = metadata.get("dataset")
+    return ScenarioNetScene(path, sid, "" if not dataset else _text(dataset, here, "metadata.dataset"), float(rate),
+                            timestamps, tracks.ids.index(sdc_id), tracks, features, lights,
                             {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")})
 
 
@@ -184,8 +253,14 @@ def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
         if not np.isfinite(moving[valid]).all():
             raise ScenarioNetError(f"{what}: NaN or infinite position, heading or velocity at a valid step "
                                    f"(first at step {int(np.flatnonzero(~np.isfinite(moving).all(1) & valid)[0])})")
+        for key in ("length", "width", "height"):
+            # an agent without a size could never be hit: refused, not replayed as a point
+            bad = np.flatnonzero(valid & ~(np.isfinite(columns[key]) & (columns[key] >= 0)))
+            if bad.size:
+                raise ScenarioNetError(f"{what}: state.{key} is {columns[key][bad[0]]:g} at valid step {int(bad[0])}; "
+                                       "a size in metres >= 0 is needed where the track is valid")
         ids.append(str(tid))
-        types.append(str(track.get("type", "UNSET")))
+        types.append(_text(track.get("type", "UNSET"), what, "type"))
         rows.append(columns)
     if not rows:
         return Tracks([], [], np.zeros((0, steps, 3)), np.zeros((0, steps)), np.zeros((0, steps, 2)),
@@ -198,7 +273,7 @@ def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
 def _feature(fid: str, feature: Any, here: str) -> MapFeature:
     what = f"{here}, map feature {fid}"
     if not isinstance(feature, dict) or not isinstance(feature.get("type"), str):
-        raise ScenarioNetError(f"{what}: not a mapping with a 'type'")
+        raise ScenarioNetError(f"{what}: not a mapping with a 'type' (found {_kind(feature)})")
     kind = feature["type"]
     out = MapFeature(fid, kind, feature_group(kind))
     for key in ("polyline", "polygon"):
@@ -218,8 +293,10 @@ def _feature(fid: str, feature: Any, here: str) -> MapFeature:
     if limit is not None:
         try:
             out.speed_limit_kmh = float(limit)
-        except (TypeError, ValueError):
-            raise ScenarioNetError(f"{what}: speed_limit_kmh {limit!r} is not a number") from None
+        except (TypeError, ValueError, OverflowError):
+            out.speed_limit_kmh = None
+        if out.speed_limit_kmh is None or not np.isfinite(out.speed_limit_kmh) or out.speed_limit_kmh < 0:
+            raise ScenarioNetError(f"{what}: speed_limit_kmh {str(limit)[:40]!r} is not a speed in km/h")
     out.extra = {k: v for k, v in feature.items() if k not in ("type", "polyline", "polygon", "position",
                                                                  "speed_limit_kmh")}
     return out
@@ -230,11 +307,17 @@ def _light(lid: str, light: Any, steps: int, here: str) -> TrafficLight:
     if not isinstance(light, dict):
         raise ScenarioNetError(f"{what}: not a mapping")
     state = light.get("state") or {}
-    raw = state.get("object_state", []) if isinstance(state, dict) else []
-    states = [str(s) if s is not None else "LANE_STATE_UNKNOWN" for s in list(raw)]
-    if states and len(states) != steps:
-        raise ScenarioNetError(f"{what}: {len(states)} states for {steps} steps")
+    if not isinstance(state, dict):
+        raise ScenarioNetError(f"{what}: state is {_kind(state)}; ScenarioNet gives a mapping with 'object_state'")
+    raw = state.get("object_state", [])
+    if not isinstance(raw, (list, tuple, np.ndarray)) or getattr(raw, "ndim", 1) != 1:
+        raise ScenarioNetError(f"{what}: state.object_state is {_kind(raw)}, not one state per step")
+    if len(raw) and len(raw) != steps:
+        raise ScenarioNetError(f"{what}: {len(raw)} states for {steps} steps")
+    states = [_text(s, what, f"its state at step {t}") if s is not None else "LANE_STATE_UNKNOWN"
+              for t, s in enumerate(raw)]
     stop = light.get("stop_point")
     lane = light.get("lane")
-    return TrafficLight(lid, None if lane is None else str(lane), states or ["LANE_STATE_UNKNOWN"] * steps,
+    return TrafficLight(lid, None if lane is None else _text(lane, what, "lane"),
+                        states or ["LANE_STATE_UNKNOWN"] * steps,
                         None if stop is None else _array(stop, what, "stop_point").reshape(-1))

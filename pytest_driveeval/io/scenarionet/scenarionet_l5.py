@@ -118,6 +118,11 @@ class ScenarioNetDataset:
             self.scene(index)
         except DataError as exc:
             return str(exc)
+        except (ValueError, TypeError, IndexError, KeyError, AttributeError, OverflowError, RecursionError,
+                MemoryError) as exc:
+            # a file the checks above did not foresee: still this scene's error, named, not the item's
+            return (f"{display_path(self.files[index % self.num_scenes])} could not be read as a ScenarioNet scenario "
+                    f"({type(exc).__name__}: {str(exc)[:200]}); if ScenarioNet wrote it, please report it")
         return None
 
     @property

@@ -63,7 +63,7 @@ class LogCells:
         sel_f, feat_f = self.sel.view(np.float64), self.feat.view(np.float64)
         sel_f[:, 1:3] = feat_f[:, 1:3] = log.agent_xy.reshape(-1, 2)
         feat_f[:, 3] = log.agent_yaw.reshape(-1)
-        feat_f[:, 4:6] = log.agent_extent.reshape((n, -1))[:, :2]
+        feat_f[:, 4:6] = log.agent_extent.reshape((n, 3))[:, :2]  # (n, 3): a log without agents has n = 0
         self.feat[:, 6] = log.label.reshape(-1)
 
     def rows_of(self, rows: np.ndarray) -> "LogCells":

@@ -118,7 +118,9 @@ def stack_scenes(scenes: Sequence[L5Scene], scene_ids: Sequence[int] | None = No
     columns = [_assign_columns(r.first, r.last, track_gap) for r in agent_rows]
     n_frames = np.array([s.num_frames for s in scenes], dtype=np.int64)
     t_max = int(n_frames.max(initial=1))
-    c_max = max((n for _, n in columns), default=0)
+    # at least one (empty) column: the engine's agent selection takes from the columns even when no
+    # scene has an agent (a scenario whose only track is the ego)
+    c_max = max((n for _, n in columns), default=0) or 1
     shape = (len(scenes), t_max, c_max)
     log = LogArrays(
         scene_ids=np.asarray([s.index for s in scenes] if scene_ids is None else scene_ids, dtype=np.int64),

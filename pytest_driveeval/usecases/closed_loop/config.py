@@ -241,6 +241,21 @@ class UnrollSpec(Section):
         return self
 
     @model_validator(mode="after")
+    def _inputs_fit_in_memory(self):
+        # Each step builds every scene's inputs at once (sim.logreplay.inputs.build_batch): per history
+        # frame of each agent its pose, extent and availability with their float64 working copies
+        # (~128 bytes), and per frame of the ego's history and future ~128 bytes likewise.  One scene's
+        # share, before the first step allocates it in one call no time limit can interrupt.
+        frames, future, agents = self.HistoryFrames + 1, self.FutureFrames, self.MaxAgents
+        needed = 128.0 * (frames + future) + 128.0 * agents * frames
+        defaults = {key: self.model_fields[key].default for key in ("HistoryFrames", "FutureFrames", "MaxAgents")}
+        key = max(defaults, key=lambda k: getattr(self, k) / defaults[k])  # the one furthest above its default
+        check_fits(key, getattr(self, key), needed,
+                   f"one scene's policy inputs per step ({self.HistoryFrames} history frames of {agents} agents, "
+                   f"{future} future frames)")
+        return self
+
+    @model_validator(mode="after")
     def _raster_fits_in_memory(self):
         inputs = self.Inputs
         if inputs.Kind == "raster":

@@ -15,7 +15,7 @@ FORMATS = ("l5kit", "scenarionet")
 
 
 def format_of(path: Path) -> str:
-    if path.is_file() and path.suffix == ".pkl":
+    if path.suffix == ".pkl" and not path.is_dir():  # a link to a device or a FIFO too: its reader names it
         return "scenarionet"
     if path.is_dir() and not (path / ".zgroup").exists() and not (path / "scenes").exists() \
             and any(path.rglob("*.pkl")):

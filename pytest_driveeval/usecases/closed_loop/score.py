@@ -57,11 +57,14 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
                     drivable=surfaces + driveways, no_limits_reason=unknown)
 
 
-def dataset_score_maps(dataset: Any, ids: Sequence[int]) -> dict[int, ScoreMap]:
-    """The score's map of each scene that has one (a ScenarioNet dataset's scenes), made afresh."""
+def dataset_score_maps(dataset: Any, ids: Sequence[int]) -> dict[int, ScoreMap | None]:
+    """The score's map of each scene that has one (a ScenarioNet dataset's scenes), made afresh.
+    A scenario without lanes (no ``map_features``, or none of them a lane) has no map (None): its
+    map terms are not available, rather than every frame off a drivable area that is not given."""
     if not hasattr(dataset, "scenario_map"):
         return {}
-    return {int(i): score_map_of(dataset.source(int(i)), dataset.scenario_map(int(i))) for i in ids}
+    made = {int(i): dataset.scenario_map(int(i)) for i in ids}
+    return {i: score_map_of(dataset.source(i), m) if len(m.semantic.lane_ids) else None for i, m in made.items()}
 
 
 class SceneMaps:

@@ -197,3 +197,88 @@ def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester
     for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
         assert (chunked["scene"], chunked["passed"]) == (whole["scene"], whole["passed"])
         assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-3)
+
+
+def _made():
+    """tests/io/scenarionet_made.py, the reader tests' scenario maker (its folder is not on the path here)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("scenarionet_made", REPO_ROOT / "tests" / "io" / "scenarionet_made.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_each_bad_file_of_a_folder_is_that_scenes_error_and_the_good_scenes_beside_it_run(pytester):
+    import pickle
+    import shutil
+    import struct
+
+    made = _made()
+    folder = pytester.path / "scenes"
+    folder.mkdir()
+    shutil.copy(FIXTURE_SCENES / "sd_nuscenes_v1.0-mini_scene-0757.pkl", folder / "sd_a_real.pkl")
+
+    def scene(name, **change):
+        made.write(folder, made.scenario(steps=40, **change), f"sd_{name}.pkl")
+
+    def crafted(name, opcodes, **change):
+        made.write_crafted(folder, made.scenario(steps=40, **change), opcodes, f"sd_{name}.pkl")
+
+    crafted("b_deep_id", made.deep_list(100_000), id=made.SPLICE)
+    scene("c_map_list", map_features=[])
+    scene("d_length_text", length="40")
+    scene("e_nan_ts", metadata__ts=np.where(np.arange(40) == 3, np.nan, np.arange(40) * 0.1))
+    made.write(folder, made.scenario(steps=0), "sd_f_no_steps.pkl")
+    (folder / "sd_g_zero.pkl").symlink_to("/dev/zero")
+    get = (pickle.SHORT_BINUNICODE + b"\x0bcollections" + pickle.SHORT_BINUNICODE + b"\x0bOrderedDict"
+           + pickle.STACK_GLOBAL + pickle.EMPTY_TUPLE + pickle.REDUCE + pickle.EMPTY_DICT + pickle.SHORT_BINUNICODE
+           + b"\x03get" + pickle.SHORT_BINUNICODE + b"\x08builtins" + pickle.SHORT_BINUNICODE + b"\x04dict"
+           + pickle.STACK_GLOBAL + pickle.SETITEM + pickle.BUILD)
+    crafted("h_ordered", get, metadata=made.SPLICE)
+    scene("i_nan_size", tracks__car__state__length=np.full(40, np.nan))
+    alone = made.scenario(steps=40)
+    del alone["tracks"]["car"], alone["tracks"]["cone"]
+    made.write(folder, alone, "sd_j_ego_only.pkl")
+    bare = made.scenario(steps=40, dynamic_map_states={})
+    del bare["map_features"]
+    made.write(folder, bare, "sd_k_no_map.pkl")
+    def put(n):  # memo numbers of its own, above the scenario's
+        return pickle.LONG_BINPUT + struct.pack("<I", 10 ** 6 + n)
+
+    def get(n):
+        return pickle.LONG_BINGET + struct.pack("<I", 10 ** 6 + n)
+
+    number = pickle.BINFLOAT + struct.pack(">d", 0.1) + put(0) + pickle.POP
+    for level in range(3):  # 464 ** 3 = 1e8 references to one number, in 7 KB
+        number += pickle.EMPTY_LIST + put(level + 1) + pickle.MARK + get(level) * 464 + pickle.APPENDS
+        number += pickle.POP if level < 2 else b""
+    crafted("l_bomb", number, metadata__ts=made.SPLICE)
+    scene("m_long", length=30_000_000)
+
+    pytester.makefile(".scenario.yaml", folder=scenario_text("folder", folder, steps=20))
+    pytester.runpytest("-p", "no:randomly")
+    record = summary(pytester)["folder"]
+    assert record["verdict"] == "failed" and record["figures"]["scenes"] == 3
+    ran = {s["scene"]: s for s in record["details"]["scenes"]}
+    assert sorted(ran) == [0, 9, 10]  # the real scene, the ego alone, the scene without a map
+    assert ran[0]["steps"] == ran[9]["steps"] == ran[10]["steps"] == 20
+    assert ran[10]["score_terms"]["drivable_area_compliance"]["reason"] == "the scene has no map"
+    assert ran[0]["score_terms"]["drivable_area_compliance"]["value"] is not None
+    problems = {f["scene"]: f["message"] for f in record["findings"] if "cannot be read" in f["message"]}
+    expected = {
+        1: "sd_b_deep_id.pkl is refused: at id[0][0][0][0][0]... (33 levels) it nests more than 32 levels deep",
+        2: "sd_c_map_list.pkl (scenario s1): map_features is a list of 0 item(s); ScenarioNet gives a mapping",
+        3: "sd_d_length_text.pkl (scenario s1): length is str '40', not a whole number of steps",
+        4: "sd_e_nan_ts.pkl (scenario s1): metadata.ts is NaN or infinite at step 3",
+        5: "sd_f_no_steps.pkl (scenario s1): length is 0 steps: a scenario has at least one step",
+        6: "sd_g_zero.pkl (a link to /dev/zero) is a character device, not a regular file",
+        7: "sd_h_ordered.pkl is refused: BUILD (setting attributes) on a OrderedDict",
+        8: "sd_i_nan_size.pkl (scenario s1), track car: state.length is nan at valid step 0",
+        11: "sd_l_bomb.pkl is refused: at metadata.ts it unpacks to more than 512 MiB",
+        12: "sd_m_long.pkl (scenario s1): length is 30000000 steps, more than the 36000 a scenario may have",
+    }
+    assert sorted(problems) == sorted(expected)
+    for scene_id, text in expected.items():
+        assert f"scene {scene_id} cannot be read: " in problems[scene_id] and text in problems[scene_id], \
+            (scene_id, problems[scene_id])
