@@ -35,6 +35,7 @@ import os
 import shutil
 import sys
 import textwrap
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,7 +46,8 @@ from ..runs import RUN_FILE, RUNS_FOLDER
 from ..settings import DEFAULT_OUTPUT
 from .compare import ERROR, IMPROVED, REGRESSED, STALE, UNCHANGED, Comparison, against_text, compare
 from .rules import effective_rules
-from .store import LAST, BaselineError, BaselineStore, RunReference, check_baseline, resolve_compare
+from .store import (LAST, BaselineError, BaselineStore, RunReference, check_baseline, read_text,
+                    resolve_compare)
 
 ONLY_A, ONLY_B, NOT_COMPARED = "only in A", "only in B", "not compared"
 SUMMARY = "summary.json"
@@ -127,7 +129,7 @@ def _baseline_side(spec: str, folder: Path) -> Side:
                 side.payloads[nodeid] = found
             continue
         try:
-            check_baseline(path.read_text(encoding="utf-8", errors="replace"), path, nodeid or "(unknown item)")
+            check_baseline(read_text(path), path, nodeid or "(unknown item)")
         except BaselineError as exc:
             side.problems.append(str(exc))
             continue
@@ -354,6 +356,17 @@ def render_json(a: Side, b: Side, rows: list[Row], shown: list[Row]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except Exception:
+        # Exit status 1 says "B regressed": a crash must not say it (CI would blame the model).
+        traceback.print_exc()
+        print(f"{args.prog}: error: could not compare {args.a} with {args.b} (the traceback above is a bug of "
+              "pytest-driveeval's: please report it)", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
     output_dir = Path(args.output).absolute()
     try:
         a, b = load_side(args.a, output_dir), load_side(args.b, output_dir)

@@ -170,3 +170,18 @@ def test_what_cannot_be_read_is_named_with_exit_status_2(tmp_path):
 
     usage = cli(tmp_path, "last", "last", "--format", "yaml")
     assert usage.returncode == 2 and "invalid choice: 'yaml'" in usage.stderr
+
+
+def test_a_nesting_bomb_as_either_side_exits_2_naming_the_file(tmp_path):
+    bomb = "[" * 100_000 + "]" * 100_000
+    (tmp_path / "bomb.json").write_text('{"results": ' + bomb + "}")
+    (tmp_path / "baselines" / "s.yaml.d").mkdir(parents=True)
+    (tmp_path / "baselines" / "stray.json").write_text(bomb)
+    (tmp_path / "baselines" / "s.yaml.d" / "t.json").write_text(json.dumps(
+        {"driveeval_baseline": 1, "key": {"nodeid": "s.yaml::t"}, "run": {}, "verdict": "passed", "figures": {}}))
+    for args, file in ((("bomb.json", "baselines"), "bomb.json"), (("baselines", "baselines"), "baselines/stray.json")):
+        result = cli(tmp_path, *args)
+        assert result.returncode == 2, result.stderr
+        assert "RecursionError" not in result.stderr and "Traceback" not in result.stderr
+        assert f"error: {'baseline ' if file != 'bomb.json' else ''}{file}" in result.stderr
+        assert "JSON nested 10000" in result.stderr
