@@ -232,9 +232,9 @@ class ResultsReporter:
         if folder is None:
             return lines
         if gate.options.update:
-            written, problems = update_baselines(folder, records, run)
-            lines.append(f"driveeval baselines: wrote {written} in {display_path(folder)}")
-            self.warnings += problems
+            updated = update_baselines(folder, records, run)
+            lines.append(updated.line(folder))
+            self.warnings += updated.problems
         unused = unused_baselines(folder, self.config.rootpath, lambda path: scenario_item_names(path, self.config))
         if unused and gate.options.prune:
             self.warnings += prune(unused, folder)

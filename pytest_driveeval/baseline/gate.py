@@ -6,7 +6,7 @@ are written by the controller only, from the records it gathered, each file atom
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -180,10 +180,24 @@ class ItemBaseline:
         return check_item(self._gate, self._item, outcome)
 
 
-def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str, Any]) -> tuple[int, list[str]]:
-    """Write the baselines of the items that ran to the end (controller only).  Returns (written,
-    problems); an item that errored keeps its old baseline."""
-    store, written, problems = BaselineStore(folder), 0, []
+@dataclass
+class Updated:
+    """What an update did: files written, files left as they were (nothing but the run would have
+    changed), and what went wrong."""
+    written: int = 0
+    kept: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def line(self, folder: Path) -> str:
+        kept = f" ({self.kept} unchanged but for the run, left as they were)" if self.kept else ""
+        return f"driveeval baselines: wrote {self.written} in {display_path(folder)}{kept}"
+
+
+def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str, Any]) -> Updated:
+    """Write the baselines of the items that ran to the end (controller only); an item that errored
+    keeps its old baseline, and so does one whose file would change in nothing but the run."""
+    store, done = BaselineStore(folder), Updated()
+    problems = done.problems
     for record in records:
         payload = record.get("baseline")
         if not isinstance(payload, dict) or record.get("status") in ("error", "skipped", None):
@@ -194,11 +208,14 @@ def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str,
                             "search's result, is kept as it was")
             continue
         try:
+            if store.unchanged(record["nodeid"], payload):
+                done.kept += 1
+                continue
             store.write(record["nodeid"], payload, run)
-            written += 1
+            done.written += 1
         except (OSError, BaselineError) as exc:
             problems.append(f"cannot write the baseline of {record['nodeid']}: {exc}")
-    return written, problems
+    return done
 
 
 def unused_baselines(folder: Path, rootdir: Path, items_of: Callable[[Path], set[str] | None]) -> list[Path]:

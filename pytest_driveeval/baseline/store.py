@@ -83,11 +83,22 @@ class BaselineStore:
         _no_link_on_the_way(self.root, path.parent if path.parent != self.root else self.root)
         path.parent.mkdir(parents=True, exist_ok=True)
         _no_link_on_the_way(self.root, path)
-        record = {"driveeval_baseline": BASELINE_FORMAT,
-                  "run": {k: run.get(k) for k in ("id", "started", "commit", "dirty")},
-                  **{k: v for k, v in payload.items() if k not in ("version", "rules")}}
-        write_text_atomic(path, json.dumps(record, indent=1, sort_keys=True, ensure_ascii=False) + "\n")
+        write_text_atomic(path, json.dumps(_record(payload, run), indent=1, sort_keys=True, ensure_ascii=False) + "\n")
         return path
+
+    def unchanged(self, nodeid: str, payload: dict[str, Any]) -> bool:
+        """Whether the item's baseline file already says all that ``payload`` would write but the
+        run that wrote it (its id, time, commit): rewritten, it would be a changed file in git for
+        nothing but the run."""
+        path = self.path_for(nodeid)
+        if path.is_symlink() or not path.is_file():
+            return False
+        try:
+            old = read_json(path, MAX_BASELINE_BYTES)
+        except ValueError:
+            return False
+        new = json.loads(json.dumps(_record(payload, {}), ensure_ascii=False))
+        return isinstance(old, dict) and {**old, "run": None} == {**new, "run": None}
 
     def files(self) -> dict[Path, str | None]:
         """Every baseline file under the root and the node id it says it is for (None: unreadable)."""
@@ -104,6 +115,12 @@ class BaselineStore:
                 key = None
             out[path] = key if isinstance(key, str) else None
         return out
+
+
+def _record(payload: dict[str, Any], run: dict[str, Any]) -> dict[str, Any]:
+    """A baseline file's content: the payload without what only the current session needs."""
+    return {"driveeval_baseline": BASELINE_FORMAT, "run": {k: run.get(k) for k in ("id", "started", "commit", "dirty")},
+            **{k: v for k, v in payload.items() if k not in ("version", "rules")}}
 
 
 # key -> the type it must have; every other key is free (the file may gain keys)

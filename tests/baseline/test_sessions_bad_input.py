@@ -1,5 +1,6 @@
-"""Issue 34, section 2: what is wrong in a baseline folder or a reference ends as a located error of
-the item it belongs to; the other items run and the session writes its summary."""
+"""Issue 34: what is wrong in a baseline folder or a reference ends as a located error of the item
+it belongs to, the other items run and the session writes its summary (section 2); an update, a
+stale baseline and the figures' changes as a user meets them (section 3)."""
 from __future__ import annotations
 
 import json
@@ -77,3 +78,19 @@ def test_a_nan_or_infinite_baseline_figure_is_located_and_the_summary_is_written
     json.loads((cl.path / "driveeval-results" / "summary.json").read_text(),
                parse_constant=lambda name: pytest.fail(f"summary.json holds {name}"))
     assert summary(cl)["counts"] == {"failed": 2}
+
+
+def test_an_update_that_changes_nothing_but_the_run_leaves_every_file_as_it_was(cl):
+    files = sorted((cl.path / BASELINES).rglob("*.json"))
+    before = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in files}
+    result = run(cl, "--driveeval-baseline-update")
+    result.assert_outcomes(passed=2)
+    result.stdout.fnmatch_lines(["driveeval baselines: wrote 0 in baselines (2 unchanged but for the run, left as "
+                                 "they were)"])
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in files} == before
+    cl.makefile(".scenario.yaml", other=closed_loop(name="other", scenes="[2]", steps=12))
+    result = run(cl, "--driveeval-baseline-update")
+    result.stdout.fnmatch_lines(["driveeval baselines: wrote 1 in baselines (1 unchanged but for the run, left as "
+                                 "they were)"])
+    assert baseline_path(cl, DRIVE).read_bytes() == before[baseline_path(cl, DRIVE)][0]
+    assert baseline_path(cl, OTHER).read_bytes() != before[baseline_path(cl, OTHER)][0]
