@@ -14,7 +14,8 @@ A and B each name a run or a set of baselines:
 
 Options: ``--output DIR`` (the output folder that ``last`` and run ids are looked up in; default
 driveeval-results, relative to the working directory), ``--only-changed`` (leave out the items whose
-status is unchanged and whose verdict and figures are equal), ``--format text|markdown|json``.
+status is unchanged and whose verdict and figures are equal within the figure's tolerance, list the
+regressions first, and sum up the items only one side ran in a line each), ``--format text|markdown|json``.
 
 One row per item (node id) present in either: B's status against A by the plugin's own rules, as
 ``pytest --driveeval-compare A`` would have judged B (regressed, improved, unchanged, stale, error),
@@ -42,6 +43,7 @@ from typing import Any
 
 from ..errors import display_path
 from ..outcome import format_figure, is_number
+from ..report.deltas import within_tolerance
 from ..runs import RUN_FILE, RUNS_FOLDER
 from ..settings import DEFAULT_OUTPUT
 from .compare import ERROR, IMPROVED, REGRESSED, STALE, UNCHANGED, Comparison, against_text, compare
@@ -169,6 +171,8 @@ class Figure:
     a: Any
     b: Any
     worse: bool | None   # from the comparison's changes: the rules' word, not the sign of the delta
+    #: the move is within the figure's tolerance: shown as no change (float noise is not news)
+    within: bool = False
 
     @property
     def delta(self) -> float | None:
@@ -189,7 +193,7 @@ class Row:
     @property
     def changed(self) -> bool:
         return self.status != UNCHANGED or self.verdicts[0] != self.verdicts[1] \
-            or any(f.a != f.b for f in self.figures)
+            or any(f.a != f.b and not f.within for f in self.figures)
 
     def details(self) -> list[str]:
         """What changed, in the comparison's words."""
@@ -224,8 +228,12 @@ def compare_sides(a: Side, b: Side) -> list[Row]:
                 comparison = Comparison(ERROR, a.title, a.source, note=f"cannot compare the records of {nodeid} "
                                                                         f"({a.source}, {b.source}): {exc!r}")
             worse = {c.what: c.worse for c in comparison.changes}
-            figures = [Figure(n, (pa.get("figures") or {}).get(n), (pb.get("figures") or {}).get(n), worse.get(n))
-                       for n in _figure_names(current, pa)]
+            rules = ((current.get("rules") or {}).get("figures") or {})
+            figures = []
+            for n in _figure_names(current, pa):
+                fa, fb = (pa.get("figures") or {}).get(n), (pb.get("figures") or {}).get(n)
+                figures.append(Figure(n, fa, fb, worse.get(n), worse.get(n) is None and within_tolerance(rules.get(n),
+                                                                                                        fa, fb)))
             rows.append(Row(nodeid, comparison.status, verdicts, figures, comparison))
             continue
         if not a.knows(nodeid):
@@ -242,19 +250,19 @@ def compare_sides(a: Side, b: Side) -> list[Row]:
     return rows
 
 
-def _arrows() -> tuple[str, str]:
+def _arrows() -> tuple[str, str, str]:
     try:
-        "↑↓".encode(sys.stdout.encoding or "utf-8")
-        return "↑", "↓"
+        "↑↓≈".encode(sys.stdout.encoding or "utf-8")
+        return "↑", "↓", "≈"
     except (UnicodeEncodeError, LookupError):
-        return "^", "v"
+        return "^", "v", "~"
 
 
 def _value(value: Any) -> str:
     return "none" if value is None else format_figure(value)
 
 
-def figure_text(figure: Figure, status: str, arrows: tuple[str, str]) -> str:
+def figure_text(figure: Figure, status: str, arrows: tuple[str, str, str]) -> str:
     if status in (ONLY_A, ONLY_B, NOT_COMPARED):
         return f"{figure.name} {_value(figure.a if figure.a is not None else figure.b)}"
     delta = figure.delta
@@ -262,6 +270,8 @@ def figure_text(figure: Figure, status: str, arrows: tuple[str, str]) -> str:
         change = "=" if figure.a == figure.b else "?"
     elif delta == 0:
         change = "="
+    elif figure.within:
+        change = f"{arrows[2]} within tolerance"
     else:
         change = f"{'+' if delta > 0 else ''}{format_figure(delta)} {arrows[0] if delta > 0 else arrows[1]}"
         change += {True: " worse", False: " better", None: ""}[figure.worse]
@@ -287,7 +297,39 @@ def _counts(rows: list[Row]) -> str:
     return ", ".join(f"{n} {status}" for status, n in counts.items() if n) or "no item in either"
 
 
-def render_text(a: Side, b: Side, rows: list[Row], shown: list[Row], width: int) -> list[str]:
+@dataclass
+class Selection:
+    """The rows to print, and the lines that stand for the rows folded into one line each."""
+    shown: list[Row]
+    folded: list[str] = field(default_factory=list)
+    hidden: int = 0  # unchanged rows left out
+
+    def footer(self, rows: list[Row]) -> str:
+        return _counts(rows) + (f" ({self.hidden} unchanged not shown)" if self.hidden else "")
+
+
+def select(rows: list[Row], a: Side, b: Side, only_changed: bool) -> Selection:
+    """Every row; with ``only_changed``, the changed ones worst first (regressions at the top),
+    and the items only one side ran summed up in a line each: after a subset run they are most of
+    the rows, and would bury the regressions."""
+    if not only_changed:
+        return Selection(rows)
+    changed = [r for r in rows if r.changed]
+    rank = {status: i for i, status in enumerate(ORDER)}
+    shown = sorted((r for r in changed if r.status not in (ONLY_A, ONLY_B)),
+                   key=lambda r: (rank.get(r.status, len(ORDER)), r.nodeid))
+    folded = []
+    for status, side, other in ((ONLY_A, a, b), (ONLY_B, b, a)):
+        n = sum(r.status == status for r in changed)
+        if n:
+            name, other_name = ("A", "B") if side is a else ("B", "A")
+            folded.append(f"{n} item(s) only in {name} (not run in {other_name}, {other.source}); without "
+                          "--only-changed they are listed")
+    return Selection(shown, folded, len(rows) - len(changed))
+
+
+def render_text(a: Side, b: Side, rows: list[Row], selection: Selection, width: int) -> list[str]:
+    shown = selection.shown
     arrows = _arrows()
     width = max(width, 40)
     lines = []
@@ -317,8 +359,8 @@ def render_text(a: Side, b: Side, rows: list[Row], shown: list[Row], width: int)
         for detail in row.details():
             lines += textwrap.wrap(detail, width=width, initial_indent=indent + "  ", subsequent_indent=indent + "    ",
                                    break_on_hyphens=False, break_long_words=False)
-    hidden = len(rows) - len(shown)
-    lines.append(_counts(rows) + (f" ({hidden} unchanged not shown)" if hidden else ""))
+    lines += selection.folded
+    lines.append(selection.footer(rows))
     return lines
 
 
@@ -326,7 +368,8 @@ def _cell(text: Any) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ").strip()
 
 
-def render_markdown(a: Side, b: Side, rows: list[Row], shown: list[Row]) -> list[str]:
+def render_markdown(a: Side, b: Side, rows: list[Row], selection: Selection) -> list[str]:
+    shown = selection.shown
     arrows = _arrows()
     lines = [f"**A**: {_cell(a.title)} (`{_cell(a.source)}`)  ", f"**B**: {_cell(b.title)} (`{_cell(b.source)}`)", "",
              "| status | item | verdict | key figures: A -> B (change) | what changed |", "|---|---|---|---|---|"]
@@ -335,23 +378,25 @@ def render_markdown(a: Side, b: Side, rows: list[Row], shown: list[Row]) -> list
         status = f"**{row.status}**" if row.status in (REGRESSED, ERROR) else row.status
         lines.append(f"| {status} | `{_cell(row.nodeid)}` | {_cell(verdict_text(row))} | {figures} | "
                      f"{'<br>'.join(_cell(d) for d in row.details())} |")
-    hidden = len(rows) - len(shown)
-    lines += ["", _counts(rows) + (f" ({hidden} unchanged not shown)" if hidden else "")]
+    lines += [""] + [f"{line}  " for line in selection.folded] + [selection.footer(rows)]
     return lines
 
 
-def render_json(a: Side, b: Side, rows: list[Row], shown: list[Row]) -> str:
+def render_json(a: Side, b: Side, rows: list[Row], selection: Selection) -> str:
+    shown = selection.shown
     def side(s: Side) -> dict[str, Any]:
         return {"spec": s.spec, "title": s.title, "source": s.source, "problems": s.problems}
 
     def row(r: Row) -> dict[str, Any]:
         return {"nodeid": r.nodeid, "status": r.status, "verdict": {"a": r.verdicts[0], "b": r.verdicts[1]},
-                "figures": {f.name: {"a": f.a, "b": f.b, "delta": f.delta, "worse": f.worse} for f in r.figures},
+                "figures": {f.name: {"a": f.a, "b": f.b, "delta": f.delta, "worse": f.worse,
+                                     "within_tolerance": f.within} for f in r.figures},
                 "details": r.details(),
                 "comparison": r.comparison.to_json() if r.comparison is not None else None}
 
     counts = {status: sum(r.status == status for r in rows) for status in {r.status for r in rows}}
-    return json.dumps({"a": side(a), "b": side(b), "rows": [row(r) for r in shown], "counts": counts,
+    return json.dumps({"a": side(a), "b": side(b), "rows": [row(r) for r in shown], "folded": selection.folded,
+                       "counts": counts,
                        "regressed": any(r.status == REGRESSED for r in rows)}, indent=1, ensure_ascii=False)
 
 
@@ -374,13 +419,13 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{args.prog}: error: {exc}", file=sys.stderr)
         return 2
     rows = compare_sides(a, b)
-    shown = [r for r in rows if r.changed] if args.only_changed else rows
+    selection = select(rows, a, b, args.only_changed)
     if args.format == "json":
-        text = render_json(a, b, rows, shown)
+        text = render_json(a, b, rows, selection)
     elif args.format == "markdown":
-        text = "\n".join(render_markdown(a, b, rows, shown))
+        text = "\n".join(render_markdown(a, b, rows, selection))
     else:
-        text = "\n".join(render_text(a, b, rows, shown, shutil.get_terminal_size().columns))
+        text = "\n".join(render_text(a, b, rows, selection, shutil.get_terminal_size().columns))
     problems = a.problems + b.problems
     status = 2 if problems else 1 if any(r.status == REGRESSED for r in rows) else 0
     try:
@@ -405,6 +450,8 @@ def add_compare_command(commands: Any, prog: str) -> None:
     parser.add_argument("--output", metavar="DIR", default=DEFAULT_OUTPUT,
                         help=f"the output folder that holds history.jsonl and runs/ (default: {DEFAULT_OUTPUT})")
     parser.add_argument("--only-changed", action="store_true",
-                        help="leave out the items whose status is unchanged and whose verdict and figures are equal")
+                        help="leave out the items whose status is unchanged and whose verdict and figures are equal "
+                             "(within the figure's tolerance); list the regressions first and sum up the items only "
+                             "one side ran in a line each")
     parser.add_argument("--format", choices=FORMATS, default="text", help="text (default), markdown or json")
     parser.set_defaults(run=run, prog=f"{prog} compare")
