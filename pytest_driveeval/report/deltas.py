@@ -100,10 +100,16 @@ def _direction(now: Any, before: Any, better: str | None) -> str | None:
     return "better" if (now < before) == (better == "lower") else "worse"
 
 
-def status_text(record: dict[str, Any]) -> str:
-    """The comparison in a word or two ("baseline: regressed"), or nothing."""
+def status_text(record: dict[str, Any], why: bool = False) -> str:
+    """The comparison in a word or two ("baseline: regressed"), or nothing.  With ``why``, a stale
+    one also says what changed since its baseline was made: a passing item shows no failure text,
+    and "stale" alone leaves the user to guess which input moved."""
     comparison = comparison_of(record)
-    return f"baseline: {comparison['status']}" if comparison is not None else ""
+    if comparison is None:
+        return ""
+    if why and comparison["status"] == "stale" and comparison.get("message"):
+        return f"baseline: {comparison['message']}"
+    return f"baseline: {comparison['status']}"
 
 
 def status_tone(record: dict[str, Any]) -> str | None:

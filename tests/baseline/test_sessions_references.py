@@ -52,6 +52,9 @@ def test_a_baseline_made_with_other_settings_is_stale_not_compared_and_fails_onl
     comparison = records(cl)[DRIVE]["comparison"]
     assert comparison["status"] == "stale" and comparison["changes"] == []
     assert said in comparison["message"] and comparison["message"].endswith("not compared (update the baseline)")
+    # Without strict the item passes, and its row still says why the baseline is stale.
+    table = " ".join(line.strip() for line in result.stdout.lines)
+    assert f"baseline: stale baseline `no commit` (" in table and said in table
     result = run(cl, "--driveeval-baseline-strict")
     result.assert_outcomes(failed=1)
     result.stdout.fnmatch_lines(["*BaselineRequired: stale baseline `no commit` (*): the settings changed (*"])

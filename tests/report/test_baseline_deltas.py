@@ -81,6 +81,14 @@ def test_terminal_table_shows_status_baseline_values_and_colours_only_counted_ch
                      "baseline: missing": "note"}
 
 
+def test_a_stale_baseline_says_why_in_the_terminal_table():
+    records = [not_compared("stale", "stale baseline `abc` (2026-11-20): the seed changed (1 -> 2) since it was "
+                                     "made; not compared (update the baseline)")]
+    text = "\n".join(terminal_table(records, 300))
+    assert "baseline: stale baseline `abc` (2026-11-20): the seed changed (1 -> 2) since it was made; not compared " \
+           "(update the baseline); goal_rate=50" in text
+
+
 def test_a_narrow_terminal_wraps_a_coloured_figure_and_keeps_its_colour():
     rows = terminal_rows([regressed()], 48)
     plain = ["".join(t for t, _ in line) for line in rows]
