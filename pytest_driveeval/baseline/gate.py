@@ -45,6 +45,8 @@ class BaselineOptions:
     update: bool = False
     prune: bool = False
     strict: bool = False
+    #: why pytest's rootdir (and so every node id) is not where the test paths put it (session.rootdir_moved)
+    rootdir_moved: str | None = None
 
     @property
     def active(self) -> bool:
@@ -79,6 +81,8 @@ class Gate:
         if found is None:
             note = NO_BASELINE if self.options.compare_with is None else \
                 f"{against} has no record of this item (it did not run then)"
+            if self.options.rootdir_moved:
+                note += f"; but perhaps it has one under another node id: {self.options.rootdir_moved}"
             return Comparison(MISSING, against, source, note=note)
         return compare(found, payload, against, source)
 

@@ -94,3 +94,33 @@ def test_an_update_that_changes_nothing_but_the_run_leaves_every_file_as_it_was(
                                  "they were)"])
     assert baseline_path(cl, DRIVE).read_bytes() == before[baseline_path(cl, DRIVE)][0]
     assert baseline_path(cl, OTHER).read_bytes() != before[baseline_path(cl, OTHER)][0]
+
+
+def test_a_baseline_folder_outside_that_moves_the_rootdir_is_named_as_the_reason_and_nothing_is_pruned(pytester,
+                                                                                                      monkeypatch):
+    project = pytester.path / "project"
+    project.mkdir()
+    with_closed_loop_data(pytester)
+    (pytester.path / "gen.zarr").rename(project / "gen.zarr")
+    (project / "drive.scenario.yaml").write_text(closed_loop(scenes="[0]", steps=5))
+    monkeypatch.chdir(project)
+    # The folder does not exist yet: pytest's rootdir is the project, and the update writes there.
+    run(pytester, "--driveeval-baseline-update", folder="../shared-baselines").assert_outcomes(passed=1)
+    written = sorted(p.relative_to(pytester.path) for p in (pytester.path / "shared-baselines").rglob("*.json"))
+    assert [str(p) for p in written] == ["shared-baselines/drive.scenario.yaml.d/closed_loop[logs].json"]
+    # It exists now: pytest takes it for a test path, and its rootdir moves up to their common parent.
+    result = run(pytester, "--driveeval-baseline-update", "--driveeval-baseline-prune", folder="../shared-baselines")
+    result.assert_outcomes(passed=1)
+    text = " ".join(line.strip() for line in result.stdout.lines)
+    assert f"pytest's rootdir is {pytester.path}, not {project}: pytest chose it before it knew pytest-driveeval's " \
+           "options, and took `--driveeval-baseline ../shared-baselines` for a test path because that path exists " \
+           "now." in text
+    assert "Write `--driveeval-baseline=../shared-baselines`, or fix the rootdir" in text
+    assert "none written or removed in" in text
+    assert sorted(p.relative_to(pytester.path) for p in (pytester.path / "shared-baselines").rglob("*.json")) == \
+        written  # neither pruned as an item gone nor written twice under the moved node id
+    # Written with '=', the value is no test path: the rootdir stays, and the baseline is found.
+    result = pytester.runpytest("-q", "-p", "no:randomly", "--driveeval-baseline=../shared-baselines")
+    result.assert_outcomes(passed=1)
+    result.stdout.fnmatch_lines(["driveeval baselines (*shared-baselines): 1 unchanged"])
+    assert "pytest's rootdir is" not in result.stdout.str()
