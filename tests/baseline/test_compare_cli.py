@@ -102,7 +102,8 @@ def test_every_way_of_naming_a_run_gives_the_same_rows(pytester):
     expected = rows(cli(pytester.path, "last~1", "last", "--format", "json"))
     assert {n: r["status"] for n, r in expected.items()} == {
         A_ITEM: "regressed", SAME: "unchanged", GONE: "only in A", NEW: "only in B"}
-    assert expected[A_ITEM]["figures"]["goal_rate"] == {"a": 100.0, "b": 0.0, "delta": -100.0, "worse": True}
+    assert expected[A_ITEM]["figures"]["goal_rate"] == {"a": 100.0, "b": 0.0, "delta": -100.0, "worse": True,
+                                                        "within_tolerance": False}
     for names in ((first, str(runs / second / "summary.json")),
                   (str(runs / first), f"driveeval-results/runs/{second}"),
                   ("baselines", "last")):
