@@ -29,8 +29,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Callable
 
-from .atomic import create_exclusive, write_json_atomic
-from .report.readjson import MAX_BASELINE_BYTES, finite_json, read_json
+from .atomic import MAX_BASELINE_BYTES, create_exclusive, finite_json, read_json, write_json_atomic
 from .report.trends import history_entries
 
 RUNS_FOLDER = "runs"

@@ -15,10 +15,9 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from ..atomic import write_text_atomic
+from ..atomic import (MAX_BASELINE_BYTES, MAX_SUMMARY_BYTES, JSONFileError, loads_bounded, read_json, read_regular,
+                      write_text_atomic)
 from ..errors import DriveEvalError, display_path
-from ..report.readjson import (MAX_BASELINE_BYTES, MAX_SUMMARY_BYTES, JSONFileError, loads_bounded, read_json,
-                               read_regular)
 from ..runs import HISTORY_NAME, RUNS_FOLDER, history_runs
 
 BASELINE_FORMAT = 1
@@ -227,7 +226,7 @@ class RunReference:
     def __init__(self, summary: Path):
         self.path = summary
         try:
-            data = read_json(summary, MAX_SUMMARY_BYTES)
+            data = read_json(summary, MAX_SUMMARY_BYTES, where=display_path(summary))
         except JSONFileError as exc:
             raise BaselineError(f"{exc.where} is not a readable driveeval summary: {exc.reason}") from None
         try:

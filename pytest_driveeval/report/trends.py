@@ -14,7 +14,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
 from ..outcome import is_number
-from .readjson import MAX_SUMMARY_BYTES, loads_bounded, read_json
+from ..atomic import MAX_SUMMARY_BYTES, loads_bounded, read_json
 
 #: runs a trend shows besides the current one when the output folder keeps all (keep_runs 0)
 DEFAULT_RUNS = 20

@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from pytest_driveeval.report.readjson import (MAX_DEPTH, JSONFileError, finite_json, loads_bounded, nesting_depth,
+from pytest_driveeval.atomic import (MAX_DEPTH, JSONFileError, finite_json, loads_bounded, nesting_depth,
                                               read_json)
 
 BOMB = "[" * 100_000 + "]" * 100_000
