@@ -6,7 +6,7 @@ are written by the controller only, from the records it gathered, each file atom
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -45,6 +45,8 @@ class BaselineOptions:
     update: bool = False
     prune: bool = False
     strict: bool = False
+    #: why pytest's rootdir (and so every node id) is not where the test paths put it (session.rootdir_moved)
+    rootdir_moved: str | None = None
 
     @property
     def active(self) -> bool:
@@ -79,6 +81,8 @@ class Gate:
         if found is None:
             note = NO_BASELINE if self.options.compare_with is None else \
                 f"{against} has no record of this item (it did not run then)"
+            if self.options.rootdir_moved:
+                note += f"; but perhaps it has one under another node id: {self.options.rootdir_moved}"
             return Comparison(MISSING, against, source, note=note)
         return compare(found, payload, against, source)
 
@@ -180,10 +184,24 @@ class ItemBaseline:
         return check_item(self._gate, self._item, outcome)
 
 
-def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str, Any]) -> tuple[int, list[str]]:
-    """Write the baselines of the items that ran to the end (controller only).  Returns (written,
-    problems); an item that errored keeps its old baseline."""
-    store, written, problems = BaselineStore(folder), 0, []
+@dataclass
+class Updated:
+    """What an update did: files written, files left as they were (nothing but the run would have
+    changed), and what went wrong."""
+    written: int = 0
+    kept: int = 0
+    problems: list[str] = field(default_factory=list)
+
+    def line(self, folder: Path) -> str:
+        kept = f" ({self.kept} unchanged but for the run, left as they were)" if self.kept else ""
+        return f"driveeval baselines: wrote {self.written} in {display_path(folder)}{kept}"
+
+
+def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str, Any]) -> Updated:
+    """Write the baselines of the items that ran to the end (controller only); an item that errored
+    keeps its old baseline, and so does one whose file would change in nothing but the run."""
+    store, done = BaselineStore(folder), Updated()
+    problems = done.problems
     for record in records:
         payload = record.get("baseline")
         if not isinstance(payload, dict) or record.get("status") in ("error", "skipped", None):
@@ -194,11 +212,14 @@ def update_baselines(folder: Path, records: list[dict[str, Any]], run: dict[str,
                             "search's result, is kept as it was")
             continue
         try:
+            if store.unchanged(record["nodeid"], payload):
+                done.kept += 1
+                continue
             store.write(record["nodeid"], payload, run)
-            written += 1
+            done.written += 1
         except (OSError, BaselineError) as exc:
             problems.append(f"cannot write the baseline of {record['nodeid']}: {exc}")
-    return written, problems
+    return done
 
 
 def unused_baselines(folder: Path, rootdir: Path, items_of: Callable[[Path], set[str] | None]) -> list[Path]:

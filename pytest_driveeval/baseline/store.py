@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from ..core.atomic import write_text_atomic
+from ..core.atomic import (MAX_BASELINE_BYTES, MAX_SUMMARY_BYTES, JSONFileError, loads_bounded, read_json, read_regular,
+                      write_text_atomic)
 from ..core.errors import DriveEvalError, display_path
 from ..harness.runs import HISTORY_NAME, RUNS_FOLDER, history_runs
 
@@ -72,11 +74,7 @@ class BaselineStore:
         if not path.exists() and not path.is_symlink():
             return None
         _no_link_on_the_way(self.root, path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise BaselineError(f"baseline {display_path(path)} cannot be read: {exc}") from None
-        return check_baseline(text, path, nodeid)
+        return check_baseline(read_text(path), path, nodeid)
 
     def write(self, nodeid: str, payload: dict[str, Any], run: dict[str, Any]) -> Path:
         path = self.path_for(nodeid)
@@ -84,11 +82,22 @@ class BaselineStore:
         _no_link_on_the_way(self.root, path.parent if path.parent != self.root else self.root)
         path.parent.mkdir(parents=True, exist_ok=True)
         _no_link_on_the_way(self.root, path)
-        record = {"driveeval_baseline": BASELINE_FORMAT,
-                  "run": {k: run.get(k) for k in ("id", "started", "commit", "dirty")},
-                  **{k: v for k, v in payload.items() if k not in ("version", "rules")}}
-        write_text_atomic(path, json.dumps(record, indent=1, sort_keys=True, ensure_ascii=False) + "\n")
+        write_text_atomic(path, json.dumps(_record(payload, run), indent=1, sort_keys=True, ensure_ascii=False) + "\n")
         return path
+
+    def unchanged(self, nodeid: str, payload: dict[str, Any]) -> bool:
+        """Whether the item's baseline file already says all that ``payload`` would write but the
+        run that wrote it (its id, time, commit): rewritten, it would be a changed file in git for
+        nothing but the run."""
+        path = self.path_for(nodeid)
+        if path.is_symlink() or not path.is_file():
+            return False
+        try:
+            old = self.read(nodeid)  # one that does not read (a hand-edited run, say) is rewritten
+        except BaselineError:
+            return False
+        new = json.loads(json.dumps(_record(payload, {}), ensure_ascii=False))
+        return isinstance(old, dict) and {**old, "run": None} == {**new, "run": None}
 
     def files(self) -> dict[Path, str | None]:
         """Every baseline file under the root and the node id it says it is for (None: unreadable)."""
@@ -99,22 +108,46 @@ class BaselineStore:
             if path.is_symlink() or not path.is_file():
                 continue
             try:
-                data = json.loads(path.read_text(encoding="utf-8"))
+                data = read_json(path, MAX_BASELINE_BYTES)
                 key = data["key"]["nodeid"] if isinstance(data, dict) and isinstance(data.get("key"), dict) else None
-            except (OSError, ValueError, KeyError, TypeError):
+            except (ValueError, KeyError, TypeError):  # JSONFileError is a ValueError
                 key = None
             out[path] = key if isinstance(key, str) else None
         return out
+
+
+def _record(payload: dict[str, Any], run: dict[str, Any]) -> dict[str, Any]:
+    """A baseline file's content: the payload without what only the current session needs."""
+    return {"driveeval_baseline": BASELINE_FORMAT, "run": {k: run.get(k) for k in ("id", "started", "commit", "dirty")},
+            **{k: v for k, v in payload.items() if k not in ("version", "rules")}}
 
 
 # key -> the type it must have; every other key is free (the file may gain keys)
 _SHAPE = {"driveeval_baseline": int, "key": dict, "run": dict, "verdict": str, "figures": dict}
 
 
+def read_text(path: Path) -> str:
+    """A baseline file's text, refused (BaselineError naming it) when it is no regular file or
+    larger than a baseline ever is."""
+    where = display_path(path)
+    try:
+        raw = read_regular(path, MAX_BASELINE_BYTES + 1)
+        if raw is None:
+            raise BaselineError(f"baseline {where} is not a regular file: remove it")
+        if len(raw) > MAX_BASELINE_BYTES:
+            raise BaselineError(f"baseline {where} is larger than {MAX_BASELINE_BYTES // 2 ** 20} MiB, which no "
+                                "baseline is: remove it or rewrite it with --driveeval-baseline-update")
+        return raw.decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BaselineError(f"baseline {where} cannot be read: {exc}") from None
+
+
 def check_baseline(text: str, path: Path, nodeid: str) -> dict[str, Any]:
     where = display_path(path)
     try:
-        data = json.loads(text)
+        data = loads_bounded(text, f"baseline {where} of {nodeid}")
+    except JSONFileError as exc:
+        raise BaselineError(f"{exc}; remove it or rewrite it with --driveeval-baseline-update") from None
     except ValueError as exc:
         # A string without its closing quote runs to the end of the text: cut there too.
         cut = exc.msg.startswith("Unterminated string") or ("Expecting" in exc.msg  # type: ignore[attr-defined]
@@ -178,6 +211,12 @@ def payload_problem(data: dict[str, Any]) -> str | None:
         bad = [k for k, v in values.items() if not (v is None or _number(v))]
         if bad:
             return f"'{group}.{bad[0]}' is not a number"
+        # JSON has no NaN or Infinity, but Python's reader takes them; no comparison can use one.
+        odd = [(k, v) for k, v in values.items() if v is not None and not math.isfinite(v)]
+        if odd:
+            name, value = odd[0]
+            said = "NaN" if value != value else "Infinity" if value > 0 else "-Infinity"
+            return f"'{group}.{name}' is {said}, not a finite number"
     return None
 
 
@@ -187,11 +226,14 @@ class RunReference:
     def __init__(self, summary: Path):
         self.path = summary
         try:
-            data = json.loads(summary.read_text(encoding="utf-8"))
+            data = read_json(summary, MAX_SUMMARY_BYTES, where=display_path(summary))
+        except JSONFileError as exc:
+            raise BaselineError(f"{exc.where} is not a readable driveeval summary: {exc.reason}") from None
+        try:
             records = data["results"]
             self.run = data.get("run") or {}
             assert isinstance(records, list) and isinstance(self.run, dict)
-        except (OSError, ValueError, KeyError, TypeError, AssertionError) as exc:
+        except (KeyError, TypeError, AssertionError) as exc:
             raise BaselineError(f"{display_path(summary)} is not a readable driveeval summary: {exc}") from None
         self.records = {r.get("nodeid"): r for r in records if isinstance(r, dict)}
 

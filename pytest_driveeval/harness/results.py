@@ -228,13 +228,22 @@ class ResultsReporter:
             return []
         records = self.collector.sorted_records()
         lines = [comparison_counts(records, gate)]
+        if gate.options.rootdir_moved:
+            self.warnings.append(gate.options.rootdir_moved)
         folder = gate.options.folder
         if folder is None:
             return lines
+        if gate.options.rootdir_moved:
+            # Under node ids of another rootdir, every baseline looks like one of an item gone: an
+            # update would write a second set beside them, a prune would delete the good ones.
+            if gate.options.update:
+                lines.append(f"driveeval baselines: none written or removed in {display_path(folder)}: the node "
+                             "ids moved with pytest's rootdir (see the warning below)")
+            return lines
         if gate.options.update:
-            written, problems = update_baselines(folder, records, run)
-            lines.append(f"driveeval baselines: wrote {written} in {display_path(folder)}")
-            self.warnings += problems
+            updated = update_baselines(folder, records, run)
+            lines.append(updated.line(folder))
+            self.warnings += updated.problems
         unused = unused_baselines(folder, self.config.rootpath, lambda path: scenario_item_names(path, self.config))
         if unused and gate.options.prune:
             self.warnings += prune(unused, folder)

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any, Callable
 
-from ..core.atomic import create_exclusive, write_json_atomic
+from ..core.atomic import MAX_BASELINE_BYTES, create_exclusive, finite_json, read_json, write_json_atomic
 from ..report.trends import history_entries
 
 RUNS_FOLDER = "runs"
@@ -149,6 +149,14 @@ def finish_run(output_dir: Path, identity: RunIdentity, summary: dict[str, Any],
 
     folder = run_dir(output_dir, identity.id)
     finished = dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+    # Strict JSON has no NaN or infinity: one such value (a hand-edited reference's figure shown
+    # beside an item's) must not cost the session its summary.
+    replaced: list[str] = []
+    summary = finite_json(summary, found=replaced)
+    if replaced:
+        shown = ", ".join(replaced[:5]) + (f" and {len(replaced) - 5} more" if len(replaced) > 5 else "")
+        warnings.append(f"summary.json: {len(replaced)} value(s) that JSON cannot hold as numbers (NaN or infinite) "
+                        f"written as the strings \"NaN\", \"Infinity\" or \"-Infinity\": {shown}")
 
     def write_run() -> None:
         start_run(output_dir, identity)
@@ -202,8 +210,8 @@ def read_run(folder: Path) -> dict[str, Any] | None:
     if _kind(folder / RUN_FILE) != "file":  # a link's run.json is another folder's
         return None
     try:
-        data = json.loads((folder / RUN_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = read_json(folder / RUN_FILE, MAX_BASELINE_BYTES)
+    except ValueError:  # a JSONFileError: the run is not ours to prune
         return None
     return data if isinstance(data, dict) and isinstance(data.get("run"), dict) else None
 

@@ -211,6 +211,14 @@ def settings_from_config(config: pytest.Config) -> Settings:
     if prune and not update:
         raise pytest.UsageError("--driveeval-baseline-prune removes baselines while updating them: "
                                 "add --driveeval-baseline-update")
+    baseline_dir = (baseline_base / baseline).resolve() if baseline else None
+    if baseline_dir is not None and baseline_dir.exists() and not baseline_dir.is_dir():
+        # Read as a folder, a file holds no baselines: every item would be "missing", and an
+        # update could write none.
+        given = "--driveeval-baseline" if config.getoption("driveeval_baseline") else "ini driveeval_baseline"
+        raise pytest.UsageError(f"{given} {baseline}: {baseline_dir} is a file, not a folder; the baselines are a "
+                                "folder of files, one per item (--driveeval-baseline-update writes them): name "
+                                "a folder, or one that does not exist yet")
     # Workers take the controller's run, so one session writes one run folder.
     shared = getattr(config, "workerinput", {}).get(RUN_KEY)
     run = RunIdentity(**shared) if shared else new_identity(config.rootpath)
@@ -231,7 +239,7 @@ def settings_from_config(config: pytest.Config) -> Settings:
         replay=config.getoption("driveeval_replay") or None,
         search_profile=profile,
         executor=executor,
-        baseline_dir=(baseline_base / baseline).resolve() if baseline else None,
+        baseline_dir=baseline_dir,
         baseline_update=update,
         baseline_prune=prune,
         baseline_strict=bool(config.getoption("driveeval_baseline_strict")

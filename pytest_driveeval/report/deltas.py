@@ -16,6 +16,8 @@ COMPARED = ("regressed", "improved", "unchanged")
 STATUS_TONE = {"regressed": "worse", "improved": "better", "error": "worse", "missing": "note", "stale": "note"}
 MARKDOWN_MARK = {"worse": "🔴", "better": "🟢", "note": "🟡"}
 UP, DOWN = "▲", "▼"
+#: a move within the figure's tolerance
+WITHIN = "≈"
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,9 @@ class Delta:
     #: whether the comparison counted the move (beyond the tolerance, or the paired test's interval);
     #: only counted moves are coloured, so noise inside the tolerance does not look like news
     counted: bool
+    #: the move is within the figure's tolerance (``Atol + Rtol * |before|``): shown as ``≈``, not
+    #: as a number, so float noise (``▼1.058e-07``) does not read as a change
+    within_tolerance: bool = False
 
     @property
     def tone(self) -> str | None:
@@ -40,6 +45,8 @@ class Delta:
         moved = self.now - self.before
         if moved == 0:
             return "="
+        if self.within_tolerance and not self.counted:
+            return WITHIN
         return f"{UP if moved > 0 else DOWN}{format_figure(abs(moved))}"
 
     def text(self) -> str:
@@ -70,8 +77,21 @@ def figure_deltas(record: dict[str, Any]) -> list[Delta]:
         direction = _direction(now, was, (rules.get(name) or {}).get("better"))
         if name in counted:
             direction = "worse" if counted[name] else "better"
-        out.append(Delta(name, now, was, direction, name in counted))
+        out.append(Delta(name, now, was, direction, name in counted, within_tolerance(rules.get(name), was, now)))
     return out
+
+
+def within_tolerance(rule: Any, before: Any, now: Any) -> bool:
+    """Whether ``now`` is within a deterministic figure's tolerance of ``before`` (a rule as
+    ``Rules.to_json`` writes it).  A paired rate has no such tolerance: its test decides, and a move
+    it did not count is still shown."""
+    if not isinstance(rule, dict) or rule.get("paired") or not (is_number(before) and is_number(now)):
+        return False
+    try:
+        tolerance = float(rule.get("atol") or 0) + float(rule.get("rtol") or 0) * abs(before)
+    except (TypeError, ValueError):
+        return False
+    return abs(now - before) <= tolerance
 
 
 def _direction(now: Any, before: Any, better: str | None) -> str | None:
@@ -80,10 +100,16 @@ def _direction(now: Any, before: Any, better: str | None) -> str | None:
     return "better" if (now < before) == (better == "lower") else "worse"
 
 
-def status_text(record: dict[str, Any]) -> str:
-    """The comparison in a word or two ("baseline: regressed"), or nothing."""
+def status_text(record: dict[str, Any], why: bool = False) -> str:
+    """The comparison in a word or two ("baseline: regressed"), or nothing.  With ``why``, a stale
+    one also says what changed since its baseline was made: a passing item shows no failure text,
+    and "stale" alone leaves the user to guess which input moved."""
     comparison = comparison_of(record)
-    return f"baseline: {comparison['status']}" if comparison is not None else ""
+    if comparison is None:
+        return ""
+    if why and comparison["status"] == "stale" and comparison.get("message"):
+        return f"baseline: {comparison['message']}"
+    return f"baseline: {comparison['status']}"
 
 
 def status_tone(record: dict[str, Any]) -> str | None:

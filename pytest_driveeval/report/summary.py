@@ -69,7 +69,7 @@ def terminal_rows(records: list[dict[str, Any]], width: int) -> list[list[Segmen
     line and wraps the rest below it.  Each line is segments, so the deltas can be coloured."""
     rows = []
     for r in records:
-        parts = [[(verdict_reason(r), None)], [(status_text(r), status_tone(r))],
+        parts = [[(verdict_reason(r), None)], [(status_text(r, why=True), status_tone(r))],
                  [(replaced_model(r.get("details") or {}) or "", None)], _figure_segments(r)]
         rows.append((r.get("status", "?"), r["nodeid"], [p for p in parts if "".join(t for t, _ in p)]))
     id_width = max(len("scenario"), *(len(r[1]) for r in rows))

@@ -14,6 +14,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Iterator
 
 from ..core.outcome import is_number
+from ..core.atomic import MAX_SUMMARY_BYTES, loads_bounded, read_json
 
 #: runs a trend shows besides the current one when the output folder keeps all (keep_runs 0)
 DEFAULT_RUNS = 20
@@ -57,7 +58,7 @@ def history_entries(history: Path) -> Iterator[tuple[dict[str, Any], Path]]:
         return
     for raw in reversed(lines):
         try:
-            entry = json.loads(raw)
+            entry = loads_bounded(raw, str(history))
             run, where = entry["run"], PurePosixPath(entry["summary"])
         except (ValueError, KeyError, TypeError):
             continue
@@ -78,8 +79,8 @@ def _read(history: Path, limit: int) -> list[RunFigures]:
 
 def _run_of(run: dict[str, Any], path: Path) -> RunFigures | None:
     try:
-        summary = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        summary = read_json(path, MAX_SUMMARY_BYTES)
+    except ValueError:
         return None
     results = summary.get("results") if isinstance(summary, dict) else None
     if not isinstance(results, list):

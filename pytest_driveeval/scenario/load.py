@@ -6,6 +6,8 @@ mistakes lists them all at once, each at its line.
 from __future__ import annotations
 
 import os
+import re
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +93,32 @@ def _regression_problems(figures: dict, usecase: UseCase, source: SourceMap) -> 
     return problems
 
 
+def searched_parameters(usecase: UseCase) -> list[str]:
+    """The parameters a use case's robustness search reports (``minimal_<name>`` figures): its
+    ``Perturbation`` section's ranges, as the perturbation's fields name them (``SpeedScale`` ->
+    ``speed_scale``)."""
+    field = usecase.config_model.model_fields.get("Perturbation")
+    kinds = (field.annotation, *typing.get_args(field.annotation)) if field is not None else ()
+    neutral = next((kind.NEUTRAL for kind in kinds if isinstance(getattr(kind, "NEUTRAL", None), dict)), {})
+    return [re.sub(r"(?<!^)(?=[A-Z])", "_", key).lower() for key in neutral]
+
+
+def _search_tolerance_problems(tolerance: object, usecase: UseCase, source: SourceMap) -> list[Problem]:
+    """A per-parameter Regression.Search.Tolerance names parameters the search reports; any other
+    name would never apply, and a comparison would use no tolerance for the one meant."""
+    if not isinstance(tolerance, dict):
+        return []
+    known = searched_parameters(usecase)
+    problems = []
+    for name in tolerance:
+        if name not in known:
+            keypath = ("Regression", "Search", "Tolerance", name)
+            hint = did_you_mean(name, known) if known else f"{usecase.name} has no robustness search"
+            problems.append(Problem(f"'{name}' is not a parameter {usecase.name}'s robustness search reports; {hint}",
+                                    source.line_of(keypath), keypath))
+    return problems
+
+
 class NotAScenario(Exception):
     """A YAML file without the scenario envelope, where one was optional."""
 
@@ -137,6 +165,7 @@ def load_scenario(path: str | os.PathLike, data_root: str | os.PathLike | None =
             problems += problems_from_validation(exc, usecase.config_model, own_part, source, prefix=("Evaluation",))
     if env is not None and env.Regression is not None and usecase is not None:
         problems += _regression_problems(env.Regression.Figures, usecase, source)
+        problems += _search_tolerance_problems(env.Regression.Search.Tolerance, usecase, source)
     if problems:
         raise ScenarioError(path, sorted(problems, key=lambda p: p.line or 0))
     assert env is not None and usecase is not None

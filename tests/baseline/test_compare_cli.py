@@ -102,7 +102,8 @@ def test_every_way_of_naming_a_run_gives_the_same_rows(pytester):
     expected = rows(cli(pytester.path, "last~1", "last", "--format", "json"))
     assert {n: r["status"] for n, r in expected.items()} == {
         A_ITEM: "regressed", SAME: "unchanged", GONE: "only in A", NEW: "only in B"}
-    assert expected[A_ITEM]["figures"]["goal_rate"] == {"a": 100.0, "b": 0.0, "delta": -100.0, "worse": True}
+    assert expected[A_ITEM]["figures"]["goal_rate"] == {"a": 100.0, "b": 0.0, "delta": -100.0, "worse": True,
+                                                        "within_tolerance": False}
     for names in ((first, str(runs / second / "summary.json")),
                   (str(runs / first), f"driveeval-results/runs/{second}"),
                   ("baselines", "last")):
@@ -170,3 +171,18 @@ def test_what_cannot_be_read_is_named_with_exit_status_2(tmp_path):
 
     usage = cli(tmp_path, "last", "last", "--format", "yaml")
     assert usage.returncode == 2 and "invalid choice: 'yaml'" in usage.stderr
+
+
+def test_a_nesting_bomb_as_either_side_exits_2_naming_the_file(tmp_path):
+    bomb = "[" * 100_000 + "]" * 100_000
+    (tmp_path / "bomb.json").write_text('{"results": ' + bomb + "}")
+    (tmp_path / "baselines" / "s.yaml.d").mkdir(parents=True)
+    (tmp_path / "baselines" / "stray.json").write_text(bomb)
+    (tmp_path / "baselines" / "s.yaml.d" / "t.json").write_text(json.dumps(
+        {"driveeval_baseline": 1, "key": {"nodeid": "s.yaml::t"}, "run": {}, "verdict": "passed", "figures": {}}))
+    for args, file in ((("bomb.json", "baselines"), "bomb.json"), (("baselines", "baselines"), "baselines/stray.json")):
+        result = cli(tmp_path, *args)
+        assert result.returncode == 2, result.stderr
+        assert "RecursionError" not in result.stderr and "Traceback" not in result.stderr
+        assert f"error: {'baseline ' if file != 'bomb.json' else ''}{file}" in result.stderr
+        assert "JSON nested 10000" in result.stderr

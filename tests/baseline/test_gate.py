@@ -131,8 +131,8 @@ def test_update_writes_the_records_that_ran_and_keeps_the_old_baseline_of_an_err
         {"nodeid": "s.yaml::none", "status": "passed", "baseline": None},
         {"nodeid": "s.yaml::nostatus", "baseline": payload("s.yaml::nostatus")},
     ]
-    written, problems = update_baselines(tmp_path, records, {"id": "new"})
-    assert (written, problems) == (2, [])
+    updated = update_baselines(tmp_path, records, {"id": "new"})
+    assert (updated.written, updated.kept, updated.problems) == (2, 0, [])
     assert sorted(store.files().values()) == ["s.yaml::bad", "s.yaml::err", "s.yaml::ok"]
     kept = store.read("s.yaml::err")
     assert kept["figures"] == {"at_fault": 1} and kept["run"]["id"] == "old"
@@ -146,10 +146,27 @@ def test_update_reports_a_file_it_cannot_write_and_goes_on(tmp_path):
     (tmp_path / "b" / "link.yaml.d").symlink_to(elsewhere, target_is_directory=True)
     records = [{"nodeid": "link.yaml::t", "status": "passed", "baseline": payload("link.yaml::t")},
                {"nodeid": "ok.yaml::t", "status": "passed", "baseline": payload("ok.yaml::t")}]
-    written, problems = update_baselines(tmp_path / "b", records, {})
-    assert written == 1
+    updated = update_baselines(tmp_path / "b", records, {})
+    problems = updated.problems
+    assert updated.written == 1
     assert len(problems) == 1 and problems[0].startswith("cannot write the baseline of link.yaml::t: ")
     assert list(elsewhere.iterdir()) == []
+
+
+def test_update_leaves_a_file_byte_for_byte_when_only_the_run_would_change(tmp_path):
+    store = BaselineStore(tmp_path)
+    first = {"id": "r1", "started": "2026-01-01T00:00:00+00:00", "commit": "a" * 40, "dirty": False}
+    path = store.write("s.yaml::same", payload("s.yaml::same", 1), first)
+    store.write("s.yaml::moved", payload("s.yaml::moved", 1), first)
+    before, stat = path.read_bytes(), path.stat()
+    records = [{"nodeid": "s.yaml::same", "status": "passed", "baseline": payload("s.yaml::same", 1)},
+               {"nodeid": "s.yaml::moved", "status": "passed", "baseline": payload("s.yaml::moved", 2)}]
+    second = {"id": "r2", "started": "2026-02-02T00:00:00+00:00", "commit": "b" * 40, "dirty": True, "host": "h"}
+    updated = update_baselines(tmp_path, records, second)
+    assert (updated.written, updated.kept, updated.problems) == (1, 1, [])
+    assert path.read_bytes() == before and path.stat().st_mtime_ns == stat.st_mtime_ns
+    assert store.read("s.yaml::moved")["run"]["id"] == "r2" and store.read("s.yaml::moved")["figures"] == {"at_fault": 2}
+    assert updated.line(tmp_path / "x").endswith(" (1 unchanged but for the run, left as they were)")
 
 
 @pytest.mark.parametrize("change, key", [

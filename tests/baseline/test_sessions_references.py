@@ -52,6 +52,9 @@ def test_a_baseline_made_with_other_settings_is_stale_not_compared_and_fails_onl
     comparison = records(cl)[DRIVE]["comparison"]
     assert comparison["status"] == "stale" and comparison["changes"] == []
     assert said in comparison["message"] and comparison["message"].endswith("not compared (update the baseline)")
+    # Without strict the item passes, and its row still says why the baseline is stale.
+    table = " ".join(line.strip() for line in result.stdout.lines)
+    assert f"baseline: stale baseline `no commit` (" in table and said in table
     result = run(cl, "--driveeval-baseline-strict")
     result.assert_outcomes(failed=1)
     result.stdout.fnmatch_lines(["*BaselineRequired: stale baseline `no commit` (*): the settings changed (*"])
@@ -240,10 +243,39 @@ def test_compare_with_an_earlier_run_by_last_run_id_or_summary_path(cl):
     (["--driveeval-baseline-update"], "*--driveeval-baseline-update / -prune need the baseline folder*"),
     (["--driveeval-baseline", "b", "--driveeval-baseline-prune"],
      "*--driveeval-baseline-prune removes baselines while updating them: add --driveeval-baseline-update"),
+    (["--driveeval-baseline", "notes.txt"], "*--driveeval-baseline notes.txt: */notes.txt is a file, not a folder; the "
+                                            "baselines are a folder of files, one per item*"),
+    (["--driveeval-baseline", "notes.txt", "--driveeval-baseline-update"], "*notes.txt is a file, not a folder*"),
 ])
 def test_options_that_cannot_work_are_usage_errors(cl, args, said):
     cl.makefile(".scenario.yaml", drive=short())
+    (cl.path / "notes.txt").write_text("not a folder")
     result = cl.runpytest("-q", *args)
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     result.stderr.fnmatch_lines([said])
     assert not (cl.path / "driveeval-results").exists() and not (cl.path / "b").exists()
+
+
+@pytest.mark.parametrize("tolerance, said", [
+    ("{lateral: 0.1, speedscale: 0.2}", "'speedscale' is not a parameter closed_loop's robustness search reports; "
+                                        "did you mean 'speed_scale'?"),
+    ("{Lateral: 0.1}", "'Lateral' is not a parameter closed_loop's robustness search reports; did you mean 'lateral'?"),
+])
+def test_a_misspelt_search_tolerance_parameter_is_located(cl, tolerance, said):
+    cl.makefile(".scenario.yaml", drive=short(regression=f"Regression:\n  Search:\n    Tolerance: {tolerance}\n"))
+    result = run(cl)
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines([f"*drive.scenario.yaml:19: Regression.Search.Tolerance.*: {said}"])
+    assert "Traceback" not in result.stdout.str()
+
+
+def test_the_names_a_search_tolerance_takes_are_those_its_search_reports():
+    import dataclasses
+
+    from pytest_driveeval.scenario.load import searched_parameters
+    from pytest_driveeval.strategies import CloudPerturbation, EpisodePerturbation, StartPerturbation
+    from pytest_driveeval.core.usecase import get_usecase
+
+    for name, kind in (("closed_loop", StartPerturbation), ("policy_benchmark", EpisodePerturbation),
+                       ("obstacle_segmentation", CloudPerturbation)):
+        assert searched_parameters(get_usecase(name)) == [f.name for f in dataclasses.fields(kind)]

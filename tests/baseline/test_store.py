@@ -3,6 +3,7 @@ summary --driveeval-compare names; no session."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path, PurePosixPath
 
 import pytest
@@ -193,6 +194,52 @@ def test_a_corrupt_file_read_through_the_store_names_it(tmp_path):
     assert store.files() == {path: None}
 
 
+BOMB = "[" * 100_000 + "]" * 100_000
+
+
+def test_a_nesting_bomb_is_a_baseline_error_naming_the_file_not_a_recursion_error(tmp_path):
+    store = BaselineStore(tmp_path)
+    path = store.path_for("s.yaml::t")
+    path.parent.mkdir(parents=True)
+    path.write_text('{"figures": ' + BOMB + "}")
+    with pytest.raises(BaselineError) as info:
+        store.read("s.yaml::t")
+    assert str(info.value).startswith(f"baseline {path} of s.yaml::t: JSON nested 100001 levels deep")
+    assert str(info.value).endswith("remove it or rewrite it with --driveeval-baseline-update")
+
+
+def test_a_stray_nesting_bomb_in_the_folder_is_listed_as_unreadable(tmp_path):
+    store = BaselineStore(tmp_path)
+    good = store.write("s.yaml::t", PAYLOAD | {"key": {"nodeid": "s.yaml::t"}}, RUN)
+    (tmp_path / "stray.json").write_text(BOMB)
+    assert store.files() == {good: "s.yaml::t", tmp_path / "stray.json": None}
+
+
+def test_a_baseline_file_that_is_a_fifo_is_refused_without_waiting_for_a_writer(tmp_path):
+    store = BaselineStore(tmp_path)
+    path = store.path_for("s.yaml::t")
+    path.parent.mkdir(parents=True)
+    os.mkfifo(path)
+    with pytest.raises(BaselineError, match=r"t\.json is not a regular file: remove it"):
+        store.read("s.yaml::t")
+    assert store.files() == {}
+
+
+@pytest.mark.parametrize("value, said", [("NaN", "NaN"), ("Infinity", "Infinity"), ("-Infinity", "-Infinity")])
+@pytest.mark.parametrize("group", ["figures", "search.minimal"])
+def test_a_non_finite_figure_is_a_located_error(tmp_path, value, said, group):
+    outer, _, inner = group.partition(".")
+    data = valid()
+    if inner:
+        data["search"] = {"broke": True, "minimal": {"offset": 1.0}}
+    text = json.dumps(data).replace('"a": 1' if not inner else '"offset": 1.0', f'"{"a" if not inner else "offset"}": {value}')
+    with pytest.raises(BaselineError) as info:
+        check_baseline(text, tmp_path / "t.json", "s.yaml::t")
+    name = "a" if not inner else "offset"
+    assert str(info.value) == (f"baseline {tmp_path / 't.json'} of s.yaml::t: key '{group}.{name}' is {said}, not a "
+                               "finite number; rewrite it with --driveeval-baseline-update")
+
+
 # --- earlier runs ------------------------------------------------------------------------------
 
 def write_summary(folder: Path, records: list, run_id: str = "r1") -> Path:
@@ -209,13 +256,22 @@ def test_run_reference_reads_the_payload_of_a_record(tmp_path):
     assert reference.read("s.yaml::other") is None
 
 
+def test_a_non_finite_figure_of_an_earlier_run_is_located(tmp_path):
+    summary = write_summary(tmp_path, [{"nodeid": "s.yaml::t", "baseline": {"verdict": "passed",
+                                                                              "figures": {"a": float("nan")}}}])
+    with pytest.raises(BaselineError, match=r"run r1 \(.*summary.json\): the record of s.yaml::t cannot be compared: "
+                                            r"key 'figures.a' is NaN, not a finite number"):
+        RunReference(summary).read("s.yaml::t")
+
+
 def test_run_reference_without_payloads_says_so(tmp_path):
     summary = write_summary(tmp_path, [{"nodeid": "s.yaml::t", "outcome": {}}])
     with pytest.raises(BaselineError, match=r"run r1 \(.*summary.json\) kept no comparable record of s.yaml::t"):
         RunReference(summary).read("s.yaml::t")
 
 
-@pytest.mark.parametrize("text", ["", "{", "[]", '{"run": {}}', '{"results": {}}', '{"results": [], "run": 3}'])
+@pytest.mark.parametrize("text", ["", "{", "[]", '{"run": {}}', '{"results": {}}', '{"results": [], "run": 3}',
+                                  '{"results": ' + BOMB + "}"])
 def test_an_unreadable_summary_is_a_baseline_error(tmp_path, text):
     (tmp_path / "summary.json").write_text(text)
     with pytest.raises(BaselineError, match="is not a readable driveeval summary"):

@@ -210,3 +210,23 @@ def test_an_output_folder_that_cannot_be_written_is_a_usage_error_at_start(gain,
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     result.stderr.fnmatch_lines([f"*{reason}*"])
     assert gain.path.joinpath("afile").read_text() == "mine"
+
+
+def test_a_non_finite_value_costs_the_session_neither_its_summary_nor_the_history(tmp_path):
+    from pytest_driveeval.harness.runs import RunIdentity, finish_run
+
+    identity = RunIdentity(id="20260101T000000.000Z-abcdef", started="2026-01-01T00:00:00+00:00")
+    record = {"nodeid": "a.scenario.yaml::x", "status": "passed", "figures": {"score": 1.0},
+              "comparison": {"status": "unchanged", "reference_figures": {"score": float("nan"),
+                                                                           "max": float("-inf")}}}
+    summary = {"schema": 2, "run": identity.to_json(), "seed": 0, "exit_status": 0, "counts": {"passed": 1},
+               "duration": 1.0, "results": [record]}
+    warnings = finish_run(tmp_path, identity, summary, keep=0)
+    assert warnings == ['summary.json: 2 value(s) that JSON cannot hold as numbers (NaN or infinite) written as the '
+                        'strings "NaN", "Infinity" or "-Infinity": results[0].comparison.reference_figures.score, '
+                        'results[0].comparison.reference_figures.max']
+    for path in (tmp_path / "summary.json", tmp_path / "runs" / identity.id / "summary.json"):
+        written = json.loads(path.read_text())  # strict JSON: no NaN literal in it
+        assert written["results"][0]["comparison"]["reference_figures"] == {"score": "NaN", "max": "-Infinity"}
+        assert written["results"][0]["figures"] == {"score": 1.0}
+    assert len((tmp_path / "history.jsonl").read_text().splitlines()) == 1

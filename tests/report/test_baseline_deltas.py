@@ -42,11 +42,25 @@ def test_a_figure_shows_its_baseline_value_the_change_and_whether_the_gate_count
     deltas = {d.name: d for d in figure_deltas(regressed())}
     assert deltas["goal_rate"].text() == "goal_rate=94 (100, ▼6)" and deltas["goal_rate"].tone == "worse"
     assert deltas["collision_rate"].text() == "collision_rate=0 (0, =)" and deltas["collision_rate"].tone is None
-    # Worse by the rules' direction, but inside its tolerance: shown, not coloured.
+    # Worse by the rules' direction, but inside its tolerance: neither a number nor a colour.
     moved = deltas["max_displacement"]
-    assert moved.text() == "max_displacement=1.2 (1, ▲0.2)" and moved.direction == "worse" and moved.tone is None
+    assert moved.text() == "max_displacement=1.2 (1, ≈)" and moved.direction == "worse" and moved.tone is None
     better = {d.name: d for d in figure_deltas(improved())}["max_displacement"]
     assert better.text() == "max_displacement=1 (3, ▼2)" and better.tone == "better"
+
+
+def test_float_noise_within_the_tolerance_is_no_change_and_a_move_beyond_it_is_shown():
+    noise = record("n.yaml::noise", {"goal_rate": 50.0, "max_displacement": 10.85},
+                   {"goal_rate": 50.0, "max_displacement": 10.85 - 1.058e-07})
+    assert [d.text() for d in figure_deltas(noise)] == ["goal_rate=50 (50, =)", "max_displacement=10.85 (10.85, ≈)"]
+    # A rate tested paired (no tolerance of its own) keeps its move, uncoloured when not counted.
+    paired = {"better": "higher", "paired": ["outcome", "g"]}
+    rules = {"figures": {"goal_rate": paired}}
+    item = record("p.yaml::rate", {"goal_rate": 100.0}, {"goal_rate": 94.0})
+    item["baseline"]["rules"] = rules
+    item["comparison"]["changes"] = []
+    (delta,) = figure_deltas(item)
+    assert delta.text() == "goal_rate=94 (100, ▼6)" and delta.tone is None
 
 
 def test_nothing_beside_the_figures_of_an_item_that_was_not_compared():
@@ -57,7 +71,7 @@ def test_nothing_beside_the_figures_of_an_item_that_was_not_compared():
 def test_terminal_table_shows_status_baseline_values_and_colours_only_counted_changes():
     records = [regressed(), improved(), not_compared("missing", "no baseline yet")]
     text = "\n".join(terminal_table(records, 200))
-    assert "baseline: regressed; goal_rate=94 (100, ▼6), collision_rate=0 (0, =), max_displacement=1.2 (1, ▲0.2)" \
+    assert "baseline: regressed; goal_rate=94 (100, ▼6), collision_rate=0 (0, =), max_displacement=1.2 (1, ≈)" \
         in text
     assert "baseline: improved; goal_rate=90 (90, =), collision_rate=5 (5, =), max_displacement=1 (3, ▼2)" in text
     assert "baseline: missing; goal_rate=50" in text
@@ -65,6 +79,14 @@ def test_terminal_table_shows_status_baseline_values_and_colours_only_counted_ch
     assert toned == {"baseline: regressed": "worse", "goal_rate=94 (100, ▼6)": "worse",
                      "baseline: improved": "better", "max_displacement=1 (3, ▼2)": "better",
                      "baseline: missing": "note"}
+
+
+def test_a_stale_baseline_says_why_in_the_terminal_table():
+    records = [not_compared("stale", "stale baseline `abc` (2026-11-20): the seed changed (1 -> 2) since it was "
+                                     "made; not compared (update the baseline)")]
+    text = "\n".join(terminal_table(records, 300))
+    assert "baseline: stale baseline `abc` (2026-11-20): the seed changed (1 -> 2) since it was made; not compared " \
+           "(update the baseline); goal_rate=50" in text
 
 
 def test_a_narrow_terminal_wraps_a_coloured_figure_and_keeps_its_colour():
@@ -83,7 +105,7 @@ def test_markdown_has_a_baseline_column_deltas_and_what_the_comparisons_found():
     markdown = markdown_summary(summary)
     assert "| verdict | scenario | use case | summary | key figures | baseline |" in markdown
     assert ("| `a.yaml::worse` | policy_benchmark | a.yaml::worse ran | 🔴 goal_rate=94 (100, ▼6), "
-            "collision_rate=0 (0, =), max_displacement=1.2 (1, ▲0.2) | 🔴 regressed |") in markdown
+            "collision_rate=0 (0, =), max_displacement=1.2 (1, ≈) | 🔴 regressed |") in markdown
     assert "🟢 max_displacement=1 (3, ▼2) | 🟢 improved |" in markdown
     section = markdown.split(f"### Compared with {AGAINST}")[1].split("###")[0]
     assert section.strip().splitlines() == [
