@@ -30,10 +30,24 @@ def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
 
 
 def verdict_reason(record: dict[str, Any]) -> str:
-    """What decided an item's verdict, in a line: its outcome's summary, else the error or the
+    """What decided an item's verdict, in a line: an expected failure's reason first, then the first
+    condition that failed (and how many more did), else its outcome's summary, else the error or the
     skip's reason (a failure's message without the line that names the scenario)."""
-    if record.get("summary"):
-        return record["summary"]
+    expected = record.get("expected_to_fail")
+    parts = [("expected to fail: " + expected) if isinstance(expected, str) and expected
+             else "expected to fail" if expected else ""]
+    findings = record.get("findings") or []
+    if record.get("verdict") == "failed" and findings and findings[0].get("message"):
+        more = len(findings) - 1
+        parts.append(findings[0]["message"] + (f" (and {more} more)" if more > 0 else ""))
+    elif record.get("summary"):
+        parts.append(record["summary"])
+    else:
+        parts.append(_message_reason(record) if record.get("message") != expected else "")
+    return "; ".join(p for p in parts if p)
+
+
+def _message_reason(record: dict[str, Any]) -> str:
     lines = [line.strip() for line in (record.get("message") or "").splitlines() if line.strip()]
     if lines and lines[0].startswith("scenario '") and len(lines) > 1:
         lines = lines[1:]
