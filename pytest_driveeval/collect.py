@@ -89,8 +89,10 @@ class ScenarioItem(pytest.Function):
         self.driveeval_case = case
         super().__init__(**kwargs)
         _match_the_cache(self)
-        # -k matches the scenario's name and use case too, not only the id.
-        self.extra_keyword_matches.update({scenario.name, scenario.use_case})
+        # -k selects by what the id shows (the folders, the file name, the use case and the dataset
+        # or policy in brackets) and by the marks; not by the ScenarioName or description, free text
+        # that names other items' policies or places ("highway-gnn-vs-mlp" would give -k gnn the mlp).
+        self.extra_keyword_matches.add(scenario.use_case)
 
     def reportinfo(self):
         line = self.driveeval_scenario.line_of("Evaluation") or 1
