@@ -83,6 +83,30 @@ def test_marks_from_yaml_select_with_m(project):
     result.assert_outcomes(passed=1, deselected=1)
 
 
+def test_an_unregistered_mark_warns_at_its_line_of_the_yaml_file(project):
+    project.makefile(".scenario.yaml", copied=speed_scenario("copied", extra="Marks: [smoke, mymark]\n"))
+    result = project.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1)
+    result.stdout.fnmatch_lines(["*copied.scenario.yaml:4: PytestUnknownMarkWarning: unknown mark 'mymark' in Marks, "
+                                 "a typo or not registered: register it under 'markers' in pytest.ini*",
+                                 "    Marks: [[]smoke, mymark[]]"])
+    assert "collect.py" not in result.stdout.str()
+    assert "'smoke'" not in result.stdout.str()  # registered in the project's ini
+    # The mark is still the item's: -m selects it.
+    project.runpytest("-q", "-m", "mymark").assert_outcomes(passed=1)
+
+
+def test_an_unregistered_mark_under_strict_markers_fails_its_file_alone_at_its_line(project):
+    project.makefile(".scenario.yaml", copied=speed_scenario("copied", extra="Marks:\n  - smoke\n  - mymark\n"),
+                     other=speed_scenario("other"))
+    result = project.runpytest("-q", "--strict-markers", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*invalid scenario file copied.scenario.yaml:",
+                                 "*copied.scenario.yaml:6: Marks[[]1[]]: mark 'mymark' is not registered, and "
+                                 "--strict-markers is on: register it under 'markers' in pytest.ini*"])
+    assert "collect.py" not in result.stdout.str()
+
+
 def test_k_matches_file_name_dataset_use_case_and_marks(project):
     project.makefile(".scenario.yaml", one=speed_scenario("highway-merge", datasets=("slow.csv", "fast.csv"),
                                                           max_speed=30, extra="Marks: [smoke]\n"))
