@@ -51,8 +51,8 @@ def _marks(scenario: Scenario) -> list[pytest.MarkDecorator]:
             try:
                 marks.append(getattr(pytest.mark, name))
             except pytest.fail.Exception:  # --strict-markers
-                unregistered.append(Problem(
-                    f"mark '{name}' is not registered, and --strict-markers is on: {_REGISTER}", line, ("Marks", index)))
+                unregistered.append(Problem(f"mark '{name}' is not registered, and --strict-markers is on: "
+                                            f"{_REGISTER}", line, ("Marks", index)))
         for warning in caught:
             if issubclass(warning.category, pytest.PytestUnknownMarkWarning):
                 warnings.warn_explicit(pytest.PytestUnknownMarkWarning(
