@@ -31,7 +31,7 @@ def pytest_cmdline_main(config: pytest.Config):
 
 @pytest.hookimpl(trylast=True)
 def pytest_sessionfinish(session: pytest.Session) -> None:
-    session_finishing(session.exitstatus)
+    session_finishing(session.exitstatus, (getattr(session.config, "workerinput", None) or {}).get("workerid"))
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -95,6 +95,8 @@ _worker: _Worker | None = None
 _abandoned: list[_Worker] = []
 # pytest's exit code of the outermost session of this process, once it ended (see session_ended).
 _exit_code: int | None = None
+#: the xdist worker id of this process, None in the controller or a session without xdist
+_xdist_worker: str | None = None
 _sessions_running = 0
 
 
@@ -191,12 +193,14 @@ def session() -> Iterator[None]:
         _sessions_running -= 1
 
 
-def session_finishing(exit_code: int) -> None:
+def session_finishing(exit_code: int, worker: str | None = None) -> None:
     """The outermost session's exit status at ``pytest_sessionfinish``: an xdist worker is shut
-    down from outside after it, and never returns from ``pytest_cmdline_main``."""
-    global _exit_code
+    down from outside after it, and never returns from ``pytest_cmdline_main``.  ``worker``: the
+    xdist worker's id, whose exit code is its own and not the session's (the controller's)."""
+    global _exit_code, _xdist_worker
     if _sessions_running == 1:
         _exit_code = int(exit_code)
+        _xdist_worker = worker
 
 
 def session_ended(exit_code: int) -> None:
@@ -215,8 +219,12 @@ def _leave_before_a_stuck_call_aborts() -> None:
     stuck = stuck_calls()
     if not stuck or _exit_code is None:
         return
-    sys.stderr.write(f"pytest-driveeval: {stuck} model call(s) that never returned still run (given up on at "
-                     f"their time limit); leaving with pytest's exit code {_exit_code} without waiting\n")
+    # On a line of its own: pytest's last line of progress ("[100%]") may not have ended yet on the
+    # terminal this shares.  A worker's code is not the session's, so it names none.
+    leaving = (f"xdist worker {_xdist_worker} leaves without waiting for them (the session's exit status is the "
+               f"controller's)" if _xdist_worker else f"leaving with pytest's exit code {_exit_code} without waiting")
+    sys.stderr.write(f"\npytest-driveeval: {stuck} model call(s) that never returned still run (given up on at "
+                     f"their time limit); {leaving}\n")
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
         try:

@@ -100,7 +100,16 @@ def is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def plain(value: Any) -> Any:
+    """A numpy scalar as the Python scalar it holds (np.float64(100.0) -> 100.0), anything else as it is:
+    reports that show a value's repr (allure's parameters) would print the numpy type."""
+    if getattr(value, "ndim", None) == 0 and hasattr(value, "item"):
+        return value.item()
+    return value
+
+
 def format_figure(value: Any) -> str:
+    value = plain(value)
     if isinstance(value, bool):
         return str(value).lower()
     if isinstance(value, float):

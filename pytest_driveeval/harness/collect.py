@@ -7,12 +7,13 @@ failure shows the scenario's lines and figures instead of a traceback.
 from __future__ import annotations
 
 import fnmatch
+import warnings
 from pathlib import Path
 from typing import Iterable
 
 import pytest
 
-from ..core.errors import Problem, ScenarioError
+from ..core.errors import Problem, ScenarioError, display_path
 from .failure import ScenarioFailed
 from ..scenario import NotAScenario, Scenario, load_scenario
 from .settings import DECLARED_SUFFIXES, get_settings
@@ -40,7 +41,27 @@ def broken_scenario_links(folder: Path, patterns: Iterable[str]) -> list[Path]:
 
 
 def _marks(scenario: Scenario) -> list[pytest.MarkDecorator]:
-    marks = [getattr(pytest.mark, name) for name in scenario.marks]
+    """The scenario's marks.  A mark the project did not register is pytest's warning (an error under
+    --strict-markers) as ever, but located at its line of the YAML file, not in this module."""
+    marks, unregistered = [], []
+    for index, name in enumerate(scenario.marks):
+        line = scenario.line_of("Marks", index)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", pytest.PytestUnknownMarkWarning)
+            try:
+                marks.append(getattr(pytest.mark, name))
+            except pytest.fail.Exception:  # --strict-markers
+                unregistered.append(Problem(f"mark '{name}' is not registered, and --strict-markers is on: "
+                                            f"{_REGISTER}", line, ("Marks", index)))
+        for warning in caught:
+            if issubclass(warning.category, pytest.PytestUnknownMarkWarning):
+                warnings.warn_explicit(pytest.PytestUnknownMarkWarning(
+                    f"unknown mark '{name}' in Marks, a typo or not registered: {_REGISTER}"),
+                    pytest.PytestUnknownMarkWarning, display_path(scenario.path), line or 1)
+            else:
+                warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    if unregistered:
+        raise ScenarioError(scenario.path, unregistered)
     if scenario.skip:
         marks.append(pytest.mark.skip(reason=scenario.skip))
     if scenario.xfail is not None:
@@ -49,7 +70,11 @@ def _marks(scenario: Scenario) -> list[pytest.MarkDecorator]:
     return marks
 
 
-def _scenario_function(scenario: Scenario) -> object:
+_REGISTER = ("register it under 'markers' in pytest.ini (or [tool.pytest.ini_options] in pyproject.toml), "
+             "or remove it; https://docs.pytest.org/en/stable/how-to/mark.html")
+
+
+def _scenario_function(scenario: Scenario, marks: list[pytest.MarkDecorator]) -> object:
     # A fresh function per item: pytest reads its marks from ``pytestmark`` and
     # its fixtures from the signature plus ``usefixtures``.
     def scenario_test(driveeval_run, driveeval_baseline):
@@ -61,7 +86,7 @@ def _scenario_function(scenario: Scenario) -> object:
         if not outcome.passed:
             raise ScenarioFailed(outcome)
 
-    scenario_test.pytestmark = [m.mark for m in _marks(scenario)]
+    scenario_test.pytestmark = [m.mark for m in marks]
     usecase = usecase_of(scenario)
     if usecase.fixtures:
         scenario_test.pytestmark.append(pytest.mark.usefixtures(*usecase.fixtures).mark)
@@ -89,8 +114,10 @@ class ScenarioItem(pytest.Function):
         self.driveeval_case = case
         super().__init__(**kwargs)
         _match_the_cache(self)
-        # -k matches the scenario's name and use case too, not only the id.
-        self.extra_keyword_matches.update({scenario.name, scenario.use_case})
+        # -k selects by what the id shows (the folders, the file name, the use case and the dataset
+        # or policy in brackets) and by the marks; not by the ScenarioName or description, free text
+        # that names other items' policies or places ("highway-gnn-vs-mlp" would give -k gnn the mlp).
+        self.extra_keyword_matches.add(scenario.use_case)
 
     def reportinfo(self):
         line = self.driveeval_scenario.line_of("Evaluation") or 1
@@ -119,6 +146,7 @@ class ScenarioFile(pytest.File):
             scenario = load_scenario(self.path, data_root=settings.data_root,
                                      envelope_optional=not self.path.name.endswith(DECLARED_SUFFIXES))
             cases = usecase_of(scenario).cases(scenario)
+            marks = _marks(scenario)
         except NotAScenario:
             return
         except (ScenarioError, MemoryError) as caught:
@@ -134,7 +162,7 @@ class ScenarioFile(pytest.File):
                 continue
             seen.add(case.name)
             yield ScenarioItem.from_parent(
-                self, name=case.name, callobj=_scenario_function(scenario), scenario=scenario, case=case,
+                self, name=case.name, callobj=_scenario_function(scenario, marks), scenario=scenario, case=case,
             )
         self.config.stash.setdefault(_COLLECTED, {})[self.path] = seen
 

@@ -186,7 +186,7 @@ def _keep(request: pytest.FixtureRequest, ctx: RunContext, outcome: Outcome, ori
     request.node.user_properties.extend(junit_properties(outcome))
     if allure_wanted(request.config):
         attach_to_allure(outcome, ctx.scenario, ctx.dataset.name if ctx.dataset is not None else None,
-                         trend=item_trend(request.node))
+                         trend=item_trend(request.node), case=ctx.case)
 
 
 def _item_time_limit(scenario: Scenario, settings: Settings) -> tuple[float | None, str]:

@@ -97,7 +97,8 @@ def item_progress(item: pytest.Item) -> StatusLine | None:
     if fd is None:
         return None
     worker = getattr(item.config, "workerinput", None)
-    label = f"[{worker['workerid']}] {item.name}" if worker is not None else item.name
+    # The node id, not the name: four files of the demo share closed_loop[nuscenes_boston].
+    label = f"[{worker['workerid']}] {item.nodeid}" if worker is not None else item.nodeid
 
     def write(text: str) -> None:
         try:

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from ..core.outcome import Outcome, format_figure, replaced_model
+from ..core.outcome import Outcome, format_figure, plain, replaced_model
 from .deltas import comparison_of, figure_deltas, status_text, status_tone
 from .score_table import score_html, score_text
 
@@ -31,7 +31,14 @@ def allure_wanted(config: pytest.Config) -> bool:
 
 
 def scalar_figures(outcome: Outcome) -> dict[str, Any]:
-    return {k: v for k, v in outcome.figures.items() if isinstance(v, (bool, int, float, str))}
+    """The figures that are one value, as plain Python (a numpy scalar's type is no reader's business)."""
+    figures = {k: plain(v) for k, v in outcome.figures.items()}
+    return {k: v for k, v in figures.items() if isinstance(v, (bool, int, float, str))}
+
+
+def case_parameter(case_name: str) -> str:
+    """What the brackets of an item's name hold (the dataset, the policy, a policy and problem), or ""."""
+    return case_name[case_name.index("[") + 1:-1] if case_name.endswith("]") and "[" in case_name else ""
 
 
 def junit_properties(outcome: Outcome) -> list[tuple[str, str]]:
@@ -173,7 +180,7 @@ def html_extras(outcome: Outcome, record: dict[str, Any] | None = None, trend: b
 
 
 def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None = None,
-                     trend: bytes | None = None) -> None:
+                     trend: bytes | None = None, case: Any = None) -> None:
     """Allure: scenario and use case as labels, figures as parameters, artefacts
     as typed attachments, the key figures' trend over the last runs.  Called while
     the test runs, so allure files them under it.  (Allure's own trend widgets count
@@ -187,13 +194,19 @@ def attach_to_allure(outcome: Outcome, scenario: Any = None, dataset: str | None
              ".jpg": AttachmentType.JPG, ".svg": AttachmentType.SVG}
     allure.dynamic.label("use_case", outcome.use_case)
     allure.dynamic.feature(outcome.use_case)
+    # The title carries what the item's id has in brackets: the five policies of one benchmark
+    # (no dataset) were five results of one name.
+    shown = case_parameter(case.name) if case is not None else dataset
     if scenario is not None:
-        allure.dynamic.title(f"{scenario.name}" + (f" [{dataset}]" if dataset else ""))
+        allure.dynamic.title(f"{scenario.name}" + (f" [{shown}]" if shown else ""))
         allure.dynamic.story(scenario.name)
         if scenario.description:
             allure.dynamic.description(scenario.description)
     if dataset:
         allure.dynamic.parameter("dataset", dataset)
+    for key, value in (case.params if case is not None else {}).items():
+        # Part of allure's history id, as the dataset is: each policy is a test of its own.
+        allure.dynamic.parameter(key, plain(value))
     if outcome.details.get("model"):
         # Part of allure's history id: another model's result is not this test's trend.
         allure.dynamic.parameter("model", outcome.details["model"])

@@ -21,6 +21,8 @@ from .score_table import score_markdown
 SUMMARY_NAME = "summary.json"
 MARKDOWN_NAME = "summary.md"
 STEP_SUMMARY_ENV = "GITHUB_STEP_SUMMARY"
+#: what stands in a policy's cell instead of a verdict mark when the policy is a baseline (not judged)
+BASELINE_MARK = "baseline:"
 STATUS_MARK = {"passed": "✅", "failed": "❌", "error": "💥", "skipped": "⏭️", "xfailed": "✔️", "xpassed": "⚠️"}
 
 
@@ -30,10 +32,24 @@ def _key_figures(record: dict[str, Any], limit: int = 4) -> str:
 
 
 def verdict_reason(record: dict[str, Any]) -> str:
-    """What decided an item's verdict, in a line: its outcome's summary, else the error or the
+    """What decided an item's verdict, in a line: an expected failure's reason first, then the first
+    condition that failed (and how many more did), else its outcome's summary, else the error or the
     skip's reason (a failure's message without the line that names the scenario)."""
-    if record.get("summary"):
-        return record["summary"]
+    expected = record.get("expected_to_fail")
+    parts = [("expected to fail: " + expected) if isinstance(expected, str) and expected
+             else "expected to fail" if expected else ""]
+    findings = record.get("findings") or []
+    if record.get("verdict") == "failed" and findings and findings[0].get("message"):
+        more = len(findings) - 1
+        parts.append(findings[0]["message"] + (f" (and {more} more)" if more > 0 else ""))
+    elif record.get("summary"):
+        parts.append(record["summary"])
+    else:
+        parts.append(_message_reason(record) if record.get("message") != expected else "")
+    return "; ".join(p for p in parts if p)
+
+
+def _message_reason(record: dict[str, Any]) -> str:
     lines = [line.strip() for line in (record.get("message") or "").splitlines() if line.strip()]
     if lines and lines[0].startswith("scenario '") and len(lines) > 1:
         lines = lines[1:]
@@ -246,7 +262,10 @@ def policy_grid(records: list[dict[str, Any]]) -> tuple[list[str], dict[tuple, d
         if policy is None or where is None:
             continue
         shown = _interval_cell(details.get("intervals") or {}) or _key_figures(r, limit=4)
-        cells.setdefault((r.get("use_case"), where), {})[policy] = f"{STATUS_MARK.get(r.get('status', ''), '')} {shown}"
+        # A baseline is not judged: its item passes whatever it does, and a ✅ beside 22 % collisions
+        # would read as a verdict on it.
+        mark = BASELINE_MARK if details.get("judged") is False else STATUS_MARK.get(r.get("status", ""), "")
+        cells.setdefault((r.get("use_case"), where), {})[policy] = f"{mark} {shown}"
     cells = {key: by_policy for key, by_policy in cells.items() if len(by_policy) > 1}
     return sorted({p for by_policy in cells.values() for p in by_policy}), cells
 
@@ -272,12 +291,18 @@ def policy_table_html(records: list[dict[str, Any]]) -> str:
     policies, cells = policy_grid(records)
     if not cells:
         return ""
-    head = "".join(f"<th>{escape(p)}</th>" for p in policies)
-    rows = "".join(f"<tr><td>{escape(str(u))}</td><td>{escape(str(w))}</td>"
-                   + "".join(f"<td>{escape(by_policy.get(p, ''))}</td>" for p in policies) + "</tr>"
+    head = "".join(f"<th{_CELL}>{escape(p)}</th>" for p in policies)
+    rows = "".join(f"<tr><td{_CELL}>{escape(str(u))}</td><td{_CELL}>{escape(str(w))}</td>"
+                   + "".join(f"<td{_CELL}>{escape(by_policy.get(p, ''))}</td>" for p in policies) + "</tr>"
                    for (u, w), by_policy in sorted(cells.items()))
-    return (f"<div class='driveeval-policies'><h3>Policies by scenario</h3><table><tr><th>use case</th>"
-            f"<th>data</th>{head}</tr>{rows}</table></div>")
+    return (f"<div class='driveeval-policies'><h3>Policies by scenario</h3><table style='{_TABLE_STYLE}'><tr>"
+            f"<th{_CELL}>use case</th><th{_CELL}>data</th>{head}</tr>{rows}</table></div>")
+
+
+#: inline styles: pytest-html's stylesheet gives a table in its summary no borders or padding, and a
+#: self-contained report carries no stylesheet of ours
+_TABLE_STYLE = "border-collapse:collapse;margin:4px 0"
+_CELL = " style='border:1px solid #bbb;padding:3px 8px;text-align:left;vertical-align:top'"
 
 
 def write_summary(output_dir: Path, summary: dict[str, Any], step_summary: bool = True) -> None:

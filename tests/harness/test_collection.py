@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import shutil
 
-from conftest import speed_scenario
+from conftest import POLICY_BENCHMARK_HEAD, speed_scenario
 
 
 def collected_ids(result) -> list[str]:
@@ -83,13 +83,66 @@ def test_marks_from_yaml_select_with_m(project):
     result.assert_outcomes(passed=1, deselected=1)
 
 
-def test_k_matches_scenario_name_dataset_and_use_case(project):
+def test_an_unregistered_mark_warns_at_its_line_of_the_yaml_file(project):
+    project.makefile(".scenario.yaml", copied=speed_scenario("copied", extra="Marks: [smoke, mymark]\n"))
+    result = project.runpytest("-q", "-p", "no:randomly")
+    result.assert_outcomes(passed=1)
+    result.stdout.fnmatch_lines(["*copied.scenario.yaml:4: PytestUnknownMarkWarning: unknown mark 'mymark' in Marks, "
+                                 "a typo or not registered: register it under 'markers' in pytest.ini*",
+                                 "    Marks: [[]smoke, mymark[]]"])
+    assert "collect.py" not in result.stdout.str()
+    assert "'smoke'" not in result.stdout.str()  # registered in the project's ini
+    # The mark is still the item's: -m selects it.
+    project.runpytest("-q", "-m", "mymark").assert_outcomes(passed=1)
+
+
+def test_an_unregistered_mark_under_strict_markers_fails_its_file_alone_at_its_line(project):
+    project.makefile(".scenario.yaml", copied=speed_scenario("copied", extra="Marks:\n  - smoke\n  - mymark\n"),
+                     other=speed_scenario("other"))
+    result = project.runpytest("-q", "--strict-markers", "-p", "no:randomly")
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*invalid scenario file copied.scenario.yaml:",
+                                 "*copied.scenario.yaml:6: Marks[[]1[]]: mark 'mymark' is not registered, and "
+                                 "--strict-markers is on: register it under 'markers' in pytest.ini*"])
+    assert "collect.py" not in result.stdout.str()
+
+
+def test_k_matches_file_name_dataset_use_case_and_marks(project):
     project.makefile(".scenario.yaml", one=speed_scenario("highway-merge", datasets=("slow.csv", "fast.csv"),
-                                                          max_speed=30))
+                                                          max_speed=30, extra="Marks: [smoke]\n"))
     project.makefile(".scenario.yaml", two=speed_scenario("parking"))
-    project.runpytest("-k", "highway", "-q").assert_outcomes(passed=2, deselected=1)
+    project.runpytest("-k", "one", "-q").assert_outcomes(passed=2, deselected=1)
     project.runpytest("-k", "fast", "-q").assert_outcomes(passed=1, deselected=2)
-    project.runpytest("-k", "speed_limit and not highway", "-q").assert_outcomes(passed=1, deselected=2)
+    project.runpytest("-k", "speed_limit and not one", "-q").assert_outcomes(passed=1, deselected=2)
+    project.runpytest("-k", "smoke", "-q").assert_outcomes(passed=2, deselected=1)
+
+
+def test_k_does_not_match_the_scenario_name_or_description(project):
+    """The demo's -k urban took on_ramp too (ScenarioName on-ramp-urban-limit): free text selects nothing."""
+    project.makefile(".scenario.yaml", urban=speed_scenario("urban-speed-limit", datasets=("slow.csv",)))
+    project.makefile(".scenario.yaml", on_ramp=speed_scenario("on-ramp-urban-limit", datasets=("fast.csv",))
+                     .replace("speeds under the limit", "an urban on-ramp"))
+    result = project.runpytest("--collect-only", "-q", "-k", "urban")
+    assert collected_ids(result) == ["urban.scenario.yaml::speed_limit[slow.csv]"]
+    assert collected_ids(project.runpytest("--collect-only", "-q", "-k", "ramp")) == [
+        "on_ramp.scenario.yaml::speed_limit[fast.csv]"]
+
+
+def test_k_selects_the_policy_of_a_benchmark_named_after_two_policies(project):
+    """The demo's -k gnn selected every policy of highway-gnn-vs-mlp."""
+    project.makefile(".scenario.yaml", highway=POLICY_BENCHMARK_HEAD.format(name="highway-gnn-vs-mlp") + """\
+  Blueprint: {Name: highway}
+  Episodes: 4
+  Policies: {gnn: constant, mlp: random, idm: idm_expert, constant: constant}
+  Judged: [gnn, mlp]
+  Conditions:
+    GoalRate: {AtLeast: 0}
+""")
+    result = project.runpytest("--collect-only", "-q", "-k", "gnn")
+    assert collected_ids(result) == ["highway.scenario.yaml::policy_benchmark[gnn]"]
+    result = project.runpytest("--collect-only", "-q", "-k", "highway and not gnn and not mlp")
+    assert collected_ids(result) == ["highway.scenario.yaml::policy_benchmark[idm]",
+                                     "highway.scenario.yaml::policy_benchmark[constant]"]
 
 
 def test_skip_and_xfail_from_yaml(project):

@@ -103,6 +103,9 @@ def test_a_terminal_shows_each_items_steps_and_the_line_is_erased(stepping, work
     # Each item's line: its first and its last count, drawn beside the cursor and put back.
     assert out.count(f"{SAVE}\x1b[?7l  {prefix}") >= 4
     assert out.count("stepping: steps 0/3 [") == 2 and out.count(f"stepping: steps 3/3 [{'#' * 20}]") == 2
+    # Named by node id: the two items share the name "stepping", their files tell them apart.
+    for path in ("a.scenario.yaml", "b.scenario.yaml"):
+        assert f"{path}::stepping: steps 0/3 [" in out
     # ... and erased when the item ends, after its last drawing.
     last = out.rindex(f"steps 3/3 [{'#' * 20}]")
     assert ERASE_RIGHT in out[out.index(RESTORE, last):]

@@ -65,14 +65,37 @@ def test_terminal_table_shows_verdicts_and_figures(mixed, monkeypatch):
         "*driveeval: 7 scenario item(s)*",
         "verdict*scenario*what decided it; key figures",
         "failed*broken.scenario.yaml::scenario*",
-        "xfailed*known.scenario.yaml::speed_limit[[]fast.csv[]]*max_speed=20*",
+        "xfailed*known.scenario.yaml::speed_limit[[]fast.csv[]]",
+        "*expected to fail: ticket 7; speed should be <= 14 m/s but is not at 29 of 29 frame(s)*",
+        "*max_speed=20*",
         "error*nodata.scenario.yaml::speed_limit[[]absent.csv[]]*",
         "passed*ok.scenario.yaml::speed_limit[[]fast.csv[]]*max_speed=20*",
         "passed*ok.scenario.yaml::speed_limit[[]slow.csv[]]*max_speed=10*",
         "skipped*skipped.scenario.yaml::speed_limit[[]slow.csv[]]*",
-        "failed*too_fast.scenario.yaml::speed_limit[[]fast.csv[]]*max_speed=20*",
+        "failed*too_fast.scenario.yaml::speed_limit[[]fast.csv[]]",
+        "*speed should be <= 14 m/s but is not at 29 of 29 frame(s)*worst at frame 22: 20 m/s",
+        "*max_speed=20*",
         "results: *driveeval-results*summary.json (run *)",
     ])
+
+
+def test_a_row_names_the_failed_condition_and_the_reason_an_item_was_expected_to_fail(mixed):
+    mixed.makefile(".scenario.yaml", two_limits=speed_scenario("two", datasets=("fast.csv",)).replace(
+        "MaxSpeed: 14.0", "MaxSpeed: 14.0\n    MaxAcceleration: 1.0e-20"))
+    mixed.runpytest("-q")
+    rows = {line.split(" | ")[1].strip("`"): line for line in
+            (mixed.path / "driveeval-results" / "summary.md").read_text().splitlines() if line.startswith("| ")}
+    too_fast = rows["too_fast.scenario.yaml::speed_limit[fast.csv]"]
+    assert "speed should be <= 14 m/s but is not at 29 of 29 frame(s)" in too_fast
+    assert "max speed 20.00 m/s" not in too_fast  # the figures are in their own column
+    known = rows["known.scenario.yaml::speed_limit[fast.csv]"]
+    assert "expected to fail: ticket 7; speed should be <= 14 m/s" in known
+    # The first condition that failed, and how many more did.
+    assert "speed should be <= 14 m/s" in rows["two_limits.scenario.yaml::speed_limit[fast.csv]"]
+    assert "(and 1 more)" in rows["two_limits.scenario.yaml::speed_limit[fast.csv]"]
+    # A pass still shows its outcome's summary, a skip its reason.
+    assert "max speed 10.00 m/s" in rows["ok.scenario.yaml::speed_limit[slow.csv]"]
+    assert " | later | " in rows["skipped.scenario.yaml::speed_limit[slow.csv]"]
 
 
 def test_narrow_terminal_wraps_the_verdicts_reason_and_figures_under_the_node_id(mixed, monkeypatch):

@@ -27,7 +27,9 @@ RED = "\x1b[31m\x1b[1m"
 
 
 @pytest.fixture
-def benchmark(pytester):
+def merge_bench(pytester):
+    """The merging benchmark with the shipped GNN (not named `benchmark`: pytest-benchmark, where installed,
+    owns that fixture name and fails every test that takes another one)."""
     shutil.copy(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2", pytester.path)
     pytester.makefile(".scenario.yaml", merge=SCENARIO)
     return pytester
@@ -43,11 +45,11 @@ def html_extras(path) -> list[dict]:
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
-def test_a_regression_in_every_report(benchmark, monkeypatch, workers):
+def test_a_regression_in_every_report(merge_bench, monkeypatch, workers):
     monkeypatch.setenv("COLUMNS", "250")
-    benchmark.runpytest("-q", "--driveeval-baseline", "bl", "--driveeval-baseline-update").assert_outcomes(passed=1)
+    merge_bench.runpytest("-q", "--driveeval-baseline", "bl", "--driveeval-baseline-update").assert_outcomes(passed=1)
     # The shipped GNN reaches its goal in every episode; a constant policy in none.
-    result = benchmark.runpytest("-q", "--driveeval-baseline", "bl", "--driveeval-model", "constant", "--color=yes",
+    result = merge_bench.runpytest("-q", "--driveeval-baseline", "bl", "--driveeval-model", "constant", "--color=yes",
                                  "--html=report.html", "--self-contained-html", "--alluredir=allure", *workers)
     result.assert_outcomes(failed=1)
 
@@ -55,34 +57,34 @@ def test_a_regression_in_every_report(benchmark, monkeypatch, workers):
     assert f"{RED}baseline: regressed" in table
     assert f"{RED}goal_rate=0 (100, ▼100)" in table
 
-    markdown = (benchmark.path / "driveeval-results" / "summary.md").read_text()
+    markdown = (merge_bench.path / "driveeval-results" / "summary.md").read_text()
     assert "🔴 goal_rate=0 (100, ▼100)" in markdown and "| 🔴 regressed |" in markdown
     section = markdown.split("### Compared with baseline `")[1]
     assert f"- 🔴 regressed: `{ITEM}`" in section and "  - goal_rate 100 % -> 0 % [paired 95 %" in section
 
-    extras = html_extras(benchmark.path / "report.html")
+    extras = html_extras(merge_bench.path / "report.html")
     table = next(e["content"] for e in extras if e["format_type"] == "html")
     assert "<th>baseline</th><th>change</th>" in table
     assert re.search(r"<td>goal_rate</td><td>0</td><td class='driveeval-baseline-value'>100</td>"
                      r"<td class='driveeval-change driveeval-worse' style='color:#c62828[^']*'>▼100</td>", table)
     assert "baseline: regressed</span>: regression against baseline" in table
-    [row] = [phase["resultsTableRow"] for phase in html_tests(benchmark.path / "report.html")]
+    [row] = [phase["resultsTableRow"] for phase in html_tests(merge_bench.path / "report.html")]
     assert re.fullmatch(r'<td class="col-driveeval-baseline"><span style="color:#c62828[^"]*">regressed</span>: '
                         r"<span style='color:#c62828[^']*'>goal_rate ▼100</span>, .*</td>", row[-1])
-    assert "<th class=\"col-driveeval-baseline\">baseline</th>" in (benchmark.path / "report.html").read_text()
+    assert "<th class=\"col-driveeval-baseline\">baseline</th>" in (merge_bench.path / "report.html").read_text()
     trend = next(e for e in extras if e["name"] == "trend")
     png = base64.b64decode(trend["content"].split(",", 1)[1])
     assert png.startswith(b"\x89PNG") and len(png) > 2000
 
-    [allure] = [json.loads(p.read_text()) for p in (benchmark.path / "allure").glob("*-result.json")]
+    [allure] = [json.loads(p.read_text()) for p in (merge_bench.path / "allure").glob("*-result.json")]
     [attachment] = [a for a in allure["attachments"] if a["name"] == "trend"]
     assert attachment["type"] == "image/png"
-    assert (benchmark.path / "allure" / attachment["source"]).read_bytes().startswith(b"\x89PNG")
+    assert (merge_bench.path / "allure" / attachment["source"]).read_bytes().startswith(b"\x89PNG")
 
 
-def test_no_trend_before_an_earlier_run_and_no_delta_without_a_baseline(benchmark):
-    benchmark.runpytest("-q", "--html=report.html", "--self-contained-html").assert_outcomes(passed=1)
-    extras = html_extras(benchmark.path / "report.html")
+def test_no_trend_before_an_earlier_run_and_no_delta_without_a_baseline(merge_bench):
+    merge_bench.runpytest("-q", "--html=report.html", "--self-contained-html").assert_outcomes(passed=1)
+    extras = html_extras(merge_bench.path / "report.html")
     assert "trend" not in [e["name"] for e in extras]
     assert "driveeval-change" not in next(e["content"] for e in extras if e["format_type"] == "html")
-    assert "col-driveeval-baseline" not in (benchmark.path / "report.html").read_text()
+    assert "col-driveeval-baseline" not in (merge_bench.path / "report.html").read_text()

@@ -120,3 +120,18 @@ def test_markdown_compares_policies_on_the_same_data(two):
     table = markdown.split("### Policies by scenario")[1].strip().splitlines()
     assert table[0] == "| use case | data | `constant_velocity` | `log_replay` |"
     assert table[2].startswith("| closed_loop | logs | ✅ front=0") and table[2].count("✅") == 2
+
+
+def test_numpy_scalars_reach_the_reports_as_plain_python():
+    import numpy as np
+
+    from pytest_driveeval.core.outcome import Outcome
+    from pytest_driveeval.report.attachments import junit_properties, scalar_figures
+
+    outcome = Outcome("u", "passed", "s", figures={"rate": np.float64(100.0), "n": np.int64(3), "ok": np.bool_(True),
+                                                   "curve": np.arange(3.0)})
+    figures = scalar_figures(outcome)
+    # An np.int64 (no int subclass) was left out, an np.float64 kept its type into allure's repr.
+    assert figures == {"rate": 100.0, "n": 3, "ok": True}
+    assert [type(v) for v in figures.values()] == [float, int, bool]
+    assert junit_properties(outcome)[2:] == [("driveeval.rate", "100"), ("driveeval.n", "3"), ("driveeval.ok", "true")]

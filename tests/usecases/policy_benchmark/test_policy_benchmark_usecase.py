@@ -192,8 +192,29 @@ def test_policies_side_by_side_with_intervals_in_the_summary_and_the_html_report
     row = table[2].split(" | ")
     assert row[:2] == ["| policy_benchmark", "merging (b)"]
     assert all("goal 0 % [0, " in cell and "collision " in cell for cell in row[2:])
+    # Only the judged policy has a verdict mark; the baselines say so instead of a pass.
+    constant, mine, random_ = row[2:]
+    assert mine.startswith(("✅", "❌")) and constant.startswith("baseline: goal") and random_.startswith("baseline:")
+    assert "✅" not in constant + random_
     html = (pytester.path / "report.html").read_text()
     assert "Policies by scenario" in html and "merging (b)" in html
+    policies = html[html.index("Policies by scenario"):]
+    policies = policies[:policies.index("</table>")]
+    assert "border:1px solid" in policies and "padding:3px 8px" in policies and "baseline: goal" in policies
+
+
+def test_allure_names_each_policy_and_shows_plain_numbers(pytester):
+    pytest.importorskip("allure_pytest")
+    pytester.makefile(".scenario.yaml", bench=scenario(episodes=4))
+    pytester.runpytest("-q", "--alluredir=allure")
+    results = [json.loads(p.read_text()) for p in (pytester.path / "allure").glob("*-result.json")]
+    # Five policies of one scenario were five results named "b".
+    assert sorted(r["name"] for r in results) == ["b [constant]", "b [mine]", "b [random]"]
+    for r in results:
+        params = {p["name"]: p["value"] for p in r["parameters"]}
+        assert params["policy"] == repr(r["name"][3:-1])
+        # The rates are numpy scalars in the outcome; allure showed np.float64(75.0).
+        assert float(params["goal_rate"]) == 0.0 and not any("np." in v for v in params.values())
 
 
 def test_compared_policies_are_reported_paired_and_decide_nothing(pytester):
