@@ -32,6 +32,7 @@ SMOKED = {
     "bench_obstacle_frame.py": (rf"evaluate_cloud, numpy kernel: median {NUMBER} ms", ()),
     "bench_pointcloud2.py": (rf"^  stream / page cache: median {NUMBER} of the faster reference", ("rosbags",)),
     "bench_policy_benchmark_step.py": (rf"ours merging\s+E=\s*2:\s+{NUMBER} live agent-steps/s", ()),
+    "bench_pt2_loading.py": (rf"^median ours / torch.export.load over \d+ model\(s\): {NUMBER}x", ("torch",)),
     "bench_policy_training.py": (rf"^collection at \d+ threads / 1 thread: median {NUMBER}x", ("torch",)),
     # The row's columns: case (16), outcome (44), examples, search s, cpu s, engine %, examples per minute,
     # then the one-at-a-time search's s, cpu s, examples per minute, and the ratio.
