@@ -248,7 +248,7 @@ class UnrollSpec(Section):
         # share, before the first step allocates it in one call no time limit can interrupt.
         frames, future, agents = self.HistoryFrames + 1, self.FutureFrames, self.MaxAgents
         needed = 128.0 * (frames + future) + 128.0 * agents * frames
-        defaults = {key: self.model_fields[key].default for key in ("HistoryFrames", "FutureFrames", "MaxAgents")}
+        defaults = {key: type(self).model_fields[key].default for key in ("HistoryFrames", "FutureFrames", "MaxAgents")}
         key = max(defaults, key=lambda k: getattr(self, k) / defaults[k])  # the one furthest above its default
         check_fits(key, getattr(self, key), needed,
                    f"one scene's policy inputs per step ({self.HistoryFrames} history frames of {agents} agents, "
