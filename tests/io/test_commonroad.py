@@ -222,7 +222,7 @@ def test_a_device_is_refused_unread_also_through_a_symlink(tmp_path):
 
 
 def test_a_file_above_the_size_bound_is_refused_before_it_is_read(tmp_path, monkeypatch):
-    from pytest_driveeval.io import commonroad_xml
+    from pytest_driveeval.io.commonroad import commonroad_xml
 
     assert commonroad_xml.MAX_FILE_BYTES == 128 * 2 ** 20
     monkeypatch.setattr(commonroad_xml, "MAX_FILE_BYTES", 2 ** 20)

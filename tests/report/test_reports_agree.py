@@ -237,8 +237,9 @@ def test_the_table_cuts_nothing_and_puts_what_decided_the_verdict_first(mixed, m
     assert nodata in text  # an error row's name whole
     assert "dataset 'a_dataset_with_a_rather_long_name_that_is_absent.csv' not found" in text
     failed = text.split("too_fast.scenario.yaml::speed_limit[fast.csv]")[1]
-    summary = summary_records(mixed)["too_fast.scenario.yaml::speed_limit[fast.csv]"]["summary"]
-    assert failed.lstrip().startswith(summary) and failed.index(summary) < failed.index("max_speed=20")
+    # What decided the verdict comes first: the condition that failed, before the key figures.
+    assert failed.lstrip().startswith("speed should be <= 14 m/s but is not at 29 of 29 frame(s)")
+    assert failed.index("worst at frame 22") < failed.index("max_speed=20")
     if columns == 250:  # wide enough for a row: on one line
         assert any(line.startswith("passed    ok.scenario.yaml") and line.endswith("frames=30") for line in table)
 

@@ -107,7 +107,10 @@ def test_a_scene_without_agents_stacks_beside_others():
     empty = dataclasses.replace(scenes[0], frames=frames, agents=scenes[0].agents[:0])
     log = stack_scenes([empty, scenes[1]])
     assert not log.available[0].any() and log.available[1].sum() == len(scenes[1].agents)
-    assert stack_scenes([empty]).shape == (1, 40, 0)
+    # A scene with no agents keeps one empty (never available) agent column, so that every
+    # per-agent array has a column to index (a ScenarioNet scene whose only track is the ego).
+    alone = stack_scenes([empty])
+    assert alone.shape == (1, 40, 1) and not alone.available.any()
 
 
 def test_compiled_inputs_on_the_real_scene(shared_data, monkeypatch):
