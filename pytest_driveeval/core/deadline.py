@@ -150,6 +150,17 @@ def _with_grad_mode(fn: Callable[..., Any]) -> Callable[..., Any]:
     return call
 
 
+def _in_gc_callback(frame: Any, depth: int = 8) -> bool:
+    import gc
+
+    codes = {getattr(callback, "__code__", None) for callback in gc.callbacks} - {None}
+    while codes and frame is not None and depth > 0:
+        if frame.f_code in codes:
+            return True
+        frame, depth = frame.f_back, depth - 1
+    return False
+
+
 @contextmanager
 def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[None]:
     """Limit the block to ``seconds`` (None or 0: no limit); ``source`` says who set the limit and
@@ -165,6 +176,12 @@ def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[
     previous = None
     if use_alarm:
         def on_alarm(signum, frame):
+            # Raised inside a garbage-collector callback (hypothesis times every collection), the
+            # error would be lost: Python reports it as unraisable and goes on.  The timer fires
+            # again in 10 ms, when the callback is done.
+            if _in_gc_callback(frame):
+                signal.setitimer(signal.ITIMER_REAL, 0.01, 1.0)
+                return
             raise limit.error()
 
         previous = signal.signal(signal.SIGALRM, on_alarm)
