@@ -21,7 +21,7 @@ import keyword
 import math
 import operator
 import re
-from typing import Any
+from typing import Any, Callable
 
 __all__ = ["ProgramRefused", "check_program", "allowed_target", "HIGHER_ORDER_OPS"]
 
@@ -242,52 +242,57 @@ _ASSUMPTIONS = frozenset({"positive", "negative", "integer", "real", "nonnegativ
                           "zero", "nonzero", "evaluate", "precision"})
 
 
-def _check_sympy(text: Any, path: str) -> None:
+# Node kinds both expression forms admit: arithmetic, comparisons and boolean logic.
+_ARITHMETIC = (ast.Expression, ast.Load, ast.operator, ast.unaryop, ast.cmpop, ast.boolop,
+               ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolOp)
+
+
+def _check_expression(text: Any, path: str, what: str, allowed: Callable[[ast.AST], bool]) -> None:
+    """Parse ``text`` as one Python expression and refuse it unless ``allowed`` admits every node."""
     if not isinstance(text, str) or len(text) > 100_000:
-        raise ProgramRefused(f"{path} is not a symbolic shape torch writes")
+        raise ProgramRefused(f"{path} is not {what} torch writes")
     try:
         tree = ast.parse(text, mode="eval")
     except (SyntaxError, ValueError, RecursionError, MemoryError):
-        raise ProgramRefused(f"{path} = {text[:80]!r} is not a symbolic shape torch writes") from None
-    for node in ast.walk(tree):
-        ok = isinstance(node, (ast.Expression, ast.Load, ast.operator, ast.unaryop, ast.cmpop, ast.boolop,
-                               ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolOp, ast.keyword))
-        if isinstance(node, ast.Call):
-            ok = isinstance(node.func, ast.Name) and node.func.id in _SYMPY_CALLS
-        elif isinstance(node, ast.Name):
-            ok = node.id in _SYMPY_NAMES or bool(_SYMBOL.fullmatch(node.id)) or node.id in ("True", "False")
-        elif isinstance(node, ast.Constant):
-            ok = isinstance(node.value, (int, float, bool)) or (
-                isinstance(node.value, str) and bool(re.fullmatch(r"[a-z]+[0-9]*|-?[0-9.e+\-]+", node.value)))
-        if isinstance(node, ast.keyword):
-            ok = node.arg in _ASSUMPTIONS
-        elif isinstance(node, ast.BinOp):
-            ok = isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.FloorDiv, ast.Mod, ast.Pow))
-        if not ok:
-            raise ProgramRefused(f"{path} = {text[:80]!r} is not a symbolic shape torch writes")
+        raise ProgramRefused(f"{path} = {text[:80]!r} is not {what} torch writes") from None
+    if not all(allowed(node) for node in ast.walk(tree)):
+        raise ProgramRefused(f"{path} = {text[:80]!r} is not {what} torch writes")
+
+
+def _sympy_node(node: ast.AST) -> bool:
+    if isinstance(node, ast.Call):
+        return isinstance(node.func, ast.Name) and node.func.id in _SYMPY_CALLS
+    if isinstance(node, ast.Name):
+        return node.id in _SYMPY_NAMES or bool(_SYMBOL.fullmatch(node.id)) or node.id in ("True", "False")
+    if isinstance(node, ast.Constant):
+        return isinstance(node.value, (int, float, bool)) or (
+            isinstance(node.value, str) and bool(re.fullmatch(r"[a-z]+[0-9]*|-?[0-9.e+\-]+", node.value)))
+    if isinstance(node, ast.keyword):
+        return node.arg in _ASSUMPTIONS
+    if isinstance(node, ast.BinOp):
+        return isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.FloorDiv, ast.Mod, ast.Pow))
+    return isinstance(node, _ARITHMETIC)
+
+
+def _guard_node(node: ast.AST) -> bool:
+    if isinstance(node, ast.Name):
+        return node.id in ("L", "min", "max", "abs")
+    if isinstance(node, ast.Attribute):
+        return node.attr in ("size", "stride", "storage_offset", "dim", "numel")
+    if isinstance(node, ast.Call):
+        return (isinstance(node.func, ast.Attribute) and not node.args and not node.keywords) or (
+            isinstance(node.func, ast.Name) and node.func.id in ("min", "max", "abs") and not node.keywords)
+    if isinstance(node, ast.Constant):
+        # Subscript keys of the inputs (they are pasted into a message between double quotes).
+        return isinstance(node.value, (int, float, bool)) or (
+            isinstance(node.value, str) and bool(_NAME.fullmatch(node.value)))
+    return isinstance(node, (*_ARITHMETIC, ast.Subscript))
+
+
+def _check_sympy(text: Any, path: str) -> None:
+    _check_expression(text, path, "a symbolic shape", _sympy_node)
 
 
 def _check_guard(text: Any, path: str) -> None:
     """A guard is an arithmetic comparison of input sizes: ``L['data']['x'].size()[1] == 11``."""
-    if not isinstance(text, str) or len(text) > 100_000:
-        raise ProgramRefused(f"{path} is not a shape guard torch writes")
-    try:
-        tree = ast.parse(text, mode="eval")
-    except (SyntaxError, ValueError, RecursionError, MemoryError):
-        raise ProgramRefused(f"{path} = {text[:80]!r} is not a shape guard torch writes") from None
-    for node in ast.walk(tree):
-        ok = isinstance(node, (ast.Expression, ast.Load, ast.operator, ast.unaryop, ast.cmpop, ast.boolop,
-                               ast.BinOp, ast.UnaryOp, ast.Compare, ast.BoolOp, ast.Subscript))
-        if isinstance(node, ast.Name):
-            ok = node.id in ("L", "min", "max", "abs")
-        elif isinstance(node, ast.Attribute):
-            ok = node.attr in ("size", "stride", "storage_offset", "dim", "numel")
-        elif isinstance(node, ast.Call):
-            ok = (isinstance(node.func, ast.Attribute) and not node.args and not node.keywords) or (
-                isinstance(node.func, ast.Name) and node.func.id in ("min", "max", "abs") and not node.keywords)
-        elif isinstance(node, ast.Constant):
-            # Subscript keys of the inputs (they are pasted into a message between double quotes).
-            ok = isinstance(node.value, (int, float, bool)) or (
-                isinstance(node.value, str) and bool(_NAME.fullmatch(node.value)))
-        if not ok:
-            raise ProgramRefused(f"{path} = {text[:80]!r} is not a shape guard torch writes")
+    _check_expression(text, path, "a shape guard", _guard_node)
