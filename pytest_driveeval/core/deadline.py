@@ -150,17 +150,6 @@ def _with_grad_mode(fn: Callable[..., Any]) -> Callable[..., Any]:
     return call
 
 
-def _in_gc_callback(frame: Any, depth: int = 8) -> bool:
-    import gc
-
-    codes = {getattr(callback, "__code__", None) for callback in gc.callbacks} - {None}
-    while codes and frame is not None and depth > 0:
-        if frame.f_code in codes:
-            return True
-        frame, depth = frame.f_back, depth - 1
-    return False
-
-
 @contextmanager
 def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[None]:
     """Limit the block to ``seconds`` (None or 0: no limit); ``source`` says who set the limit and
@@ -173,18 +162,23 @@ def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[
     use_alarm = (hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
                  # another timer (pytest-timeout's, say) is running: leave it alone
                  and signal.getitimer(signal.ITIMER_REAL)[0] == 0)
-    previous = None
+    previous = previous_hook = None
     if use_alarm:
         def on_alarm(signum, frame):
-            # Raised inside a garbage-collector callback (hypothesis times every collection), the
-            # error would be lost: Python reports it as unraisable and goes on.  The timer fires
-            # again in 10 ms, when the callback is done.
-            if _in_gc_callback(frame):
-                signal.setitimer(signal.ITIMER_REAL, 0.01, 1.0)
-                return
             raise limit.error()
 
+        def on_unraisable(unraisable):
+            # The alarm landed where Python cannot raise: a garbage-collector callback (hypothesis
+            # times every collection), a finalizer, a weakref callback.  Python reports the error
+            # and goes on, so the block would run to the next second's alarm, or past it if that
+            # one is lost too.  It fires again in 10 ms instead, by then out of there.
+            if isinstance(unraisable.exc_value, TimeLimitExceeded) and _active is limit:
+                signal.setitimer(signal.ITIMER_REAL, 0.01, 1.0)
+                return
+            previous_hook(unraisable)
+
         previous = signal.signal(signal.SIGALRM, on_alarm)
+        previous_hook, sys.unraisablehook = sys.unraisablehook, on_unraisable
         # Again every second after the first: code that swallows the first interruption (a hypothesis
         # search retries and shrinks what raised) meets the next one.
         signal.setitimer(signal.ITIMER_REAL, limit.seconds, 1.0)
@@ -196,6 +190,8 @@ def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[
         if use_alarm:
             signal.setitimer(signal.ITIMER_REAL, 0)
             signal.signal(signal.SIGALRM, previous)
+            if sys.unraisablehook is on_unraisable:  # unless someone replaced it since
+                sys.unraisablehook = previous_hook
 
 
 @contextmanager
