@@ -23,6 +23,7 @@ import re
 import shutil
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,10 +97,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--all", action="store_true", help="run every file, not a sample")
     parser.add_argument("--count", type=int, default=5, help="how many files the sample has (default 5)")
     parser.add_argument("--seed", type=int, help="the sample's seed (default: from the commit hash)")
+    parser.add_argument("--jobs", type=int, default=2,
+                        help="files run at the same time, each in its own process (default 2: CI's cores)")
     parser.add_argument("--list", action="store_true", help="name the files that would run, and run none")
     args = parser.parse_args(argv)
     if args.count < 1:
         parser.error(f"--count must be at least 1, not {args.count}")
+    if args.jobs < 1:
+        parser.error(f"--jobs must be at least 1, not {args.jobs}")
     files = test_files(ROOT)
     if args.paths:
         wanted = [p.resolve() for p in args.paths]
@@ -115,13 +120,16 @@ def main(argv: list[str] | None = None) -> int:
         print("\n".join(str(f.relative_to(ROOT)) for f in chosen))
         return 0
     failed = []
-    for path in chosen:
-        ok, tail = run_alone(path, ROOT)
-        name = path.relative_to(ROOT)
-        print(f"  {'passed' if ok else 'FAILED'}  {name}", flush=True)
-        if not ok:
-            failed.append(name)
-            print("\n".join("      " + line for line in tail.splitlines()), flush=True)
+    # Side by side: each file is its own process (nothing shared but the disk), and the runs are
+    # reported in file order, whichever finishes first.
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        outcomes = pool.map(lambda path: run_alone(path, ROOT), chosen)
+        for path, (ok, tail) in zip(chosen, outcomes):
+            name = path.relative_to(ROOT)
+            print(f"  {'passed' if ok else 'FAILED'}  {name}", flush=True)
+            if not ok:
+                failed.append(name)
+                print("\n".join("      " + line for line in tail.splitlines()), flush=True)
     if failed:
         print(f"each_file_alone: {len(failed)} file(s) fail when run alone: {', '.join(map(str, failed))}; "
               f"run one as 'pytest <file>' to see why", file=sys.stderr)
