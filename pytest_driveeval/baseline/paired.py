@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
 
 
 @dataclass(frozen=True)
@@ -45,6 +44,8 @@ def two_sided_p(k: int, d: int) -> float:
     the small ``d`` where a p-value can equal a confidence's alpha, as 1/16 = 93.75 % does: the
     verdict at that edge is the exact test's, not the rounding's."""
     if d > EXACT_LIMIT:
+        from scipy import special  # here: importing scipy.special costs every pytest start a second
+
         return min(1.0, 2.0 * float(special.bdtr(k, d, 0.5)))
     term = total = 1
     for i in range(1, k + 1):
@@ -63,6 +64,8 @@ def paired_rate(bad_before: np.ndarray, bad_now: np.ndarray, confidence: float) 
     alpha = 1.0 - confidence / 100.0
     if d == 0:
         return PairedRate(n, 0, 0, 1.0, 0.0, 0.0, confidence)
+    from scipy import special  # here, as above
+
     p = two_sided_p(min(worse, better), d)
     lo = 0.0 if worse == 0 else float(special.betaincinv(worse, d - worse + 1, alpha / 2))
     hi = 1.0 if worse == d else float(special.betaincinv(worse + 1, d - worse, 1 - alpha / 2))

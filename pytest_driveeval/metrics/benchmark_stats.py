@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy import stats
 
 # With fewer successes or failures than this, the bootstrap interval of a rate is
 # too narrow on the side of the rare outcome.  Checked by exact enumeration at
@@ -158,6 +157,8 @@ def rate_interval(
     point = k / n
     if min(k, n - k) < MIN_OUTCOME_COUNT:
         method = {"wilson": "Wilson", "clopper-pearson": "Clopper-Pearson"}[fallback]
+        from scipy import stats  # here: importing scipy.stats costs every pytest start a second
+
         ci = stats.binomtest(k, n).proportion_ci(
             confidence, method="exact" if fallback == "clopper-pearson" else "wilson"
         )
