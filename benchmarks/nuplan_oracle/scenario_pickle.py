@@ -20,7 +20,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.core import multiarray
+
+try:  # numpy 2 (the project's python, where the tests read this module)
+    from numpy._core import multiarray
+except ImportError:  # numpy 1 (the oracle venv's)
+    from numpy.core import multiarray
 
 #: a scenario file is a few MB (nuScenes) to tens of MB (Waymo, nuPlan)
 MAX_FILE_BYTES = 256 << 20
