@@ -8,7 +8,7 @@ Runs with the oracle venv's python (oracle_venv.py makes it) and imports nothing
 
 For every closed_loop item of the summary whose ``closed_loop.json`` holds the ego as driven, and for
 every scene of it: the scene's raw ScenarioNet file (``--data``: the file or folder the item read;
-scene n is the n-th scenario file in name order, as the harness numbers them, unless the scene's
+scene n is the n-th scenario file in path order, as the harness numbers them, unless the scene's
 record names its file) is read with the oracle's own restricted unpickler, nuPlan's map, agents,
 expert and ego states are built from it and the driven poses (scenario_case.py), nuPlan's own
 metrics and aggregator score it (nuplan_metrics.py), and each term and the score are compared with
