@@ -4,6 +4,7 @@ scored.  The repository's three real nuScenes scenes (fixtures/scenarionet/nusce
 import json
 
 import numpy as np
+import pytest
 
 from conftest import REPO_ROOT
 from pytest_driveeval.closed_loop import unroll_scenes
@@ -29,7 +30,7 @@ Evaluation:
     StartFrame: 10
     Steps: 6
   Artefacts: {{Charts: false, Animations: none}}
-"""
+{{executor}}"""
 
 
 def test_a_log_replay_drives_the_logged_poses_at_the_log_frames_and_says_so():
@@ -47,11 +48,14 @@ def test_a_log_replay_drives_the_logged_poses_at_the_log_frames_and_says_so():
     json.dumps(driven)  # plain JSON
 
 
-def test_closed_loop_json_holds_each_scenes_driven_poses_beside_its_score(pytester):
-    pytester.makefile(".scenario.yaml", drive=SCENARIO)
+@pytest.mark.parametrize("executor", ["", "  Executor: {Kind: local, ChunkSize: 2}\n"], ids=["one_unroll", "chunks"])
+def test_closed_loop_json_holds_each_scenes_driven_poses_beside_its_score(pytester, executor):
+    # in chunks, each worker's verdicts carry the poses back to where closed_loop.json is written
+    pytester.makefile(".scenario.yaml", drive=SCENARIO.replace("{executor}", executor))
     pytester.runpytest("-q", "-p", "no:randomly")
     folder = pytester.path / "driveeval-results"
     (record,) = json.loads((folder / "summary.json").read_text())["results"]
+    assert ("executor" in record["details"]) == bool(executor)
     scenes = json.loads((folder / record["artefacts"]["result"]).read_text())["scenes"]
     assert [s["scene"] for s in scenes] == [0, 1, 2]
     for scene, summary_scene in zip(scenes, record["details"]["scenes"]):
