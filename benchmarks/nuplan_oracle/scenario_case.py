@@ -29,10 +29,9 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
+import nuplan_metrics  # first: it stubs the sensor modules the devkit's observation types import
 from nuplan.planning.metrics.utils.state_extractors import approximate_derivatives, extract_ego_yaw_rate
 from nuplan.planning.simulation.planner.ml_planner.transform_utils import _project_from_global_to_ego_centric_ds
-
-import nuplan_metrics
 from scenario_map import scenario_map
 
 #: ScenarioNet (MetaDrive) object types -> nuPlan's TrackedObjectType names (lower case)

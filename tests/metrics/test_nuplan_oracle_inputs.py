@@ -1,7 +1,9 @@
 """The nuplan-devkit oracle's own reading of ScenarioNet files (benchmarks/nuplan_oracle/scenario_pickle.py and
 scenario_map.py): they import neither pytest_driveeval nor the devkit, so they are tested here with the
-project's python.  Each quirk of the converters' output that the oracle rebuilds from has a test."""
+project's python.  Each quirk of the converters' output that the oracle rebuilds from has a test.  The ego's
+box and dynamic state (scenario_case.py) need the devkit: tested in its venv where it exists."""
 import importlib.util
+import math
 import os
 import pickle
 import sys
@@ -149,3 +151,59 @@ def test_on_the_real_nuscenes_files_no_two_lanes_overlap_and_every_connector_has
                    if lanes[i].intersection(lanes[j]).area > 1e-6]
         assert overlap == [], path.name
         assert all(len(lane["polygon"]["shell"]) >= 3 for lane in built["lanes"])
+
+
+EGO_CHECK = r"""
+import json, math, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from scenario_case import ego_box, ego_dynamics
+
+notes = []
+scenario = {"metadata": {"sdc_id": "ego"},
+            "tracks": {"ego": {"state": {"length": np.full((3, 1), 1.73), "width": np.full((3, 1), 4.08)}}}}
+box = ego_box(scenario, 0, notes)
+times = np.arange(40) * 0.1
+straight = np.stack([10.0 * times, np.zeros(40), np.zeros(40)], axis=1)
+# a left turn of radius 20 m at 5 m/s, the box centre on the circle, heading along it
+omega = 5.0 / 20.0
+turn = np.stack([20 * np.sin(omega * times), 20 - 20 * np.cos(omega * times), omega * times], axis=1)
+print(json.dumps({"box": box, "notes": notes, "straight": ego_dynamics(straight, times, 5.0, 2.0),
+                  "turn": ego_dynamics(turn, times, 5.0, 2.0)}))
+"""
+
+
+@pytest.fixture(scope="module")
+def venv_ego():
+    import json
+    import subprocess
+
+    venv = _load("oracle_venv").existing_python()
+    if venv is None:
+        pytest.skip("nuplan-devkit oracle venv absent (python benchmarks/nuplan_oracle/oracle_venv.py builds it)")
+    done = subprocess.run([str(venv), "-c", EGO_CHECK, str(ORACLE)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_the_nuscenes_ego_box_written_wider_than_long_is_turned_and_said(venv_ego):
+    # ScenarioNet's nuScenes converter writes [4.08, 1.73, 1.56] into the [width, length, height] slot
+    assert venv_ego["box"] == [4.08, 1.73]
+    assert "swaps them" in venv_ego["notes"][0]
+
+
+def test_the_ego_state_is_nuplans_derivative_of_the_poses(venv_ego):
+    straight = venv_ego["straight"]
+    assert np.allclose(straight["velocity"], [[10.0, 0.0]] * 40)
+    assert np.allclose(straight["acceleration"], 0.0, atol=1e-9)
+    assert np.allclose(straight["angular_velocity"], 0.0) and np.allclose(straight["angular_acceleration"], 0.0)
+    assert straight["rear_axle_to_center"] == pytest.approx(5.0 * 1.461 / 5.176)
+    turn = venv_ego["turn"]
+    assert np.allclose(turn["angular_velocity"], 0.25, atol=1e-6)
+    inner = np.array(turn["acceleration"])[5:-5]
+    # The rear axle runs on a circle of radius sqrt(20^2 + d^2) at 0.25 rad/s: 5.0x m/s^2 towards the centre, on
+    # the left; nuPlan's projection (_project_from_global_to_ego_centric_ds) gives the lateral part its sign
+    # flipped, and the oracle keeps nuPlan's sign.
+    radius = math.hypot(20.0, 5.0 * 1.461 / 5.176)
+    assert np.allclose(np.hypot(*inner.T), radius * 0.25 ** 2, rtol=1e-3)
+    assert (inner[:, 1] < 0).all()
