@@ -110,7 +110,8 @@ def scenario_map(scenario: Dict[str, Any]) -> Dict[str, Any]:
     roadblocks = _roadblocks(lanes)
     lane_specs = [{"id": lid, "polygon": _outline(lane["polygon"]), "baseline": lane["line"].tolist(),
                    "speed_limit": lane["speed_limit"], "roadblock": lane["roadblock"], "connector": lane["connector"],
-                   "incoming": [i for i in lane["entry"] if i in lanes], "outgoing": [o for o in lane["exit"] if o in lanes]}
+                   "incoming": [i for i in lane["entry"] if i in lanes],
+                   "outgoing": [o for o in lane["exit"] if o in lanes]}
                   for lid, lane in lanes.items()]
     return {"lanes": lane_specs, "roadblocks": roadblocks, "drivable_area": _drivable_area(features, lanes, notes),
             "intersections": [], "notes": notes}
