@@ -15,6 +15,7 @@ overlap at junctions) and both sides score that case.  Printed: per case, a mark
 terms and the score (ours, nuPlan's, ``**differs**`` where they do), each frame's time to collision
 agreeing or not, and whether the harness's score of the exported case equals its score of the unrolled
 scene itself (it must: otherwise the case would not be what the harness scores); then one summary table.
+Exit status 1 when any term, score or frame's time to collision differs or nuPlan raised (not with --smoke).
 The differences and why they arise: README.md, "Real scenes".
 """
 from __future__ import annotations
@@ -218,7 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     scores = sum(same(r["ours"]["score"], a["score"]) for r, a in pairs)
     print(f"\nterms agreeing with nuplan-devkit: {agreeing} of {len(TERMS) * len(pairs)}; scores {scores} of "
           f"{len(pairs)}; time to collision {ttc} of {frames} frames; {len(failed)} case(s) nuPlan raised on")
-    return 1 if failed else 0
+    # Any difference fails the run (a smoke run's figures mean nothing: it checks that the script runs)
+    differs = agreeing < len(TERMS) * len(pairs) or scores < len(pairs) or ttc < frames
+    return 1 if failed or (differs and not args.smoke) else 0
 
 
 if __name__ == "__main__":

@@ -44,6 +44,7 @@ _stub_sensor_modules()
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from shapely.geometry import LineString, Point, Polygon, box  # noqa: E402
+from shapely.strtree import STRtree  # noqa: E402
 
 import nuplan  # noqa: E402
 from nuplan.common.actor_state.agent import Agent  # noqa: E402
@@ -90,6 +91,13 @@ AGENT_HEIGHT = 1.5  # no metric reads a height; OrientedBox wants one
 
 
 # ---------------------------------------------------------------- map
+
+def polygon_of(spec: Any) -> Polygon:
+    """A case polygon: a list of points, or ``{"shell": points, "holes": [points, ...]}``."""
+    if isinstance(spec, dict):
+        return Polygon(spec["shell"], spec.get("holes") or [])
+    return Polygon(spec)
+
 
 def _unimplemented(name: str, is_property: bool) -> Any:
     def raiser(self: Any, *args: Any, **kwargs: Any) -> Any:
@@ -254,7 +262,7 @@ class CaseMap(AbstractMap):
         self.layers: Dict[SemanticMapLayer, Dict[str, Any]] = {layer: {} for layer in self.get_available_map_objects()}
         for block in spec.get("roadblocks", []):
             layer = SemanticMapLayer.ROADBLOCK_CONNECTOR if block.get("connector") else SemanticMapLayer.ROADBLOCK
-            self.layers[layer][str(block["id"])] = Roadblock(str(block["id"]), Polygon(block["polygon"]))
+            self.layers[layer][str(block["id"])] = Roadblock(str(block["id"]), polygon_of(block["polygon"]))
         lanes: Dict[str, Any] = {}
         for lane in spec.get("lanes", []):
             lane_id = str(lane["id"])
@@ -265,7 +273,7 @@ class CaseMap(AbstractMap):
                 raise ValueError(f"lane {lane_id}: roadblock {lane['roadblock']!r} is not a "
                                  f"{'connector ' if connector else ''}roadblock of the case")
             cls = CaseLaneConnector if connector else CaseLane
-            obj = cls(lane_id, Polygon(lane["polygon"]), Baseline(lane_id, lane["baseline"]),
+            obj = cls(lane_id, polygon_of(lane["polygon"]), Baseline(lane_id, lane["baseline"]),
                       lane.get("speed_limit"), roadblock)
             roadblock.lanes.append(obj)
             lanes[lane_id] = obj
@@ -275,10 +283,11 @@ class CaseMap(AbstractMap):
             obj.incoming = [lanes[str(i)] for i in lane.get("incoming", [])]
             obj.outgoing = [lanes[str(i)] for i in lane.get("outgoing", [])]
         for i, outline in enumerate(spec.get("drivable_area", [])):
-            self.layers[SemanticMapLayer.DRIVABLE_AREA][f"drivable_{i}"] = Area(f"drivable_{i}", Polygon(outline))
+            self.layers[SemanticMapLayer.DRIVABLE_AREA][f"drivable_{i}"] = Area(f"drivable_{i}", polygon_of(outline))
         for i, outline in enumerate(spec.get("intersections", [])):
             self.layers[SemanticMapLayer.INTERSECTION][f"intersection_{i}"] = CaseIntersection(
-                f"intersection_{i}", Polygon(outline))
+                f"intersection_{i}", polygon_of(outline))
+        self._trees: Dict[SemanticMapLayer, Tuple[List[Any], STRtree]] = {}
 
     def get_available_map_objects(self) -> List[SemanticMapLayer]:
         return [SemanticMapLayer.LANE, SemanticMapLayer.LANE_CONNECTOR, SemanticMapLayer.ROADBLOCK,
@@ -293,9 +302,18 @@ class CaseMap(AbstractMap):
             raise ValueError(f"Object representation for layer: {layer.name} is unavailable")
         return self.layers[layer]
 
+    def _candidates(self, layer: SemanticMapLayer, geometry: Any) -> List[Any]:
+        """The layer's objects whose bounding boxes meet ``geometry``'s, in the layer's order (a real
+        map has hundreds of lanes; the exact test follows on these only)."""
+        if layer not in self._trees:
+            objects = list(self._layer(layer).values())
+            self._trees[layer] = (objects, STRtree([obj.polygon for obj in objects]))
+        objects, tree = self._trees[layer]
+        return [objects[i] for i in sorted(tree.query(geometry).tolist())] if objects else []
+
     def get_all_map_objects(self, point: Point2D, layer: SemanticMapLayer) -> List[Any]:
         query = Point(point.x, point.y)
-        return [obj for obj in self._layer(layer).values() if obj.polygon.contains(query)]
+        return [obj for obj in self._candidates(layer, query) if obj.polygon.contains(query)]
 
     def get_one_map_object(self, point: Point2D, layer: SemanticMapLayer) -> Optional[Any]:
         found = self.get_all_map_objects(point, layer)
@@ -309,7 +327,7 @@ class CaseMap(AbstractMap):
     def get_proximal_map_objects(self, point: Point2D, radius: float,
                                  layers: List[SemanticMapLayer]) -> Dict[SemanticMapLayer, List[Any]]:
         patch = box(point.x - radius, point.y - radius, point.x + radius, point.y + radius)
-        return {layer: [obj for obj in self._layer(layer).values() if obj.polygon.intersects(patch)]
+        return {layer: [obj for obj in self._candidates(layer, patch) if obj.polygon.intersects(patch)]
                 for layer in layers}
 
     def get_map_object(self, object_id: str, layer: SemanticMapLayer) -> Optional[Any]:

@@ -63,6 +63,11 @@ NOT_SMOKED = {
     "nuplan_oracle/crime_ttc.py": "imports commonroad-crime: runs inside its own venv only",
     "nuplan_oracle/nuplan_metrics.py": "imports nuplan-devkit: runs inside its venv only",
     "nuplan_oracle/oracle_venv.py": "creates nuplan-devkit's venv: pip installs, minutes",
+    "nuplan_oracle/oracle_scenes.py": "imports nuplan-devkit: runs inside its venv only (tests/metrics/"
+                                      "test_nuplan_oracle_scenes.py runs it on a real run)",
+    "nuplan_oracle/scenario_case.py": "the oracle's case building: imported by oracle_scenes.py, no script",
+    "nuplan_oracle/scenario_map.py": "the oracle's map layers from a ScenarioNet file: a module, no script",
+    "nuplan_oracle/scenario_pickle.py": "the oracle's restricted unpickler: a module, no script",
     "reference_venvs.py": "helpers the oracle venv scripts share: no script of its own",
 }
 

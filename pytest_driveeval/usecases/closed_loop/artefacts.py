@@ -1,5 +1,5 @@
 """What a ``closed_loop`` item leaves next to the summary: closed_loop.json
-(every scene's figures, collisions and findings), a bar chart of collision
+(every scene's figures, collisions, findings and the ego as driven), a bar chart of collision
 frames by kind and drift resets, and bird's-eye GIFs of the scenes (on the scene's map when
 the dataset has one, with the places where a score term failed marked).  Plotting libraries load
 only when a chart or an animation is wanted.
@@ -52,7 +52,8 @@ def write_scene_artefacts(ctx: RunContext, config: ClosedLoopConfig, verdicts: l
     write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
                                                    "collisions": events[v.scene],
                                                    "score_terms": v.score_terms,
-                                                   "findings": [f.to_json() for f in v.findings]}
+                                                   "findings": [f.to_json() for f in v.findings],
+                                                   "driven": v.driven}
                                                   for v in verdicts]}, indent=1))
     out["result"] = result_path
     if config.Artefacts.Charts:

@@ -178,6 +178,8 @@ class SceneVerdict:
     #: where the GIF marks the failed ones
     score_terms: dict = field(default_factory=dict)
     markers: list = field(default_factory=list)
+    #: the ego as driven (driven_json): what an outside scorer (benchmarks/nuplan_oracle) rescores
+    driven: dict = field(default_factory=dict)
 
 
 def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_fault_only: bool = False
@@ -282,4 +284,19 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True
         findings.extend(score_findings(score, conditions.Score, scene, frame_numbers))
         terms, marks = terms_json(score, frame_numbers), markers(score, frame_numbers)
     found = [f for f in findings if f is not None]
-    return SceneVerdict(scene, not found, figures, found, terms, marks)
+    return SceneVerdict(scene, not found, figures, found, terms, marks, driven_json(unroll, row))
+
+
+def driven_json(unroll: Unroll, row: int) -> dict:
+    """Scene ``row``'s ego as driven, for closed_loop.json: the unrolled frames (the log's numbers),
+    their times (s, frame x step, as the score takes them), the ego box's centre pose per frame
+    (x, y, heading: the engine's pose, in the log's world frame) and the box's length and width.
+    Enough to score the drive again from the scene's own file, without this package."""
+    from pytest_driveeval.sim.logreplay import EGO_EXTENT
+
+    r = unroll.result
+    frames = np.flatnonzero(r.valid[row])
+    xy, yaw = r.driven_xy[row][frames], r.driven_yaw[row][frames]
+    return {"frames": frames.tolist(), "times": (frames * unroll.step_time).tolist(),
+            "center": np.concatenate([xy, yaw[:, None]], axis=1).tolist(),
+            "length": float(EGO_EXTENT[0]), "width": float(EGO_EXTENT[1])}
