@@ -56,22 +56,22 @@ def test_argoverse_2s_last_one_point_piece_of_the_drivable_outline_is_skipped(tm
 @pytest.mark.parametrize("polygon, why", [
     (np.zeros((0, 3), np.float32), "its polygon is empty"),
     (np.array([[0.0, 0.0], [1.0, 1.0]]), "its polygon has 2 point(s); a surface needs 3"),
-    (np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]), "its polygon encloses no area (its 3 points lie on one line)"),
+    (np.array([[2.0, 2.0], [2.0, 2.0], [2.0, 2.0]]), "its polygon is one point (its 3 points coincide)"),
     (np.array([[0.0, np.nan], [1, 1], [2, 0]]), "its polygon holds NaN or infinite coordinates"),
 ])
-def test_an_empty_or_flat_polygon_is_skipped(tmp_path, polygon, why):
+def test_an_empty_or_degenerate_polygon_is_skipped(tmp_path, polygon, why):
     scene = read(tmp_path, scenario(map_features__walk__polygon=polygon))
     assert "walk" not in {f.id for f in scene.map_features}
     assert skipped_of(scene, "walk") == [Skipped("walk", "CROSSWALK", f"not read: {why}")]
 
 
 def test_a_lane_with_one_usable_outline_is_kept_from_it(tmp_path):
-    # a flat polygon: the lane stays, from its centre line, at the default width
-    scene = read(tmp_path, scenario(map_features__lane_1__polygon=np.array([[0.0, 0], [5, 0], [10, 0]])))
+    # a polygon of two points: the lane stays, from its centre line, at the default width
+    scene = read(tmp_path, scenario(map_features__lane_1__polygon=np.array([[0.0, 0], [5, 0]])))
     lane = next(f for f in scene.map_features if f.id == "lane_1")
     assert lane.polyline is not None and lane.polygon is None
-    assert skipped_of(scene, "lane_1")[0].reason == ("polygon not read (its polygon encloses no area (its 3 points "
-                                                     "lie on one line)); kept from its polyline")
+    assert skipped_of(scene, "lane_1")[0].reason == ("polygon not read (its polygon has 2 point(s); a surface needs "
+                                                     "3); kept from its polyline")
     assert scenario_map(scene).width_sources == ("default",)
     # a one-point centre line: the lane's surface is kept (for the drivable area), not a lane to follow
     scene = read(tmp_path, scenario(map_features__lane_1__polyline=np.array([[0.0, 0.0]])))

@@ -15,7 +15,7 @@ datasets really write is read, not refused, and what was not read is listed on t
 (:attr:`ScenarioNetScene.skipped`, one :class:`Skipped` per feature, track or light, with its id,
 type and why; :attr:`ScenarioNetScene.notes` for what was read other than as written):
 
-- a map feature that cannot be drawn (a one-point or zero-length line, an empty or flat polygon,
+- a map feature that cannot be drawn (a one-point or zero-length line, an empty or one-point polygon,
   NaN coordinates, a type no converter writes) is skipped; where only one of its polyline and
   polygon is unusable, the feature is kept from the other;
 - a speed limit that is not a speed is dropped (the lane is kept, without a limit);

@@ -41,9 +41,13 @@ class ScenarioMap:
 
 def _normals(line: np.ndarray) -> np.ndarray:
     """Unit left normals at each point of a polyline (from the neighbouring segments)."""
-    d = np.gradient(line, axis=0)
-    norm = np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    d = d / norm
+    # np.gradient's and np.linalg.norm's arithmetic, bit for bit, without their per-call overhead
+    # (a few hundred lanes per scene): central differences inside, one-sided at the ends
+    d = np.empty_like(line)
+    d[1:-1] = (line[2:] - line[:-2]) / 2.0
+    d[0] = line[1] - line[0]
+    d[-1] = line[-1] - line[-2]
+    d /= np.maximum(np.sqrt(np.add.reduce(d * d, axis=1, keepdims=True)), 1e-9)
     return np.stack([-d[:, 1], d[:, 0]], axis=1)
 
 
