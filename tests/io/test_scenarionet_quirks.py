@@ -100,6 +100,18 @@ def test_a_speed_limit_that_is_not_a_speed_is_dropped_and_the_lane_kept(tmp_path
                                                     "speed limit"
 
 
+def test_argoverse_2s_placeholder_speed_limit_is_not_read_as_a_limit(tmp_path):
+    # the Argoverse 2 converter writes speed_limit_mph 85 and its km/h on every lane
+    data = scenario(metadata__dataset="av2", map_features__lane_1__speed_limit_kmh=136.79,
+                    map_features__lane_1__speed_limit_mph=85.0)
+    scene = read(tmp_path, data)
+    assert next(f for f in scene.map_features if f.id == "lane_1").speed_limit_kmh is None
+    assert scene.notes == ["speed_limit_kmh of 1 lane(s) not read: ScenarioNet's Argoverse 2 converter writes 85 mph "
+                           "on every lane, a placeholder (Argoverse 2's maps give no limits)"]
+    waymo = read(tmp_path, scenario(metadata__dataset="waymo", map_features__lane_1__speed_limit_kmh=40.2))
+    assert next(f for f in waymo.map_features if f.id == "lane_1").speed_limit_kmh == 40.2 and waymo.notes == []
+
+
 #: what each converter writes (scenarionet/converter/*, metadriverse/scenarionet @ cebcbe6), as
 #: (feature type, what it has) -> its group here
 CONVERTED_FEATURES = {

@@ -200,10 +200,23 @@ def read_scenario(path: str | Path) -> ScenarioNetScene:
                 for feature in [read_feature(str(fid), raw, skipped)] if feature is not None]
     lights = [_light(str(lid), light, steps, here, skipped)
               for lid, light in _mapping(data.get("dynamic_map_states"), here, "dynamic_map_states").items()]
-    dataset = metadata.get("dataset")
-    return ScenarioNetScene(path, sid, "" if not dataset else _text(dataset, here, "metadata.dataset"), float(rate),
-                            timestamps, tracks.ids.index(sdc_id), tracks, features, lights,
-                            {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")}, skipped)
+    dataset = "" if not metadata.get("dataset") else _text(metadata["dataset"], here, "metadata.dataset")
+    notes = _placeholder_limits(dataset, features)
+    return ScenarioNetScene(path, sid, dataset, float(rate), timestamps, tracks.ids.index(sdc_id), tracks, features,
+                            lights, {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")}, skipped,
+                            notes)
+
+
+def _placeholder_limits(dataset: str, features: list[MapFeature]) -> list[str]:
+    """ScenarioNet's Argoverse 2 converter writes 85 mph on every lane (``_HIGHWAY_SPEED_LIMIT_MPH``;
+    Argoverse 2's maps give none): not a limit, so its lanes are read without one, and said."""
+    if dataset != "av2":
+        return []
+    lanes = [f for f in features if f.group == "lane" and f.speed_limit_kmh is not None]
+    for lane in lanes:
+        lane.speed_limit_kmh = None
+    return [f"speed_limit_kmh of {len(lanes)} lane(s) not read: ScenarioNet's Argoverse 2 converter writes 85 mph on "
+            "every lane, a placeholder (Argoverse 2's maps give no limits)"] if lanes else []
 
 
 def _array(value: Any, here: str, key: str, ndim: int | None = None, width: tuple[int, ...] = ()) -> np.ndarray:
