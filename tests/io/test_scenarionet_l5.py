@@ -49,7 +49,8 @@ def test_the_scene_ends_where_the_car_stops_being_valid_and_a_car_invalid_at_the
 def test_a_scene_at_another_rate_is_refused_with_the_way_to_resample(tmp_path):
     data = moving()
     data["metadata"]["sample_rate"] = 0.05
-    with pytest.raises(ScenarioNetError, match="sampled every 0.05 s; the closed loop steps every 0.1 s"):
+    with pytest.raises(ScenarioNetError, match=r"sampled every 0.05 s \(metadata.sample_rate\); the closed loop steps "
+                                               r"every 0.1 s and accepts .*ScenarioNet at 10 Hz"):
         l5_scene(read_scenario(write(tmp_path, data)))
 
 

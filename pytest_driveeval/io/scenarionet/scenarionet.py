@@ -9,15 +9,28 @@ format: per scenario a pickled dict with ``id``, ``version``, ``length``, ``meta
 ``dynamic_map_states`` (traffic lights: per id a ``state`` with ``object_state`` per step, the
 ``lane`` it controls, its ``stop_point``).  Files are read with :mod:`.safe_pickle` (data only).
 
-Every documented type is known (MetaDrive's ``MetaDriveType``): a track or feature of another type
-is kept under that name, in the "other" group.  A problem names the file, the scenario id and the
-object or feature id.  What is refused, rather than read into something else:
+Every type ScenarioNet's converters write is read into what it means (:mod:`.scenarionet_types`,
+the one table).  A problem names the file, the scenario id and the object or feature id.  What the
+datasets really write is read, not refused, and what was not read is listed on the scene
+(:attr:`ScenarioNetScene.skipped`, one :class:`Skipped` per feature, track or light, with its id,
+type and why; :attr:`ScenarioNetScene.notes` for what was read other than as written):
+
+- a map feature that cannot be drawn (a one-point or zero-length line, an empty or one-point polygon,
+  NaN coordinates, a type no converter writes) is skipped; where only one of its polyline and
+  polygon is unusable, the feature is kept from the other;
+- a speed limit that is not a speed is dropped (the lane is kept, without a limit);
+- a track of no type (``None``) is UNSET, and one of a type no converter writes is kept as an
+  object of unknown kind (still a box one can hit);
+- a light state no converter writes lights no face, as an unknown state does.
+
+What is refused, rather than read into something else:
 
 - an id, type, lane or light state that is not text (an integer id is taken as its digits);
 - ``map_features`` / ``dynamic_map_states`` that are not mappings (absent: none; a scenario
   without lanes then has no map, and the score's map terms are not available);
 - a ``length`` that is not a whole number, or outside 1 .. :data:`MAX_STEPS` (checked before
-  anything per step is made), and ``metadata.ts`` that is not finite and increasing;
+  anything per step is made), and ``metadata.ts`` that is not finite and increasing (whether its
+  steps suit the closed loop, within a tolerance, is :mod:`.scenarionet_steps`' question);
 - a NaN, infinite or negative ``length`` / ``width`` / ``height`` where a track is valid: an agent
   without a size could never be hit.
 """
@@ -31,20 +44,12 @@ import numpy as np
 
 from ...core.errors import DataError, display_path
 from .safe_pickle import load_data_pickle
+from .scenarionet_features import MapFeature, Skipped, read_feature
+from .scenarionet_types import LIGHT_FACES, NO_LIGHT_STATE, TRACK_LABELS, feature_group
 
-TRACK_TYPES = ("VEHICLE", "PEDESTRIAN", "CYCLIST", "OTHER", "UNSET",
-               "TRAFFIC_CONE", "TRAFFIC_BARRIER", "TRAFFIC_OBJECT", "TRAFFIC_LIGHT")
-LANE_TYPES = ("LANE_SURFACE_STREET", "LANE_SURFACE_UNSTRUCTURE", "LANE_UNKNOWN", "LANE_FREEWAY", "LANE_BIKE_LANE")
-ROAD_LINE_TYPES = ("UNKNOWN_LINE", "ROAD_LINE_UNKNOWN", "ROAD_LINE_BROKEN_SINGLE_WHITE", "ROAD_LINE_SOLID_SINGLE_WHITE",
-                   "ROAD_LINE_SOLID_DOUBLE_WHITE", "ROAD_LINE_BROKEN_SINGLE_YELLOW", "ROAD_LINE_BROKEN_DOUBLE_YELLOW",
-                   "ROAD_LINE_SOLID_SINGLE_YELLOW", "ROAD_LINE_SOLID_DOUBLE_YELLOW", "ROAD_LINE_PASSING_DOUBLE_YELLOW")
-ROAD_EDGE_TYPES = ("UNKNOWN", "ROAD_EDGE_UNKNOWN", "ROAD_EDGE_BOUNDARY", "ROAD_EDGE_MEDIAN", "ROAD_EDGE_SIDEWALK")
-AREA_TYPES = ("CROSSWALK", "SPEED_BUMP", "DRIVEWAY")
-POINT_TYPES = ("STOP_SIGN",)
-LIGHT_STATES = ("LANE_STATE_UNKNOWN", "LANE_STATE_ARROW_STOP", "LANE_STATE_ARROW_CAUTION", "LANE_STATE_ARROW_GO",
-                "LANE_STATE_STOP", "LANE_STATE_CAUTION", "LANE_STATE_GO", "LANE_STATE_FLASHING_STOP",
-                "LANE_STATE_FLASHING_CAUTION", "TRAFFIC_LIGHT_GREEN", "TRAFFIC_LIGHT_RED", "TRAFFIC_LIGHT_YELLOW",
-                "TRAFFIC_LIGHT_UNKNOWN")
+__all__ = ["MAX_STEPS", "MapFeature", "ScenarioNetError", "ScenarioNetScene", "Skipped", "TrafficLight", "Tracks",
+           "feature_group", "read_scenario", "scenario_files"]
+
 SUMMARY_FILES = ("dataset_summary.pkl", "dataset_mapping.pkl")
 #: the most steps a scenario may have: an hour at 10 Hz (ScenarioNet's scenarios last 9 to 20 s);
 #: checked before anything per step is made
@@ -53,15 +58,6 @@ MAX_STEPS = 36_000
 
 class ScenarioNetError(DataError, ValueError):
     """A scenario file that is not what ScenarioNet writes: names the file, scenario and object."""
-
-
-def feature_group(kind: str) -> str:
-    """lane, road_line, road_edge, area, point or other: what a map model does with a feature."""
-    for group, kinds in (("lane", LANE_TYPES), ("road_line", ROAD_LINE_TYPES), ("road_edge", ROAD_EDGE_TYPES),
-                         ("area", AREA_TYPES), ("point", POINT_TYPES)):
-        if kind in kinds:
-            return group
-    return "other"
 
 
 @dataclass
@@ -73,18 +69,6 @@ class Tracks:
     velocity: np.ndarray  # (N, T, 2)
     valid: np.ndarray     # (N, T) bool
     size: np.ndarray      # (N, T, 3): length, width, height
-
-
-@dataclass
-class MapFeature:
-    id: str
-    type: str
-    group: str
-    polyline: np.ndarray | None = None  # (K, 2 or 3); nuScenes' lane centre lines carry (x, y, heading)
-    polygon: np.ndarray | None = None   # (K, 2 or 3)
-    position: np.ndarray | None = None  # a stop sign's point
-    speed_limit_kmh: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict)  # entry / exit lanes, neighbours, ... as given
 
 
 @dataclass
@@ -107,6 +91,10 @@ class ScenarioNetScene:
     map_features: list[MapFeature]
     lights: list[TrafficLight]
     metadata: dict[str, Any]
+    #: what was not read (or only partly), and why: one entry per feature, track or light
+    skipped: list[Skipped] = field(default_factory=list)
+    #: what was read other than as written, in a sentence each (timestamps' jitter, placeholders)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def steps(self) -> int:
@@ -200,21 +188,35 @@ def read_scenario(path: str | Path) -> ScenarioNetScene:
         rate = float(np.median(np.diff(timestamps)))
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
         raise ScenarioNetError(f"{here}: metadata.sample_rate {rate!r} is not a positive number of seconds")
-    tracks = _tracks(data["tracks"], steps, here)
+    skipped: list[Skipped] = []
+    tracks = _tracks(data["tracks"], steps, here, skipped)
     if metadata.get("sdc_id") is None:
         raise ScenarioNetError(f"{here}: no metadata.sdc_id, the self-driving car's track id")
     sdc_id = _text(metadata.get("sdc_id"), here, "metadata.sdc_id")
     if sdc_id not in tracks.ids:
         raise ScenarioNetError(f"{here}: the self-driving car's track (metadata.sdc_id {sdc_id!r}) is not among "
                                f"its {len(tracks.ids)} tracks")
-    features = [_feature(str(fid), feat, here)
-                for fid, feat in _mapping(data.get("map_features"), here, "map_features").items()]
-    lights = [_light(str(lid), light, steps, here)
+    features = [feature for fid, raw in _mapping(data.get("map_features"), here, "map_features").items()
+                for feature in [read_feature(str(fid), raw, skipped)] if feature is not None]
+    lights = [_light(str(lid), light, steps, here, skipped)
               for lid, light in _mapping(data.get("dynamic_map_states"), here, "dynamic_map_states").items()]
-    dataset = metadata.get("dataset")
-    return ScenarioNetScene(path, sid, "" if not dataset else _text(dataset, here, "metadata.dataset"), float(rate),
-                            timestamps, tracks.ids.index(sdc_id), tracks, features, lights,
-                            {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")})
+    dataset = "" if not metadata.get("dataset") else _text(metadata["dataset"], here, "metadata.dataset")
+    notes = _placeholder_limits(dataset, features)
+    return ScenarioNetScene(path, sid, dataset, float(rate), timestamps, tracks.ids.index(sdc_id), tracks, features,
+                            lights, {k: v for k, v in metadata.items() if k not in ("ts", "object_summary")}, skipped,
+                            notes)
+
+
+def _placeholder_limits(dataset: str, features: list[MapFeature]) -> list[str]:
+    """ScenarioNet's Argoverse 2 converter writes 85 mph on every lane (``_HIGHWAY_SPEED_LIMIT_MPH``;
+    Argoverse 2's maps give none): not a limit, so its lanes are read without one, and said."""
+    if dataset != "av2":
+        return []
+    lanes = [f for f in features if f.group == "lane" and f.speed_limit_kmh is not None]
+    for lane in lanes:
+        lane.speed_limit_kmh = None
+    return [f"speed_limit_kmh of {len(lanes)} lane(s) not read: ScenarioNet's Argoverse 2 converter writes 85 mph on "
+            "every lane, a placeholder (Argoverse 2's maps give no limits)"] if lanes else []
 
 
 def _array(value: Any, here: str, key: str, ndim: int | None = None, width: tuple[int, ...] = ()) -> np.ndarray:
@@ -228,7 +230,20 @@ def _array(value: Any, here: str, key: str, ndim: int | None = None, width: tupl
     return array
 
 
-def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
+def _track_type(tid: str, value: Any, what: str, skipped: list[Skipped]) -> str:
+    """A track's type: None (what a converter leaves on a track it did not type) is UNSET; a type no
+    converter writes is kept, and the engine gives it the label of an object of unknown kind."""
+    if value is None:
+        skipped.append(Skipped(tid, "None", "no type: read as UNSET, an object of unknown kind", "track"))
+        return "UNSET"
+    kind = _text(value, what, "type")
+    if kind not in TRACK_LABELS:
+        skipped.append(Skipped(tid, kind, "not a track type ScenarioNet's converters write: read as an object of "
+                                          "unknown kind (collided with, not fed to a model as an agent)", "track"))
+    return kind
+
+
+def _tracks(tracks: dict, steps: int, here: str, skipped: list[Skipped]) -> Tracks:
     ids, types, rows = [], [], []
     for tid, track in tracks.items():
         what = f"{here}, track {tid}"
@@ -260,7 +275,7 @@ def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
                 raise ScenarioNetError(f"{what}: state.{key} is {columns[key][bad[0]]:g} at valid step {int(bad[0])}; "
                                        "a size in metres >= 0 is needed where the track is valid")
         ids.append(str(tid))
-        types.append(_text(track.get("type", "UNSET"), what, "type"))
+        types.append(_track_type(str(tid), track.get("type", "UNSET"), what, skipped))
         rows.append(columns)
     if not rows:
         return Tracks([], [], np.zeros((0, steps, 3)), np.zeros((0, steps)), np.zeros((0, steps, 2)),
@@ -270,39 +285,7 @@ def _tracks(tracks: dict, steps: int, here: str) -> Tracks:
                   np.stack([stack["length"], stack["width"], stack["height"]], axis=-1))
 
 
-def _feature(fid: str, feature: Any, here: str) -> MapFeature:
-    what = f"{here}, map feature {fid}"
-    if not isinstance(feature, dict) or not isinstance(feature.get("type"), str):
-        raise ScenarioNetError(f"{what}: not a mapping with a 'type' (found {_kind(feature)})")
-    kind = feature["type"]
-    out = MapFeature(fid, kind, feature_group(kind))
-    for key in ("polyline", "polygon"):
-        if feature.get(key) is None:
-            continue
-        points = _array(feature[key], what, key, ndim=2, width=(2, 3))
-        if points.shape[0] < 2:
-            raise ScenarioNetError(f"{what}: its {key} has {points.shape[0]} point(s); a line needs 2")
-        if not np.isfinite(points).all():
-            raise ScenarioNetError(f"{what}: its {key} holds NaN or infinite coordinates")
-        setattr(out, key, points)
-    if feature.get("position") is not None:
-        out.position = _array(feature["position"], what, "position").reshape(-1)
-    if out.group != "point" and out.polyline is None and out.polygon is None:
-        raise ScenarioNetError(f"{what}: a {kind} without polyline or polygon")
-    limit = feature.get("speed_limit_kmh")
-    if limit is not None:
-        try:
-            out.speed_limit_kmh = float(limit)
-        except (TypeError, ValueError, OverflowError):
-            out.speed_limit_kmh = None
-        if out.speed_limit_kmh is None or not np.isfinite(out.speed_limit_kmh) or out.speed_limit_kmh < 0:
-            raise ScenarioNetError(f"{what}: speed_limit_kmh {str(limit)[:40]!r} is not a speed in km/h")
-    out.extra = {k: v for k, v in feature.items() if k not in ("type", "polyline", "polygon", "position",
-                                                                 "speed_limit_kmh")}
-    return out
-
-
-def _light(lid: str, light: Any, steps: int, here: str) -> TrafficLight:
+def _light(lid: str, light: Any, steps: int, here: str, skipped: list[Skipped]) -> TrafficLight:
     what = f"{here}, traffic light {lid}"
     if not isinstance(light, dict):
         raise ScenarioNetError(f"{what}: not a mapping")
@@ -314,10 +297,16 @@ def _light(lid: str, light: Any, steps: int, here: str) -> TrafficLight:
         raise ScenarioNetError(f"{what}: state.object_state is {_kind(raw)}, not one state per step")
     if len(raw) and len(raw) != steps:
         raise ScenarioNetError(f"{what}: {len(raw)} states for {steps} steps")
-    states = [_text(s, what, f"its state at step {t}") if s is not None else "LANE_STATE_UNKNOWN"
+    # Waymo leaves None where it lists no state for the light at a step: an unknown state
+    states = [_text(s, what, f"its state at step {t}") if s is not None else NO_LIGHT_STATE
               for t, s in enumerate(raw)]
+    odd = sorted(set(states) - LIGHT_FACES.keys())
+    if odd:
+        skipped.append(Skipped(lid, "TRAFFIC_LIGHT", f"state(s) {', '.join(odd)[:120]} not among those ScenarioNet's "
+                                                     "converters write: read as unknown (no face lit)",
+                               "traffic light"))
     stop = light.get("stop_point")
     lane = light.get("lane")
     return TrafficLight(lid, None if lane is None else _text(lane, what, "lane"),
-                        states or ["LANE_STATE_UNKNOWN"] * steps,
+                        states or [NO_LIGHT_STATE] * steps,
                         None if stop is None else _array(stop, what, "stop_point").reshape(-1))

@@ -3,8 +3,10 @@
 Each scenario becomes one L5 scene: a frame per step while the self-driving car's track is valid
 (from step 0; a scenario whose car is not valid at step 0 is refused), the car's pose as the frame's
 ego pose, and every other track valid at a step as an agent row of that frame (its ScenarioNet type
-as the nearest l5kit label, its row number + 1 as its track id).  The engine steps at 0.1 s, so a
-scenario sampled at another rate is refused with the way to resample it.
+as the nearest l5kit label, its row number + 1 as its track id).  The engine steps at 0.1 s: a
+scenario whose timestamps jitter around 0.1 s within :mod:`.scenarionet_steps`' tolerance is treated
+as sampled at 0.1 s (the scene's ``notes`` say how far they jitter), one sampled at another rate or
+with a gap is refused with the step that is out and the way to resample it.
 
 :class:`ScenarioNetDataset` has the reading side of ``L5Dataset``'s interface (``num_scenes``,
 ``scenes``, ``scene(i)``, ``path``), reading each file when its scene is first asked for.
@@ -21,20 +23,19 @@ from ...geometry import yaw_as_rotation33
 from ..l5.l5kit_zarr import AGENT_DTYPE, FRAME_DTYPE, PERCEPTION_LABELS, SCENE_DTYPE, TL_FACE_DTYPE, L5Scene, label_index
 from .scenarionet import ScenarioNetError, ScenarioNetScene, read_scenario, scenario_files
 from .scenarionet_map import ScenarioMap, active_faces, merged, scenario_map
+from .scenarionet_steps import check_steps
+from .scenarionet_types import TRACK_LABELS, UNKNOWN_TRACK_LABEL
 
 STEP_TIME = 0.1
-#: ScenarioNet track type -> l5kit perception label (l5kit feeds labels CAR .. ANIMAL to models;
-#: static objects stay as UNKNOWN: collided with, never fed)
-LABELS = {"VEHICLE": "CAR", "PEDESTRIAN": "PEDESTRIAN", "CYCLIST": "CYCLIST", "OTHER": "UNKNOWN", "UNSET": "UNKNOWN",
-          "TRAFFIC_CONE": "UNKNOWN", "TRAFFIC_BARRIER": "UNKNOWN", "TRAFFIC_OBJECT": "UNKNOWN",
-          "TRAFFIC_LIGHT": "UNKNOWN"}
+#: ScenarioNet track type -> l5kit perception label (the table is scenarionet_types')
+LABELS = TRACK_LABELS
 
 
 def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
     here = f"{display_path(scene.path)} (scenario {scene.id})"
-    if abs(scene.sample_rate - STEP_TIME) > 1e-6:
-        raise ScenarioNetError(f"{here}: sampled every {scene.sample_rate:g} s; the closed loop steps every "
-                               f"{STEP_TIME:g} s (convert the dataset with ScenarioNet at 10 Hz)")
+    jitter = check_steps(scene, STEP_TIME)
+    if jitter is not None and jitter not in scene.notes:
+        scene.notes.append(jitter)
     tracks, ego = scene.tracks, scene.sdc
     valid = tracks.valid[ego]
     if not valid[0]:
@@ -58,7 +59,7 @@ def l5_scene(scene: ScenarioNetScene, index: int = 0) -> L5Scene:
     agents["yaw"] = tracks.heading[rows, step_of]
     agents["velocity"] = tracks.velocity[rows, step_of]
     agents["track_id"] = rows + 1
-    labels = np.array([label_index(LABELS.get(kind, "UNKNOWN")) for kind in tracks.types], dtype=np.int64)
+    labels = np.array([label_index(LABELS.get(kind, UNKNOWN_TRACK_LABEL)) for kind in tracks.types], dtype=np.int64)
     agents["label_probabilities"][np.arange(len(rows)), labels[rows]] = 1.0
     faces_per_step = [active_faces(scene, t, index) for t in range(steps)]
     lit = [len(f) for f in faces_per_step]
@@ -124,6 +125,18 @@ class ScenarioNetDataset:
             return (f"{display_path(self.files[index % self.num_scenes])} could not be read as a ScenarioNet scenario "
                     f"({type(exc).__name__}: {str(exc)[:200]}); if ScenarioNet wrote it, please report it")
         return None
+
+    def read_notes(self, index: int) -> dict[str, list] | None:
+        """What reading scene ``index`` did not take as written, for an item's details: ``skipped``
+        (one line per feature, track or light: id, type, why; the records themselves are
+        ``source(index).skipped``) and ``notes`` (timestamps' jitter, ...); None when nothing was, or
+        when the scene cannot be read (its problem says why)."""
+        if self.problem(index) is not None:
+            return None
+        source = self.source(index % self.num_scenes)
+        if not source.skipped and not source.notes:
+            return None
+        return {"skipped": [str(s) for s in source.skipped], "notes": list(source.notes)}
 
     @property
     def scenes(self) -> np.ndarray:

@@ -165,12 +165,19 @@ class ClosedLoop(UseCase):
             figures["max_displacement"] = max(v.figures["max_displacement"] for v in verdicts)
         figures.update(item_figures([v.figures for v in verdicts]))
         score_limit = config.Conditions.Score.MeanAtLeast if config.Conditions.Score is not None else None
-        score_low = score_limit is not None and figures.get("score", 0.0) < score_limit
-        if score_low:
+        scored = sum("score" in v.figures for v in verdicts)
+        score_low = score_limit is not None and (not scored or figures["score"] < score_limit)
+        if score_low and scored:
             findings.insert(0, Finding(
-                f"mean nuPlan score {figures.get('score', 0.0):.3f} over {len(verdicts)} scene(s) < {score_limit:g}",
-                figure="score", value=figures.get("score"), limit=score_limit,
+                f"mean nuPlan score {figures['score']:.3f} over {scored} scene(s) < {score_limit:g}",
+                figure="score", value=figures["score"], limit=score_limit,
                 keypath=("Evaluation", "Conditions", "Score", "MeanAtLeast")))
+        elif score_low:  # a mean of nothing is no score: say so rather than print 0.000
+            why = (f"none of the {len(verdicts)} unrolled scene(s) has a frame or a log to score it by" if verdicts
+                   else "every scene asked for was refused (the reasons follow)" if problems
+                   else f"{dataset.path} has no scene to unroll")
+            findings.insert(0, Finding(f"no nuPlan score: no scene was scored; {why}",
+                                       keypath=("Evaluation", "Conditions", "Score", "MeanAtLeast")))
         ok = bool(verdicts) and not problems and rate >= config.Conditions.ScenePassRate and not score_low
         if not verdicts and not findings:
             findings.append(Finding(f"{dataset.path} has no scene to unroll", keypath=("Evaluation", "Datasets")))
@@ -186,6 +193,11 @@ class ClosedLoop(UseCase):
         artefacts = artefacts_for(figures)
         details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
                                "score_terms": v.score_terms, "error": errors[row]} for row, v in enumerate(verdicts)]}
+        # what the reader skipped or read other than as written (ScenarioNet: degenerate map features, jitter)
+        read_notes = getattr(dataset, "read_notes", None)
+        notes = {v.scene: read_notes(v.scene) for v in verdicts} if read_notes is not None else {}
+        if any(notes.values()):
+            details["read"] = [{"scene": scene, **note} for scene, note in notes.items() if note]
         return Outcome(self.name, PASSED if ok else FAILED, summary, figures=figures, findings=findings,
                        artefacts=artefacts, details=details)
 
