@@ -11,8 +11,10 @@ shapes decide a box hit (``ObstacleReplay.exact``):
   the set, so it occupies the axis-aligned rectangle that holds every placement (the position set's
   bounds widened by the shape turned by the state's orientation, or by the shape's radius about its
   reference point when the orientation is an interval); the box is drawn at the set's middle;
-* an obstacle given by an occupancy set: present at the steps its occupancies cover, there the union of
-  their shapes, its box round them (heading 0, speed 0: an occupancy set has neither).
+* an obstacle given by an occupancy set: at its initial state's step its shape there, as commonroad-io's
+  ``occupancy_at_time``; after it present at the steps its occupancies cover, there the union of their
+  shapes (commonroad-io takes the first occupancy that covers a step: the same where they do not
+  overlap, and never less), its box round them (heading 0, speed 0: an occupancy set has neither).
 
 The box's size is the largest any step needs, so a box miss is a miss of the shapes too.
 """
@@ -111,9 +113,13 @@ def _occupancy_replay(obstacle: Obstacle, times: np.ndarray) -> ObstacleReplay:
     index = np.full(n, -1, np.int64)
     shapes: list[tuple[Shape, ...]] = []
     per_step: dict[int, list[Shape]] = {}
+    init = obstacle.initial
     for occ in obstacle.occupancy:
-        for t in range(max(occ.start, int(times[0])), min(occ.end, int(times[-1])) + 1):
+        for t in range(max(occ.start, int(times[0]), init.time_step + 1), min(occ.end, int(times[-1])) + 1):
             per_step.setdefault(t, []).extend(occ.shapes)
+    if times[0] <= init.time_step <= times[-1]:  # as commonroad-io: its initial state's shape at that step
+        heading = 0.0 if math.isnan(init.orientation) else init.orientation
+        per_step[init.time_step] = [placed(obstacle.shape, init.x, init.y, heading)]
     xy = np.zeros((n, 2))
     half = np.zeros(2)
     for t, found in sorted(per_step.items()):

@@ -18,7 +18,8 @@ once, so that a step only indexes arrays:
   problem's initial time step).  **An obstacle is present from its first
   recorded time step to its last and absent before and after** (invalid in
   the observation, no collisions); a static obstacle is present throughout,
-  an obstacle given by an occupancy set at the steps its occupancies cover.
+  an obstacle given by an occupancy set at its initial step and the steps
+  its occupancies cover.
   A rectangle is its box; a circle, a polygon, a set-valued state and an
   occupancy set are boxes round their shapes, and a box hit counts only
   where the shapes are hit (sim.commonroad_occupancy).  A missing

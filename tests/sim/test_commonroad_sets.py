@@ -58,14 +58,17 @@ CIRCLE_OCCUPANCY = ('<dynamicObstacle id="9"><type>unknown</type><shape><rectang
 
 def test_an_occupancy_set_obstacle_collides_where_its_step_shapes_are(tmp_path):
     scene = scene_with(tmp_path, CIRCLE_OCCUPANCY)
-    # present only at the steps its occupancies cover (2, 3: the circle; 4: a triangle and a square)
-    assert scene.valid[:, 0].tolist() == [False, False, True, True, True, False, False, False, False, False, False]
+    # present at its initial state (step 0, as commonroad-io) and the steps its occupancies cover (2, 3: the
+    # circle; 4: a triangle and a square)
+    assert scene.valid[:, 0].tolist() == [True, False, True, True, True, False, False, False, False, False, False]
     circle_edge = (10 + 2 + 1 - 1e-6, 0, 0)   # the ego's rear edge just inside the circle's rim
     beside = (10 + 2 + 1 + 0.01, 0, 0)         # 1 cm clear of it
     in_box_corner = (10 + 2.6, 2.2, 0)         # in the circle's bounding square, clear of the circle
     assert hits(scene, 2, circle_edge, beside, in_box_corner) == [True, False, False]
     assert hits(scene, 3, circle_edge) == [True]
     assert hits(scene, 1, circle_edge) == [False] and hits(scene, 5, circle_edge) == [False]  # absent
+    # step 0: the obstacle's own 4 m x 2 m rectangle at its initial state (0, 0), not the occupancies
+    assert hits(scene, 0, (2.0 + 1.0 - 1e-6, 0, 0), circle_edge) == [True, False]
     # step 4: the union of a triangle (hypotenuse x + y = 24) and a unit square at (30, 0)
     assert hits(scene, 4, circle_edge, (30, 1.0, 0), (23.5, 2.5, 0), (21.5, 1.0, 0)) == [False, True, False, True]
 

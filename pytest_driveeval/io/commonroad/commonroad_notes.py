@@ -44,7 +44,7 @@ def read_notes(doc: XmlDoc, root: ET.Element, scenario: CommonRoadScenario, stat
     if set_based:
         notes.append(ReadNote("read", "obstacles given by <occupancySet>", len(set_based),
                               "a collision with one is a collision with the shapes it occupies at that time step; "
-                              "present at the steps its occupancies cover"))
+                              "present at its initial state (its shape there, as commonroad-io) and at the steps its occupancies cover"))
     notes.append(ReadNote("read", "<planningProblem>", len(scenario.planning_problems),
                           "each one an item of the CommonRoad benchmark" if scenario.planning_problems
                           else "none: the file has no problem to drive, so the benchmark cannot run it"))
