@@ -62,7 +62,7 @@ from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_
 from pytest_driveeval.io.commonroad.commonroad_geometry import shape_outline
 from pytest_driveeval.io.commonroad.commonroad_types import CommonRoadScenario, Obstacle, PlanningProblem
 from pytest_driveeval.sim.commonroad_occupancy import replay, shape_box
-from pytest_driveeval.sim.commonroad_road import road_band
+from pytest_driveeval.sim.commonroad_road import road_cells
 from pytest_driveeval.sim.blueprints.base import BlueprintParams, ParameterError, positive, span
 from pytest_driveeval.sim.blueprints.road import Lane, Road, RoadTooLarge
 
@@ -132,9 +132,9 @@ class CommonRoadScene:
     #: obstacle column -> (index (K + 1,) into shapes, -1 where its box is exact; world-frame shapes per
     #: entry): what decides a box hit where the box only bounds the obstacle (sim.commonroad_occupancy)
     exact_shapes: dict = field(default_factory=dict)
-    #: (like the drivable raster's mask) cells within a cell of the raster's edge, where a corner is
-    #: judged by the lanelets' outlines themselves (sim.commonroad_road)
-    road_band: np.ndarray | None = None
+    #: (like the drivable raster's mask) int8 off / on the road / within a cell of the raster's edge,
+    #: where a corner is judged by the lanelets' outlines themselves (sim.commonroad_road)
+    road_cells: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -296,4 +296,4 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: st
                            np.array([o.id for o in obstacles], np.int64), sizes, xy, yaw, speed, valid.astype(bool),
                            centre, heading, goal_speed, outlines,
                            tuple(_centres(o, np.arange(len(o.trajectory)))[0] for o in obstacles), traffic,
-                           exact, road_band(road.drivable))
+                           exact, road_cells(road.drivable))
