@@ -31,11 +31,12 @@ from typing import Any
 import numpy as np
 
 from pytest_driveeval.geometry import box_corners, oriented_boxes_overlap
-from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached
+from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached, outline_meets_shape
 from pytest_driveeval.metrics.episode_outcomes import (COLLISION, GOAL, OFF_ROAD, RUNNING, STEP_LIMIT, classify,
-                                                       off_road, step_reward)
+                                                       step_reward)
 from pytest_driveeval.sim.agents import TrafficModel
 from pytest_driveeval.sim.commonroad_reactive import ReactiveObstacles
+from pytest_driveeval.sim.commonroad_road import corners_on_road
 from pytest_driveeval.sim.dynamics import KinematicBicycle
 from pytest_driveeval.sim.episodes import PERTURBATION_COLUMNS, StepResult, checked_actions
 from pytest_driveeval.sim.state import AgentState
@@ -153,12 +154,27 @@ class CommonRoadEpisodes:
         ego_size = self.size[0]
         o_xy, o_yaw, _, o_valid = obstacles if obstacles is not None else (
             scene.xy[k], scene.yaw[k], None, scene.valid[k])
-        hit = oriented_boxes_overlap(xy[:, None], yaw[:, None], ego_size, o_xy, o_yaw, self.size[1:])
-        collision = np.any(hit & o_valid, axis=-1)
-        grid = scene.road.drivable
-        left = off_road(box_corners(xy, yaw, ego_size), grid.mask, grid.origin, grid.resolution)
+        hit = oriented_boxes_overlap(xy[:, None], yaw[:, None], ego_size, o_xy, o_yaw, self.size[1:]) & o_valid
+        corners = box_corners(xy, yaw, ego_size)
+        if scene.exact_shapes and hit.any():
+            self._refine_hits(hit, corners, k)
+        collision = np.any(hit, axis=-1)
+        left = ~np.all(corners_on_road(scene, corners), axis=-1)
         goal = np.asarray(goal_reached(scene.problem, xy[:, 0], xy[:, 1], yaw, speed, scene.t0 + k), bool)
         return goal.reshape(-1), collision, left
+
+    def _refine_hits(self, hit: np.ndarray, corners: np.ndarray, k: np.ndarray) -> None:
+        """Clear the box hits (E, N) of obstacles whose box only bounds them where the ego's box (corners
+        (E, 4, 2)) misses every shape they occupy at step ``k`` (sim.commonroad_occupancy).  A reacting
+        car has left its recorded place: its box is all there is."""
+        movers = set(self._reactive.movers.tolist()) if self._reactive is not None else set()
+        for j, (index, shapes) in self.blueprint.exact_shapes.items():
+            if j in movers:
+                continue
+            for e in np.flatnonzero(hit[:, j]):
+                slot = index[k[e]]
+                if slot >= 0 and not any(outline_meets_shape(corners[e], s) for s in shapes[slot]):
+                    hit[e, j] = False
 
     def step(self, actions: np.ndarray) -> StepResult:
         """Advance every running episode by one step; ``actions`` (E, 2) = (acceleration, steering angle)."""

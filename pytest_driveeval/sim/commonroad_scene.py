@@ -9,18 +9,21 @@ once, so that a step only indexes arrays:
   direction are ``left`` / ``right``), and the drivable area rasterised from
   the lanelets' own outlines (not the lanes', whose single width would reach
   past a lanelet that narrows).  Off the road is a corner of the ego's box
-  outside every lanelet, as in the blueprints; the raster's cells are
-  ``resolution`` m, so it agrees with the exact test
-  (:func:`~pytest_driveeval.io.commonroad.commonroad_geometry.on_road`) except within a
-  cell's diagonal of a lanelet's edge.
+  outside every lanelet, as in the blueprints; the raster decides away from
+  its edge and the lanelets' outlines within a cell of it
+  (sim.commonroad_road), so a corner is off the road only where it is off
+  the union of lanelets by more than 1 mm.
 * the obstacles, recorded: their box centre, heading, speed and presence at
   every step ``k`` of an episode (time step ``t0 + k``, ``t0`` the planning
   problem's initial time step).  **An obstacle is present from its first
   recorded time step to its last and absent before and after** (invalid in
-  the observation, no collisions); a static obstacle is present throughout.
-  A rectangle is its box; a circle or a polygon is taken as its bounding box
-  in the obstacle's frame (a circle's square: conservative for collisions).
-  A missing orientation is 0, a missing velocity 0.
+  the observation, no collisions); a static obstacle is present throughout,
+  an obstacle given by an occupancy set at its initial step and the steps
+  its occupancies cover.
+  A rectangle is its box; a circle, a polygon, a set-valued state and an
+  occupancy set are boxes round their shapes, and a box hit counts only
+  where the shapes are hit (sim.commonroad_occupancy).  A missing
+  orientation is 0, a missing velocity 0.
 * the ego's start, the planning problem's initial state (its position is the
   centre of the ego's box, as an obstacle's is of its shape), and the goal:
   reached by CommonRoad's rule (:func:`~pytest_driveeval.io.commonroad.commonroad_geometry.goal_reached`,
@@ -46,7 +49,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from functools import lru_cache
 from pathlib import Path
 from typing import ClassVar
@@ -57,8 +60,9 @@ from pytest_driveeval.core.errors import display_path
 from pytest_driveeval.geometry.planar import arc_lengths
 from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_problem, read_commonroad
 from pytest_driveeval.io.commonroad.commonroad_geometry import shape_outline
-from pytest_driveeval.io.commonroad.commonroad_types import (Circle, CommonRoadScenario, Obstacle, PlanningProblem, Polygon,
-                                                  Rectangle, Shape)
+from pytest_driveeval.io.commonroad.commonroad_types import CommonRoadScenario, Obstacle, PlanningProblem
+from pytest_driveeval.sim.commonroad_occupancy import replay, shape_box
+from pytest_driveeval.sim.commonroad_road import road_cells
 from pytest_driveeval.sim.blueprints.base import BlueprintParams, ParameterError, positive, span
 from pytest_driveeval.sim.blueprints.road import Lane, Road, RoadTooLarge
 
@@ -125,6 +129,12 @@ class CommonRoadScene:
     goal_outlines: tuple[np.ndarray, ...]  # the goal positions' outlines, for pictures
     recorded_paths: tuple[np.ndarray, ...] = ()  # per obstacle, (T, 2) its box centres over its whole recording
     traffic: str = "replay"  # or "reactive" (sim.commonroad_reactive)
+    #: obstacle column -> (index (K + 1,) into shapes, -1 where its box is exact; world-frame shapes per
+    #: entry): what decides a box hit where the box only bounds the obstacle (sim.commonroad_occupancy)
+    exact_shapes: dict = field(default_factory=dict)
+    #: (like the drivable raster's mask) int8 off / on the road / within a cell of the raster's edge,
+    #: where a corner is judged by the lanelets' outlines themselves (sim.commonroad_road)
+    road_cells: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -184,41 +194,15 @@ def _road(scenario: CommonRoadScenario, resolution: float) -> Road:
                 lanes_drivable=False)
 
 
-def _box(shape: Shape) -> tuple[np.ndarray, np.ndarray, float]:
-    """(length, width), centre offset and heading offset in the obstacle's frame."""
-    if isinstance(shape, Rectangle):
-        return np.array([shape.length, shape.width]), np.asarray(shape.center, float), float(shape.orientation)
-    if isinstance(shape, Circle):
-        return np.full(2, 2.0 * shape.radius), np.asarray(shape.center, float), 0.0
-    if isinstance(shape, Polygon):
-        lo, hi = shape.vertices.min(axis=0), shape.vertices.max(axis=0)
-        return hi - lo, 0.5 * (lo + hi), 0.0
-    raise TypeError(f"not a CommonRoad shape: {type(shape).__name__}")
-
-
 def _centres(obstacle: Obstacle, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(xy (T, 2), yaw (T,)) of the obstacle's box at its trajectory's states ``i``."""
     traj = obstacle.trajectory
     heading = np.nan_to_num(traj.orientation[i], nan=0.0)
-    _, offset, turn = _box(obstacle.shape)
+    _, offset, turn = shape_box(obstacle.shape)
     c, s = np.cos(heading), np.sin(heading)
     x = traj.x[i] + c * offset[0] - s * offset[1]
     y = traj.y[i] + s * offset[0] + c * offset[1]
     return np.stack([x, y], axis=-1), heading + turn
-
-
-def _replay(obstacle: Obstacle, times: np.ndarray):
-    """(xy (T, 2), yaw (T,), speed (T,), valid (T,)) of the obstacle's box at ``times``."""
-    traj = obstacle.trajectory
-    if obstacle.role == "static":
-        valid = np.ones(len(times), bool)
-        i = np.zeros(len(times), np.int64)
-    else:
-        i = times - int(traj.t[0])
-        valid = (i >= 0) & (i < len(traj))
-        i = np.clip(i, 0, len(traj) - 1)
-    xy, yaw = _centres(obstacle, i)
-    return xy, yaw, np.nan_to_num(traj.velocity[i], nan=0.0), valid, _box(obstacle.shape)[0]
 
 
 def _centre_line_middle(outline_left: np.ndarray, outline_right: np.ndarray) -> tuple[np.ndarray, float]:
@@ -285,6 +269,10 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: st
     if not (math.isfinite(init.orientation) and math.isfinite(init.velocity)):
         raise CommonRoadError(f"{path}: planning problem {problem.id}: the initial state needs an orientation and "
                               f"a velocity (got {init.orientation}, {init.velocity})")
+    if not scenario.lanelets:
+        raise CommonRoadError(f"{display_path(Path(path))}: planning problem {problem.id}: the file has no <lanelet>, "
+                              "so there is no road to drive on (every position would be off the road) and the "
+                              "benchmark cannot drive it; name a scenario file with its lanelet network")
     max_steps = params.pop("max_steps", None) or step_limit(problem)
     p = CommonRoadParams(dt=scenario.dt, max_steps=max_steps, **params)
     try:  # first: its size check allocates nothing
@@ -294,16 +282,18 @@ def commonroad_scene(path: str | os.PathLike, problem_id: int | str, traffic: st
                                                                   "resolution") from None
     times = init.time_step + np.arange(p.max_steps + 1)
     obstacles = list(scenario.obstacles.values())
-    replay = [_replay(o, times) for o in obstacles]
+    replays = [replay(o, times) for o in obstacles]
     n = len(obstacles)
-    xy = np.stack([r[0] for r in replay], axis=1) if n else np.zeros((len(times), 0, 2))
-    yaw, speed, valid = (np.stack([r[k] for r in replay], axis=1) if n else np.zeros((len(times), 0))
-                         for k in (1, 2, 3))
-    sizes = np.array([r[4] for r in replay]).reshape(n, 2)
+    xy = np.stack([r.xy for r in replays], axis=1) if n else np.zeros((len(times), 0, 2))
+    yaw, speed, valid = (np.stack([getattr(r, k) for r in replays], axis=1) if n else np.zeros((len(times), 0))
+                         for k in ("yaw", "speed", "valid"))
+    sizes = np.array([r.size for r in replays]).reshape(n, 2)
+    exact = {j: r.exact for j, r in enumerate(replays) if r.exact is not None}
     centre, heading, goal_speed, outlines = _goal(scenario, problem)
     name = f"{scenario.benchmark_id or Path(path).stem} problem {problem.id}"
     return CommonRoadScene(name, p, road, scenario, problem, init.time_step,
                            tuple(l.polygon for l in scenario.lanelets.values()),
                            np.array([o.id for o in obstacles], np.int64), sizes, xy, yaw, speed, valid.astype(bool),
                            centre, heading, goal_speed, outlines,
-                           tuple(_centres(o, np.arange(len(o.trajectory)))[0] for o in obstacles), traffic)
+                           tuple(_centres(o, np.arange(len(o.trajectory)))[0] for o in obstacles), traffic,
+                           exact, road_cells(road.drivable))

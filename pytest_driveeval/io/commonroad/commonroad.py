@@ -11,8 +11,12 @@ The two formats differ where it matters here: 2018b writes ``<obstacle>`` with `
 and speed limits as ``<trafficSign>`` elements (German sign 274 with the limit as additional value)
 that lanelets name by ``<trafficSignRef>``.  Read and kept: lanelet bounds and neighbours, obstacles
 with their shape and states, planning problems with their goal states.  Skipped: line markings,
-lanelet types, intersections, traffic lights, signs other than speed limits, environment obstacles,
-occupancy-set (set-based) obstacles and the location.
+lanelet types, intersections, traffic lights, signs other than speed limits, environment and phantom
+obstacles, signal states, z coordinates and the location: each is counted with its reason in the
+scenario's ``notes`` (:class:`~.commonroad_types.ReadNote`; commonroad_notes), the list a data check
+prints.  Set-valued states (a shape as position, intervals as values) are read at their middle with
+their sets kept, and obstacles given by an ``<occupancySet>`` by their occupied shapes per time step
+(commonroad_states).
 
 An obstacle's states must cover consecutive time steps once each (in any order: they are sorted);
 a gap or a repeated step is an error naming the obstacle and the step, since a replay needs every step.
@@ -30,17 +34,16 @@ from pathlib import Path
 import numpy as np
 
 from ...core.errors import display_path
+from .commonroad_notes import read_notes
+from .commonroad_states import StateReader
 from .commonroad_types import (CommonRoadError, CommonRoadScenario, GoalState, Lanelet, Neighbour, Obstacle,
                                PlanningProblem, Shape, State, Trajectory)
 from .commonroad_xml import XmlDoc, parse_xml
 
-__all__ = ["read_commonroad", "planning_problem", "CommonRoadError"]
+__all__ = ["read_commonroad", "planning_problem", "no_problem_message", "CommonRoadError"]
 
 VERSIONS = ("2018b", "2020a")
 SPEED_LIMIT_SIGNS = {"274", "R2-1"}  # German "Zulässige Höchstgeschwindigkeit" and the US speed limit sign
-_NAN = float("nan")
-#: time steps count from a recording's start; far beyond this, step arithmetic leaves int64
-MAX_TIME_STEP = 10 ** 9
 
 
 def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
@@ -57,27 +60,40 @@ def read_commonroad(path: str | os.PathLike) -> CommonRoadScenario:
         raise doc.error(root, f"timeStepSize: expected the seconds of one time step, above 0, got {dt:g}: "
                               "give the step of the recording (CommonRoad's benchmarks: 0.1)")
     lanelets = _lanelets(doc, root)
-    obstacles = _obstacles(doc, root, version)
+    states = StateReader(doc, lanelets)
+    obstacles = _obstacles(doc, root, version, states)
     problems: dict[int, PlanningProblem] = {}
     for node in root.findall("planningProblem"):
-        problem = PlanningProblem(doc.ident(node), _state(doc, node.find("initialState"), node, exact=True),
+        problem = PlanningProblem(doc.ident(node), states.state(node.find("initialState"), node),
                                   tuple(_goal(doc, g, node, lanelets) for g in node.findall("goalState")))
         if not problem.goals:
             raise doc.error(node, "planning problem without <goalState>")
         if problem.id in problems or problem.id in lanelets or problem.id in obstacles:
             raise doc.error(node, f"id {problem.id} is used twice")
         problems[problem.id] = problem
-    return CommonRoadScenario(path, root.get("benchmarkID", ""), version, dt, lanelets, obstacles, problems)
+    scenario = CommonRoadScenario(path, root.get("benchmarkID", ""), version, dt, lanelets, obstacles, problems)
+    scenario.notes.extend(read_notes(doc, root, scenario, states))
+    return scenario
 
 
 def planning_problem(scenario: CommonRoadScenario, problem_id: int | str) -> PlanningProblem:
     """The planning problem ``problem_id``; an error listing the ids there are when it is not in the file."""
+    if not scenario.planning_problems:
+        raise CommonRoadError(no_problem_message(scenario))
     try:
         return scenario.planning_problems[int(problem_id)]
     except (KeyError, ValueError):
-        have = ", ".join(str(i) for i in scenario.planning_problems) or "none"
+        have = ", ".join(str(i) for i in scenario.planning_problems)
         raise CommonRoadError(f"{display_path(scenario.path)}: no planning problem with id {problem_id!r} "
                               f"(the file has: {have})") from None
+
+
+def no_problem_message(scenario: CommonRoadScenario) -> str:
+    """Why a file without a planning problem cannot be driven, naming it."""
+    holds = f"{len(scenario.lanelets)} lanelet(s) and {len(scenario.obstacles)} obstacle(s)"
+    return (f"{display_path(scenario.path)} has no <planningProblem> (it holds {holds} only): the benchmark "
+            "drives an ego from a planning problem's initial state to its goal, so this file cannot be driven; "
+            "name a scenario file that has one")
 
 
 # ---------------------------------------------------------------- lanelets
@@ -129,31 +145,7 @@ def _lanelets(doc: XmlDoc, root: ET.Element) -> dict[int, Lanelet]:
     return lanelets
 
 
-# ---------------------------------------------------------------- states and obstacles
-
-def _state(doc: XmlDoc, node: ET.Element | None, owner: ET.Element, exact: bool) -> State:
-    if node is None:
-        raise doc.error(owner, "<initialState> missing")
-    position = node.find("position")
-    point = position.find("point") if position is not None else None
-    if point is None:
-        raise doc.error(owner, f"<{node.tag}> needs a <position><point> (time step "
-                               f"{node.findtext('time/exact', '?').strip()})")
-    time = doc.value(node.find("time"), owner, exact=True)
-    if time is None:
-        raise doc.error(owner, f"<{node.tag}> without <time>")
-    if time != int(time):
-        raise doc.error(owner, f"<{node.tag}>: time step {time} is not an integer")
-    if abs(time) > MAX_TIME_STEP:
-        raise doc.error(owner, f"<{node.tag}>: time step {time:g} is beyond {MAX_TIME_STEP:g} (over three years of "
-                               "0.1 s steps): give the step's number, counted from the recording's start")
-    fields = {name: doc.value(node.find(tag), owner, exact=True)
-              for name, tag in (("orientation", "orientation"), ("velocity", "velocity"),
-                                ("acceleration", "acceleration"), ("yaw_rate", "yawRate"),
-                                ("slip_angle", "slipAngle"))}
-    return State(int(time), doc.child_number(point, "x"), doc.child_number(point, "y"),
-                 **{k: _NAN if v is None else v for k, v in fields.items()})
-
+# ---------------------------------------------------------------- obstacles
 
 def _trajectory(doc: XmlDoc, node: ET.Element, states: list[State]) -> Trajectory:
     states = sorted(states, key=lambda s: s.time_step)
@@ -165,29 +157,32 @@ def _trajectory(doc: XmlDoc, node: ET.Element, states: list[State]) -> Trajector
             raise doc.error(node, f"no state at time step {a + 1} (states jump from {a} to {b})")
     column = lambda name: np.array([getattr(s, name) for s in states], dtype=np.float64)
     return Trajectory(np.array(steps, dtype=np.int64), column("x"), column("y"), column("orientation"),
-                      column("velocity"), column("acceleration"))
+                      column("velocity"), column("acceleration"),
+                      {s.time_step: s.set for s in states if s.set is not None})
 
 
-def _obstacle(doc: XmlDoc, node: ET.Element, role: str) -> Obstacle:
+def _obstacle(doc: XmlDoc, node: ET.Element, role: str, states: StateReader) -> Obstacle:
     ident = doc.ident(node)
-    if node.find("occupancySet") is not None and node.find("trajectory") is None:
-        raise doc.error(node, "obstacles given by an occupancy set are not supported (only trajectories)")
     shape_node = node.find("shape")
     shapes = doc.shapes(shape_node) if shape_node is not None else []
     if len(shapes) != 1:
         raise doc.error(node, f"needs one shape (rectangle, circle or polygon), found {len(shapes)}")
-    initial = _state(doc, node.find("initialState"), node, exact=True)
-    states = [initial]
+    initial = states.state(node.find("initialState"), node)
+    kind = (node.findtext("type") or "").strip() or "unknown"
+    trajectory = node.find("trajectory")
+    occupancy_set = node.find("occupancySet")
+    if role == "dynamic" and trajectory is None and occupancy_set is not None:
+        return Obstacle(ident, role, kind, shapes[0], initial, _trajectory(doc, node, [initial]),
+                        states.occupancies(occupancy_set, node))
+    all_states = [initial]
     if role == "dynamic":
-        trajectory = node.find("trajectory")
         if trajectory is None or trajectory.find("state") is None:
-            raise doc.error(node, "dynamic obstacle with an empty or missing <trajectory>")
-        states += [_state(doc, s, node, exact=True) for s in trajectory.findall("state")]
-    kind = (node.findtext("type") or "").strip()
-    return Obstacle(ident, role, kind or "unknown", shapes[0], initial, _trajectory(doc, node, states))
+            raise doc.error(node, "dynamic obstacle with an empty or missing <trajectory> (and no <occupancySet>)")
+        all_states += [states.state(s, node) for s in trajectory.findall("state")]
+    return Obstacle(ident, role, kind, shapes[0], initial, _trajectory(doc, node, all_states))
 
 
-def _obstacles(doc: XmlDoc, root: ET.Element, version: str) -> dict[int, Obstacle]:
+def _obstacles(doc: XmlDoc, root: ET.Element, version: str, states: StateReader) -> dict[int, Obstacle]:
     found: list[tuple[ET.Element, str]] = []
     if version == "2018b":
         for node in root.findall("obstacle"):
@@ -200,7 +195,7 @@ def _obstacles(doc: XmlDoc, root: ET.Element, version: str) -> dict[int, Obstacl
         found += [(n, "static") for n in root.findall("staticObstacle")]
     obstacles: dict[int, Obstacle] = {}
     for node, role in sorted(found, key=lambda f: doc.lines.get(f[0], 0)):
-        obstacle = _obstacle(doc, node, role)
+        obstacle = _obstacle(doc, node, role, states)
         if obstacle.id in obstacles:
             raise doc.error(node, f"obstacle id {obstacle.id} is used twice")
         obstacles[obstacle.id] = obstacle

@@ -19,21 +19,58 @@ from ...geometry.polygons import outline_distance
 from .commonroad_types import (Circle, CommonRoadScenario, GoalState, Obstacle, PlanningProblem, Polygon, Rectangle,
                                Shape)
 
-__all__ = ["goal_reached", "in_shape", "in_outline", "on_road", "lanelets_at", "obstacle_outline", "shape_outline"]
+__all__ = ["goal_reached", "in_shape", "in_outline", "on_road", "lanelets_at", "obstacle_outline", "shape_outline",
+           "outlines_meet", "outline_meets_shape", "ROAD_TOLERANCE"]
 
 # Points this close to an outline count as on it: commonroad-io's shapely test includes the boundary,
 # which a crossing-number test only half does.
 ON_EDGE = 1e-9
+#: How far outside every lanelet a point may lie and still be on the road, m.  Lanelets that share a
+#: bound in the file often differ in its last digits, leaving hairline gaps of a few mm² between them;
+#: the drivability checker closes them with a 1 mm buffer (create_road_polygons(buffer=..., buf_width=1e-3)),
+#: and a corner that falls in one must not be off the road for us while it is on it for a reference.
+ROAD_TOLERANCE = 1e-3
 
 
-def in_outline(x: np.ndarray, y: np.ndarray, outline: np.ndarray) -> np.ndarray:
-    """Whether each point lies inside or on the closed outline (K, 2)."""
+def in_outline(x: np.ndarray, y: np.ndarray, outline: np.ndarray, tolerance: float = ON_EDGE) -> np.ndarray:
+    """Whether each point lies inside the closed outline (K, 2) or within ``tolerance`` of it."""
     x, y = np.atleast_1d(np.asarray(x, dtype=np.float64)), np.atleast_1d(np.asarray(y, dtype=np.float64))
     inside = points_in_polygon(x, y, outline)
     if not inside.all():
         rest = ~inside
-        inside[rest] = outline_distance(np.stack([x[rest], y[rest]], axis=1), outline) <= ON_EDGE
+        inside[rest] = outline_distance(np.stack([x[rest], y[rest]], axis=1), outline) <= tolerance
     return inside
+
+
+def _segments_cross(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> bool:
+    """Whether any segment a0[i]-a1[i] (I, 2) meets any b0[j]-b1[j] (J, 2), touching included."""
+    def side(p, q, r):  # sign of the turn p -> q -> r, for every pair
+        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
+                       - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+    p, q = a0[:, None], a1[:, None]
+    r, t = b0[None], b1[None]
+    return bool(np.any((side(p, q, r) * side(p, q, t) <= 0) & (side(r, t, p) * side(r, t, q) <= 0)
+                       & (np.minimum(p[..., 0], q[..., 0]) <= np.maximum(r[..., 0], t[..., 0]))
+                       & (np.minimum(r[..., 0], t[..., 0]) <= np.maximum(p[..., 0], q[..., 0]))
+                       & (np.minimum(p[..., 1], q[..., 1]) <= np.maximum(r[..., 1], t[..., 1]))
+                       & (np.minimum(r[..., 1], t[..., 1]) <= np.maximum(p[..., 1], q[..., 1]))))
+
+
+def outlines_meet(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two closed outlines (K, 2), convex or not, share a point (touching counts, as shapely's
+    ``intersects`` and the drivability checker's collision test)."""
+    if in_outline(a[:, 0], a[:, 1], b).any() or in_outline(b[:, 0], b[:, 1], a).any():
+        return True
+    return _segments_cross(a, np.roll(a, -1, axis=0), b, np.roll(b, -1, axis=0))
+
+
+def outline_meets_shape(outline: np.ndarray, shape: Shape) -> bool:
+    """Whether the closed outline (K, 2) shares a point with a world-frame shape (touching counts)."""
+    if isinstance(shape, Circle):
+        centre = np.asarray(shape.center, dtype=np.float64)
+        return bool(in_outline(centre[:1], centre[1:], outline)[0]
+                    or outline_distance(centre[None], outline)[0] <= shape.radius + ON_EDGE)
+    return outlines_meet(outline, shape_outline(shape))
 
 
 def in_shape(x: np.ndarray, y: np.ndarray, shape: Shape) -> np.ndarray:
@@ -87,18 +124,19 @@ def goal_reached(goal: GoalState | PlanningProblem, x, y, orientation, velocity,
     return bool(reached[0]) if not shape else reached
 
 
-def on_road(scenario: CommonRoadScenario, x, y) -> np.ndarray:
-    """Whether each point lies in or on some lanelet's outline (off-road: outside every lanelet)."""
+def on_road(scenario: CommonRoadScenario, x, y, tolerance: float = ON_EDGE) -> np.ndarray:
+    """Whether each point lies in some lanelet's outline or within ``tolerance`` of one (off-road:
+    outside every lanelet; the episodes' corner rule gives :data:`ROAD_TOLERANCE`)."""
     x, y = np.atleast_1d(np.asarray(x, dtype=np.float64)), np.atleast_1d(np.asarray(y, dtype=np.float64))
     out = np.zeros(np.broadcast(x, y).shape, dtype=bool)
     xs, ys = np.broadcast_to(x, out.shape).ravel(), np.broadcast_to(y, out.shape).ravel()
     flat = out.ravel()
     for lanelet in scenario.lanelets.values():
         outline = lanelet.polygon
-        lo, hi = outline.min(axis=0) - ON_EDGE, outline.max(axis=0) + ON_EDGE
+        lo, hi = outline.min(axis=0) - tolerance, outline.max(axis=0) + tolerance
         near = ~flat & (xs >= lo[0]) & (xs <= hi[0]) & (ys >= lo[1]) & (ys <= hi[1])
         if near.any():
-            flat[near] = in_outline(xs[near], ys[near], outline)
+            flat[near] = in_outline(xs[near], ys[near], outline, tolerance)
     return flat.reshape(out.shape)
 
 

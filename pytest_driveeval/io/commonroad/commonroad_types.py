@@ -14,8 +14,9 @@ import numpy as np
 
 from ...core.errors import DataError
 
-__all__ = ["CommonRoadError", "Rectangle", "Circle", "Polygon", "Shape", "Neighbour", "Lanelet", "State",
-           "Trajectory", "Obstacle", "Interval", "GoalState", "PlanningProblem", "CommonRoadScenario"]
+__all__ = ["CommonRoadError", "Rectangle", "Circle", "Polygon", "Shape", "Neighbour", "Lanelet", "State", "StateSet",
+           "Trajectory", "Occupancy", "Obstacle", "Interval", "GoalState", "PlanningProblem", "ReadNote",
+           "CommonRoadScenario"]
 
 
 class CommonRoadError(DataError, ValueError):
@@ -73,8 +74,36 @@ class Lanelet:
 
 
 @dataclass(frozen=True)
+class Interval:
+    start: float
+    end: float
+
+    def contains(self, value):
+        return (self.start <= value) & (value <= self.end)
+
+    @property
+    def middle(self) -> float:
+        return 0.5 * (self.start + self.end)
+
+
+@dataclass(frozen=True, eq=False)
+class StateSet:
+    """What a set-valued state gives beyond the one value it is replayed at: the position as shapes
+    (world frame; a lanelet named as position is its outline, a Polygon) and the fields given as
+    intervals, by State field name.  Checks that must be conservative (collisions) use these."""
+
+    position: tuple[Shape, ...] = ()
+    intervals: tuple[tuple[str, Interval], ...] = ()
+
+    def interval(self, name: str) -> Interval | None:
+        return dict(self.intervals).get(name)
+
+
+@dataclass(frozen=True)
 class State:
-    """One exact state; fields the file does not give are nan."""
+    """One state; fields the file does not give are nan.  A set-valued state (a shape as position, an
+    interval as a value) is its middle here (a shape's centre, an interval's middle) and keeps the
+    sets in ``set``."""
 
     time_step: int
     x: float
@@ -84,6 +113,7 @@ class State:
     acceleration: float = float("nan")
     yaw_rate: float = float("nan")
     slip_angle: float = float("nan")
+    set: StateSet | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,6 +126,7 @@ class Trajectory:
     orientation: np.ndarray
     velocity: np.ndarray
     acceleration: np.ndarray
+    sets: dict[int, StateSet] = field(default_factory=dict)  # time step -> the sets of a set-valued state
 
     def __len__(self) -> int:
         return len(self.t)
@@ -105,7 +136,17 @@ class Trajectory:
         if not 0 <= i < len(self.t):
             raise IndexError(f"time step {time_step} outside {int(self.t[0])}..{int(self.t[-1])}")
         return State(int(self.t[i]), float(self.x[i]), float(self.y[i]), float(self.orientation[i]),
-                     float(self.velocity[i]), float(self.acceleration[i]))
+                     float(self.velocity[i]), float(self.acceleration[i]), set=self.sets.get(int(self.t[i])))
+
+
+@dataclass(frozen=True, eq=False)
+class Occupancy:
+    """The region an obstacle given by an occupancy set occupies at time steps ``start`` to ``end``
+    (both included; one step when the file gives an exact time): the union of ``shapes``, world frame."""
+
+    start: int
+    end: int
+    shapes: tuple[Shape, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,16 +156,12 @@ class Obstacle:
     type: str  # car, truck, pedestrian, parkedVehicle, ... as written
     shape: Shape
     initial: State
-    trajectory: Trajectory  # a static obstacle's holds its one state
+    trajectory: Trajectory  # a static obstacle's, and an occupancy-set obstacle's, holds its initial state
+    occupancy: tuple[Occupancy, ...] = ()  # an obstacle given by <occupancySet>: where it is, step by step
 
-
-@dataclass(frozen=True)
-class Interval:
-    start: float
-    end: float
-
-    def contains(self, value):
-        return (self.start <= value) & (value <= self.end)
+    @property
+    def set_based(self) -> bool:
+        return bool(self.occupancy)
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,6 +191,23 @@ class PlanningProblem:
     goals: tuple[GoalState, ...]
 
 
+@dataclass(frozen=True)
+class ReadNote:
+    """One line of what the reader did with a file: ``action`` is "read", "skipped" or "assumed"
+    (a value the file leaves to the reader), ``what`` the elements (``<environmentObstacle>``),
+    ``count`` how many, ``why`` the reason in words, ``line`` the first one's line."""
+
+    action: str
+    what: str
+    count: int
+    why: str
+    line: int | None = None
+
+    def render(self) -> str:
+        at = f" (first at line {self.line})" if self.line else ""
+        return f"{self.action} {self.count} {self.what}{at}: {self.why}"
+
+
 @dataclass
 class CommonRoadScenario:
     path: Path
@@ -163,6 +217,8 @@ class CommonRoadScenario:
     lanelets: dict[int, Lanelet]
     obstacles: dict[int, Obstacle]
     planning_problems: dict[int, PlanningProblem]
+    #: what was read, skipped and assumed, and why (for a data check; see ReadNote)
+    notes: list[ReadNote] = field(default_factory=list)
 
     def dynamic_obstacles(self) -> list[Obstacle]:
         return [o for o in self.obstacles.values() if o.role == "dynamic"]

@@ -16,7 +16,7 @@ from typing import Any
 
 from pytest_driveeval.core.errors import DataError, display_path
 from pytest_driveeval.core.usecase import gib, memory_budget
-from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_problem
+from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, no_problem_message, planning_problem
 
 __all__ = ["planning_problems", "scene_for"]
 
@@ -47,6 +47,8 @@ def scene_for(config: Any, ctx: Any, params: dict) -> Any:
     try:
         if problem is None:
             ids = sorted(read_cached(path).planning_problems)
+            if not ids:
+                raise CommonRoadError(no_problem_message(read_cached(path)))
             if len(ids) != 1:
                 raise CommonRoadError(f"{display_path(path)} holds {len(ids)} planning problems "
                                       f"({', '.join(map(str, ids)) or 'none'}): name one in PlanningProblem")

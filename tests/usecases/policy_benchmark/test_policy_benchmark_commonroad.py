@@ -234,3 +234,24 @@ def test_bad_numbers_special_files_and_sizes_fail_their_own_item_at_their_line(p
     ]:
         assert expected in out, expected
     assert "Traceback" not in out and "MemoryError" not in out
+
+
+def test_shared_format_files_run_or_say_they_cannot_be_driven(pytester, shared_data):
+    # test_reading_all: an occupancy-set obstacle, signal states, environment and phantom obstacles;
+    # test_reading_pm_state: point-mass obstacle states; test_reading_lanelets: a map without a problem
+    for name in ("test_reading_all.xml", "test_reading_pm_state.xml", "test_reading_lanelets.xml"):
+        shutil.copy(shared_data / "commonroad" / name, pytester.path / name)
+    pytester.makefile(".scenario.yaml", **{
+        "all": scenario(name="all", path="test_reading_all.xml", episodes=2),
+        "pm": scenario(name="pm", path="test_reading_pm_state.xml", episodes=2, extra="\n    Params: {max_steps: 10}"),
+        "map": scenario(name="map", path="test_reading_lanelets.xml", episodes=2)})
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    result.stdout.fnmatch_lines(["*map.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: *test_reading_lanelets.xml "
+                                 "has no <planningProblem> (it holds 6 lanelet(s) and 0 obstacle(s) only): *this "
+                                 "file cannot be driven*"])
+    found = records(pytester)
+    ran = {k: r for k, r in found.items() if not k.startswith("map")}
+    assert set(ran) == {f"{s}.scenario.yaml::policy_benchmark[{p}-problem{i}]" for s, i in (("all", 1000), ("pm", 29))
+                        for p in ("mine", "random")}
+    for key, record in ran.items():
+        assert "goal_rate" in record["figures"], (key, record)
