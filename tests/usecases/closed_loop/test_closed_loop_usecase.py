@@ -64,8 +64,9 @@ def test_constant_velocity_fails_naming_scene_frame_agent_with_artefacts(cl):
     cl.makefile(".scenario.yaml", cv=scenario(model="constant_velocity", unroll="    StartFrame: 10\n    Steps: 100"))
     result = cl.runpytest("-q")
     result.assert_outcomes(failed=1)
-    result.stdout.fnmatch_lines(["*scene 0: 1 at-fault front collision frame(s), 0 allowed; first at frame 73 "
-                                 "with agent 1 (cv.scenario.yaml:14)"])
+    # the scene by its index and its zarr: a user with several stores sees which one
+    result.stdout.fnmatch_lines(["*scene 0 (real.zarr): 1 at-fault front collision frame(s), 0 allowed; first at "
+                                 "frame 73 with agent 1 (cv.scenario.yaml:14)"])
     (record,) = summary(cl).values()
     assert record["status"] == "failed" and record["figures"]["at_fault"] >= 1
     assert record["figures"]["drift_resets"] == 3 and "displacement_error" not in record["figures"]
@@ -75,6 +76,11 @@ def test_constant_velocity_fails_naming_scene_frame_agent_with_artefacts(cl):
         assert (out / record["artefacts"][name]).stat().st_size > 1000
     detail = json.loads((out / record["artefacts"]["result"]).read_text())["scenes"][0]
     assert {"frame": 73, "kind": "front", "track_id": 1, "at_fault": True} in detail["collisions"]
+    assert detail["scene"] == 0 and detail["identity"] == {"index": 0, "zarr": "real.zarr"}
+    assert detail["name"] == "real.zarr" and detail["findings"][0]["message"].startswith("scene 0 (real.zarr): ")
+    (scene,) = record["details"]["scenes"]
+    assert scene["scene"] == 0 and scene["name"] == "real.zarr"
+    assert record["artefacts"]["scene_0_gif"].endswith("scene_0_real.gif")
 
 
 def test_allowing_not_at_fault_collisions_changes_the_verdict(cl):
