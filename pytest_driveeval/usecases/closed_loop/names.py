@@ -12,23 +12,28 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Iterable
 
+from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.core.filenames import safe_name_part
 from pytest_driveeval.core.outcome import Finding
 
 __all__ = ["caption", "gif_name", "name_findings", "name_verdicts", "named", "scene_identity", "scene_label"]
 
 
-def scene_identity(dataset: Any, index: int) -> dict[str, Any]:
+def scene_identity(dataset: Any, index: int, read: bool = True) -> dict[str, Any]:
     """What names scene ``index`` in its data: ``{"index", "scenario_id", "file"}`` for ScenarioNet
-    (``scenario_id`` left out when its file cannot be read), ``{"index", "zarr"}`` for an L5 zarr,
-    ``{"index"}`` alone for a dataset object that says nothing about its files."""
+    (``scenario_id`` left out when its file cannot be read, or ``read`` is False: a scene known to be
+    broken is not read again), ``{"index", "zarr"}`` for an L5 zarr, ``{"index"}`` alone for a
+    dataset object that says nothing about its files."""
     identity: dict[str, Any] = {"index": int(index)}
     files = getattr(dataset, "files", None)
     if files is not None and getattr(dataset, "source", None) is not None:  # io.scenarionet ScenarioNetDataset
         if 0 <= index < len(files):
             identity["file"] = Path(files[index]).name
-            if getattr(dataset, "problem", lambda i: None)(index) is None:
-                identity["scenario_id"] = str(dataset.source(index).id)
+            if read:
+                try:  # read when its scene was: the reader keeps it
+                    identity["scenario_id"] = str(dataset.source(index).id)
+                except (DataError, OSError, ValueError, TypeError, KeyError, AttributeError):
+                    pass  # its finding says why; the file names it
         return identity
     path = getattr(dataset, "path", None)
     if path is not None:
@@ -85,9 +90,11 @@ def name_findings(findings: Iterable[Finding], names: dict[int, str]) -> None:
 def name_verdicts(dataset: Any, verdicts: list, problems: list[Finding]) -> dict[int, dict[str, Any]]:
     """Each verdict's scene identity by index; its findings and ``problems`` (the scenes that could
     not be unrolled) named.  The error text a verdict keeps is named by the caller from the same map."""
-    scenes = {int(v.scene) for v in verdicts} | {int(f.scene) for f in problems if isinstance(f.scene, int)}
+    unrolled = {int(v.scene) for v in verdicts}
+    unread = {int(f.scene) for f in problems if isinstance(f.scene, int)} - unrolled
     count = getattr(dataset, "num_scenes", None)
-    identities = {s: scene_identity(dataset, s) for s in scenes if count is None or 0 <= s < count}
+    identities = {s: scene_identity(dataset, s, read=s in unrolled) for s in sorted(unrolled | unread)
+                  if count is None or 0 <= s < count}
     names = {s: named(s, identity) for s, identity in identities.items()}
     name_findings(problems, names)
     for verdict in verdicts:

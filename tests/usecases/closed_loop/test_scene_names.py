@@ -51,6 +51,19 @@ def test_a_scenario_file_that_cannot_be_read_is_named_by_its_file(tmp_path):
     assert scene_label(identity) == "sd_cut.pkl" and gif_name(0, identity) == "scene_0_sd_cut.gif"
 
 
+def test_a_scene_known_to_be_broken_is_not_read_again_to_name_it():
+    from types import SimpleNamespace
+
+    def source(index):
+        raise AssertionError("read again")
+
+    dataset = SimpleNamespace(files=["a/sd_x.pkl"], source=source, num_scenes=1)
+    assert scene_identity(dataset, 0, read=False) == {"index": 0, "file": "sd_x.pkl"}
+    problem = Finding("scene 0 cannot be read: sd_x.pkl is truncated", scene=0)
+    assert name_verdicts(dataset, [], [problem]) == {0: {"index": 0, "file": "sd_x.pkl"}}
+    assert problem.message == "scene 0 (sd_x.pkl) cannot be read: sd_x.pkl is truncated"
+
+
 def test_a_dataset_object_that_says_nothing_keeps_the_bare_index():
     identity = scene_identity(object(), 4)
     assert identity == {"index": 4} and named(4, identity) == "scene 4"
