@@ -167,6 +167,7 @@ def _commonroad_scenes(check: FileCheck, path: Path, scenario) -> None:
         steps = scene.params.max_steps
         check.read.append(f"planning problem {problem}: a scene of {plural(steps, 'step')} from time step "
                           f"{scene.t0}, {plural(len(scene.obstacle_ids), 'obstacle')} replayed")
+        check.skipped.extend(f"planning problem {problem}: {entry}" for entry in skipped_entries(scene))
 
 
 def check_bag(path: Path) -> FileCheck:
@@ -206,8 +207,10 @@ def check_t4(path: Path) -> FileCheck:
     except (DataError, OSError, *UNFORESEEN) as exc:
         return failed(check, exc)
     present = sum(p.is_file() for p in lidar)
-    check.read.append(f"{plural(len(tokens), 'sample')}, {plural(int(np.sum(boxes)), 'annotated box', 'annotated boxes')} "
-                      f"(of {plural(len(categories), 'category', 'categories')}), lidar sweeps: {present} of {len(lidar)} present")
+    annotated = plural(int(np.sum(boxes)), "annotated box", "annotated boxes")
+    check.read.append(f"{plural(len(tokens), 'sample')}, {annotated} (of "
+                      f"{plural(len(categories), 'category', 'categories')}), lidar sweeps: {present} of "
+                      f"{len(lidar)} present")
     if present < len(lidar):
         missing = [display_path(p) for p in lidar if not p.is_file()]
         check.skipped.append(f"lidar sweeps not there ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}): "

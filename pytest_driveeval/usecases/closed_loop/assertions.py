@@ -29,8 +29,8 @@ def assert_collision_free(unroll: Unroll, kinds: Sequence[str] = ("front", "side
         events = collision_events(unroll, row, kinds, at_fault_only)
         if events:
             first = events[0]
-            lines.append(f"{unroll.scene_name(scene)}: {len(events)} collision frame(s); first at frame {first['frame']}: "
-                         f"{first['kind']}{collision_detail(first)}")
+            lines.append(f"{unroll.scene_name(scene)}: {len(events)} collision frame(s); first at frame "
+                         f"{first['frame']}: {first['kind']}{collision_detail(first)}")
     if lines:
         what = ("at-fault " if at_fault_only else "") + "/".join(kinds)
         raise AssertionError(f"{what} collisions in {len(lines)} scene(s):\n  " + "\n  ".join(lines))

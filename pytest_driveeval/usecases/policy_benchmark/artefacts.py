@@ -78,8 +78,8 @@ def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder |
     if row is not None:
         seed = int(run.seeds[row])
         shown, shown_row = (recorder, row) if recorder is not None else (replay(row), 0)
-        out[f"episode_{seed}_gif"] = episode_gif(ctx.artefact(f"episode_seed_{seed}{gif_part(scene)}.gif"), shown, shown_row,
-                                                 config.AgentLimit,
+        gif = ctx.artefact(f"episode_seed_{seed}{gif_part(scene)}.gif")
+        out[f"episode_{seed}_gif"] = episode_gif(gif, shown, shown_row, config.AgentLimit,
                                                  f"{run.policy} seed {seed}: {run.outcome_names()[row]}")
     return out
 

@@ -111,8 +111,9 @@ def test_verdicts_from_anywhere_get_their_identity_and_named_findings():
     verdict = SceneVerdict(1, False, {}, [Finding("scene 1: 3 reset(s) on drift, 0 allowed", scene=1)])
     problem = Finding("scene 5 is out of range: scenes 0..2", scene=5)
     identities = name_verdicts(dataset, [verdict], [problem])
-    assert identities == {1: {"index": 1, "file": "sd_nuscenes_v1.0-mini_scene-0553.pkl", "scenario_id": "scene-0553"}}
-    assert verdict.findings[0].message.startswith("scene 1 (scenario scene-0553, sd_nuscenes_v1.0-mini_scene-0553.pkl): ")
+    file = "sd_nuscenes_v1.0-mini_scene-0553.pkl"
+    assert identities == {1: {"index": 1, "file": file, "scenario_id": "scene-0553"}}
+    assert verdict.findings[0].message.startswith(f"scene 1 (scenario scene-0553, {file}): ")
     assert problem.message == "scene 5 is out of range: scenes 0..2"
 
 
