@@ -153,3 +153,40 @@ def test_baseline_units_stay_keyed_by_index():
         findings=[Finding("scene 1 (scenario b, b.pkl): drift", scene=1, figure="Displacement")])
     units = scene_units(outcome)
     assert units is not None and list(units.ids) == ["0", "1"]
+
+
+CHUNKED = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: chunked
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - nuscenes: {{Path: {data}}}
+  Model: constant_velocity
+  Unroll: {{Scenes: [0, 2], StartFrame: 10, Steps: 30}}
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0}}
+    Displacement: {{Max: 0.01}}
+  Artefacts: {{Animations: all}}
+  Executor: {{Kind: local, ChunkSize: 1}}
+"""
+
+
+def test_scenes_judged_in_chunks_are_named_where_the_item_runs(pytester):
+    """Chunks judge and draw on their own process (here: local ones); the item names what they return."""
+    import json
+
+    pytester.makefile(".scenario.yaml", chunked=CHUNKED.format(data=FIXTURE_SCENES))
+    pytester.runpytest("-p", "no:randomly").assert_outcomes(failed=1)
+    (record,) = json.loads((pytester.path / "driveeval-results" / "summary.json").read_text())["results"]
+    assert [c["work"] for c in record["details"]["executor"]["chunks"]] == ["scenes 0..0 of nuscenes",
+                                                                            "scenes 2..2 of nuscenes"]
+    assert [s["name"] for s in record["details"]["scenes"]] == [
+        "scenario scene-0103, sd_nuscenes_v1.0-mini_scene-0103.pkl",
+        "scenario scene-0757, sd_nuscenes_v1.0-mini_scene-0757.pkl"]
+    drift = [f["message"] for f in record["findings"] if f.get("figure") == "Displacement"]
+    assert drift and all(m.startswith(("scene 0 (scenario scene-0103, ", "scene 2 (scenario scene-0757, "))
+                         for m in drift)
+    assert record["artefacts"]["scene_0_gif"].endswith("/scene_0_scene-0103.gif")
+    assert record["artefacts"]["scene_2_gif"].endswith("/scene_2_scene-0757.gif")
