@@ -138,7 +138,8 @@ BAD_MODELS = {
                       "        if batch['centroid'].shape[0] == 3:\n"
                       "            out['positions'][0] = float('nan')\n"
                       "        return out\n",
-                      "*scene 2: model returned NaN/inf in its first pose at frame 5*"),
+                      # the engine's message, named as every finding of a scene is
+                      "*scene 2 (gen.zarr): model returned NaN/inf in its first pose at frame 5*"),
     "wrong_shape": ("import torch\nclass M(torch.nn.Module):\n"
                     "    def forward(self, batch):\n"
                     "        b = batch['centroid'].shape[0]\n"
@@ -167,6 +168,8 @@ def test_bad_model_output_fails_clearly_and_keeps_results(cl, kind):
     steps = {s["scene"]: s["steps"] for s in record["details"]["scenes"]}
     if kind == "nan_first_row":
         assert steps == {2: 1, 3: 30, 4: 30}  # only its logged start frame; the others ran to the end
+        error = {s["scene"]: s["error"] for s in record["details"]["scenes"]}[2]
+        assert error.startswith("scene 2 (gen.zarr): model returned NaN/inf")
     assert set(steps) == {2, 3, 4}
 
 
