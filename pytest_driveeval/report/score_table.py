@@ -30,7 +30,9 @@ def score_rows(details: dict[str, Any]) -> tuple[list[str], list[list[str]], lis
     rows, notes = [], []
     for scene in scored_scenes(details):
         terms = scene["score_terms"]
-        rows.append([str(scene["scene"]), f"{scene.get('score', float('nan')):.3f}",
+        # the index (what Scenes: and baselines key on), then which scene in the data it is
+        shown = f"{scene['scene']} ({scene['name']})" if scene.get("name") else str(scene["scene"])
+        rows.append([shown, f"{scene.get('score', float('nan')):.3f}",
                      *(_cell(terms.get(name, {})) for name, _ in COLUMNS)])
         for name, label in COLUMNS:
             reason = terms.get(name, {}).get("reason")

@@ -85,7 +85,9 @@ ALLOWED = {
     "closed_loop": {"usecases"},
     "obstacle": {"usecases"},
     # ``python -m pytest_driveeval``: parses the command line and hands it to the command's module.
-    "__main__": {"baseline"},
+    "__main__": {"baseline", "datacheck"},
+    # ``check-data``: reads each format as the evaluation would, up to its scene (sim builds them).
+    "datacheck": FOUNDATION | {"io", "sim"},
 }
 PYTEST_SIDE = {"plugin", "harness.collect", "harness.fixtures", "harness.results", "harness.failure",
                "harness.progress", "assertions", "__init__"}

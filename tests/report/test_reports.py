@@ -61,6 +61,7 @@ def test_pytest_html_extras_inline_images_once_per_item(two, workers):
         assert "<td>front</td><td>0</td>" in figures
         # the scene's nuPlan score, term by term; the generated scene has no map: its map terms n/a
         assert "nuPlan score per scene" in scores and "<td>n/a</td>" in scores and "the scene has no map" in scores
+        assert "<td>0 (gen.zarr)</td>" in scores  # the scene by its index and its zarr
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
@@ -79,6 +80,8 @@ def test_allure_results_have_typed_attachments_labels_and_figures(two, workers):
         assert r["description"] == "replaying the log, for the reports"
         for attachment in r["attachments"]:
             assert (two.path / "allure" / attachment["source"]).stat().st_size > 100
+        (scores,) = [a for a in r["attachments"] if a["name"] == "nuPlan score per scene"]
+        assert "0 (gen.zarr)" in (two.path / "allure" / scores["source"]).read_text()  # the scene's zarr too
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])

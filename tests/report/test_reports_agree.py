@@ -86,7 +86,8 @@ def test_the_animation_names_a_collision_by_the_frame_the_finding_and_closed_loo
     assert in_json and min(in_json) >= 10  # StartFrame: 10, so a frame counted from the start would be < 40
     (finding,) = [f for f in record["findings"] if f.get("frame") is not None]
     assert finding["frame"] == min(in_json) and f"first at frame {min(in_json)}" in finding["message"]
-    shown = frames_captioned(folder / record["artefacts"]["scene_3_gif"], "scene 3", range(0, 60))
+    # captioned with the scene's index and its zarr, as the findings name it
+    shown = frames_captioned(folder / record["artefacts"]["scene_3_gif"], "scene 3 (gen.zarr)", range(0, 60))
     assert [frame for frame, collision in shown if collision] == in_json
     assert shown[0] == (10, False)  # the animation starts at the scenario's StartFrame
 

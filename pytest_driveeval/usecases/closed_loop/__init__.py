@@ -20,6 +20,7 @@ from pytest_driveeval.usecases.closed_loop import regression
 from pytest_driveeval.usecases.closed_loop.artefacts import write_artefacts
 from pytest_driveeval.usecases.closed_loop.baselines import BASELINES, baseline
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig, replayed_agents
+from pytest_driveeval.usecases.closed_loop.names import gif_name, name_verdicts, named_text, scene_label
 from pytest_driveeval.usecases.closed_loop.evaluate import (
     KINDS,
     judge_scene,
@@ -154,6 +155,11 @@ class ClosedLoop(UseCase):
     def _outcome(self, config: ClosedLoopConfig, ctx: RunContext, verdicts: list, problems: list[Finding],
                  dataset: L5Dataset, artefacts_for: Callable[[dict], dict], errors: list[str]) -> Outcome:
         """The item's outcome from its scenes' verdicts, however they were unrolled."""
+        identities = name_verdicts(dataset, verdicts, problems)
+        for row, verdict in enumerate(verdicts):
+            verdict.identity = identities.get(verdict.scene, {"index": verdict.scene})
+            if row < len(errors):
+                errors[row] = named_text(errors[row], verdict.scene, identities)
         findings = list(problems)
         for verdict in verdicts:
             findings.extend(verdict.findings)
@@ -191,8 +197,10 @@ class ClosedLoop(UseCase):
                    f"{figures['drift_resets']} drift reset(s)"
                    + (f"; nuPlan score {figures['score']:.3f}" if "score" in figures else ""))
         artefacts = artefacts_for(figures)
-        details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"), "scenes": [{"scene": v.scene, "passed": v.passed, **v.figures,
-                               "score_terms": v.score_terms, "error": errors[row]} for row, v in enumerate(verdicts)]}
+        details = {"policy": ctx.notes.get("policy", "driveeval_model fixture"),
+                   "scenes": [{"scene": v.scene, "name": scene_label(v.identity), "identity": v.identity,
+                               "passed": v.passed, **v.figures, "score_terms": v.score_terms, "error": errors[row]}
+                              for row, v in enumerate(verdicts)]}
         # what the reader skipped or read other than as written (ScenarioNet: degenerate map features, jitter)
         read_notes = getattr(dataset, "read_notes", None)
         notes = {v.scene: read_notes(v.scene) for v in verdicts} if read_notes is not None else {}
@@ -249,7 +257,7 @@ class ClosedLoop(UseCase):
             gif = done.gifs.get(verdict.scene)
             if gif is None:
                 return None
-            path = ctx.artefact(f"scene_{verdict.scene}.gif")
+            path = ctx.artefact(gif_name(verdict.scene, verdict.identity))
             write_bytes_atomic(path, gif)
             return path
 

@@ -16,6 +16,7 @@ from pytest_driveeval.core.atomic import write_text_atomic
 from pytest_driveeval.core.usecase import RunContext
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.evaluate import KINDS, SceneVerdict, Unroll, collision_events
+from pytest_driveeval.usecases.closed_loop.names import caption, gif_name, scene_label
 
 __all__ = ["animated", "chart_counts", "scene_drawn_map", "scene_gif", "write_artefacts", "write_scene_artefacts"]
 
@@ -29,9 +30,10 @@ def write_artefacts(ctx: RunContext, config: ClosedLoopConfig, unroll: Unroll, v
     events = {v.scene: collision_events(unroll, row) for row, v in enumerate(verdicts)}
 
     def draw(row: int, verdict: SceneVerdict) -> Path | None:
-        return scene_gif(ctx.artefact(f"scene_{verdict.scene}.gif"), unroll, row, verdict.scene,
+        identity = verdict.identity or {"index": verdict.scene}
+        return scene_gif(ctx.artefact(gif_name(verdict.scene, identity)), unroll, row, verdict.scene,
                          drawn_map=scene_drawn_map(dataset, verdict.scene),
-                         markers=verdict.markers)
+                         markers=verdict.markers, title=caption(verdict.scene, identity))
 
     return write_scene_artefacts(ctx, config, verdicts, events, figures, draw)
 
@@ -49,7 +51,8 @@ def write_scene_artefacts(ctx: RunContext, config: ClosedLoopConfig, verdicts: l
     worker drew."""
     out: dict[str, Path] = {}
     result_path = ctx.artefact("closed_loop.json")
-    write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "passed": v.passed, "figures": v.figures,
+    write_text_atomic(result_path, json.dumps({"scenes": [{"scene": v.scene, "name": scene_label(v.identity),
+                                                   "identity": v.identity, "passed": v.passed, "figures": v.figures,
                                                    "collisions": events[v.scene],
                                                    "score_terms": v.score_terms,
                                                    "findings": [f.to_json() for f in v.findings],
@@ -79,10 +82,12 @@ def scene_drawn_map(dataset: Any, scene: int) -> Any:
 
 
 def scene_gif(path: Path, unroll: Unroll, row: int, scene: int, drawn_map: Any = None,
-              markers: Sequence[tuple[int, float, float, str]] | None = None) -> Path | None:
+              markers: Sequence[tuple[int, float, float, str]] | None = None, title: str | None = None
+              ) -> Path | None:
     """The bird's-eye GIF of scene ``row`` of an unroll, or None when it has no unrolled frame;
     ``drawn_map`` (report.map_layers.DrawnMap) under the boxes, ``markers`` (frame number, x, y,
-    kind) where a score term failed, the frame as the log numbers it."""
+    kind) where a score term failed, the frame as the log numbers it; ``title``: the caption before
+    the frame number (names.caption), "scene N" when not given."""
     from pytest_driveeval.report.birdseye import render_unroll_gif
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
@@ -93,7 +98,7 @@ def scene_gif(path: Path, unroll: Unroll, row: int, scene: int, drawn_map: Any =
     return render_unroll_gif(path, r.driven_xy[row][keep], r.driven_yaw[row][keep],
                              np.asarray(EGO_EXTENT[:2], dtype=float), r.logged_xy[row][keep],
                              log.agent_xy[row][keep], log.agent_yaw[row][keep], log.agent_extent[row][keep][..., :2],
-                             log.available[row][keep], r.collision_kind[row][keep] > 0, title=f"scene {scene}",
+                             log.available[row][keep], r.collision_kind[row][keep] > 0, title=title or f"scene {scene}",
                              # the log's frame numbers, as closed_loop.json and the findings name them
                              frame_numbers=np.flatnonzero(keep), drawn_map=drawn_map, markers=markers)
 

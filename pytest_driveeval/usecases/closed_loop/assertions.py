@@ -29,8 +29,8 @@ def assert_collision_free(unroll: Unroll, kinds: Sequence[str] = ("front", "side
         events = collision_events(unroll, row, kinds, at_fault_only)
         if events:
             first = events[0]
-            lines.append(f"scene {scene}: {len(events)} collision frame(s); first at frame {first['frame']}: "
-                         f"{first['kind']}{collision_detail(first)}")
+            lines.append(f"{unroll.scene_name(scene)}: {len(events)} collision frame(s); first at frame "
+                         f"{first['frame']}: {first['kind']}{collision_detail(first)}")
     if lines:
         what = ("at-fault " if at_fault_only else "") + "/".join(kinds)
         raise AssertionError(f"{what} collisions in {len(lines)} scene(s):\n  " + "\n  ".join(lines))
@@ -48,7 +48,7 @@ def assert_drift_within(unroll: Unroll, meters: float, *, seconds: float = 0.0) 
         finding = within(result.displacement_error[row][frames], figure="displacement", max=meters,
                          frames=frames, unit=" m", scene=scene, tolerated_frames=tolerated)
         if finding is not None:
-            messages.append(finding.message)
+            messages.append(finding.message.replace(f"scene {scene}", unroll.scene_name(scene), 1))
     if messages:
         raise AssertionError("\n".join(messages))
 
@@ -59,7 +59,7 @@ def assert_score_at_least(unroll: Unroll, minimum: float) -> None:
     __tracebackhide__ = True
     from pytest_driveeval.usecases.closed_loop.score import describe, score_unroll
 
-    low = [f"scene {scene}: score {score.score:.3f}: {describe(score)}"
+    low = [f"{unroll.scene_name(scene)}: score {score.score:.3f}: {describe(score)}"
            for scene, score in score_unroll(unroll).items() if score.score < minimum]
     if low:
         raise AssertionError(f"nuPlan score below {minimum:g} in {len(low)} scene(s):\n  " + "\n  ".join(low))
@@ -78,9 +78,9 @@ def assert_term_at_least(unroll: Unroll, term: str, minimum: float = 1.0) -> Non
     for scene, score in score_unroll(unroll).items():
         found = score.terms[term]
         if found.value is None:
-            lines.append(f"scene {scene}: not available ({found.reason})")
+            lines.append(f"{unroll.scene_name(scene)}: not available ({found.reason})")
         elif found.value < minimum:
-            lines.append(f"scene {scene}: {found.value:.3f} ({found.message})")
+            lines.append(f"{unroll.scene_name(scene)}: {found.value:.3f} ({found.message})")
     if lines:
         raise AssertionError(f"{term} below {minimum:g} in {len(lines)} scene(s):\n  " + "\n  ".join(lines))
 

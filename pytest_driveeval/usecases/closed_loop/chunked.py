@@ -67,6 +67,7 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
     from pytest_driveeval.usecases.closed_loop.config import replayed_agents
     from pytest_driveeval.usecases.closed_loop.artefacts import animated, scene_drawn_map, scene_gif
     from pytest_driveeval.usecases.closed_loop.evaluate import collision_events, judge_scene, unroll_scenes
+    from pytest_driveeval.usecases.closed_loop.names import caption, scene_identity
 
     config, spec = chunk.config, chunk.config.Unroll
     dataset = open_dataset(chunk.dataset)
@@ -85,7 +86,8 @@ def run_scene_chunk(chunk: SceneChunk) -> SceneResults:
             if animated(config, verdict):
                 # the scene's map from the dataset the worker opened
                 path = scene_gif(Path(folder) / f"scene_{verdict.scene}.gif", unroll, row, verdict.scene,
-                                 drawn_map=scene_drawn_map(dataset, verdict.scene), markers=verdict.markers)
+                                 drawn_map=scene_drawn_map(dataset, verdict.scene), markers=verdict.markers,
+                                 title=caption(verdict.scene, scene_identity(dataset, verdict.scene)))
                 if path is not None:
                     gifs[verdict.scene] = path.read_bytes()
     return SceneResults(verdicts, [collision_events(unroll, row) for row in range(len(ids))],

@@ -41,10 +41,18 @@ class Unroll:
     maps: Any = field(default_factory=dict)
     #: row -> the score's ego states (metrics.nuplan_score.EgoStates), made for every row when first scored
     ego_states: Any = field(default=None, repr=False)
+    #: scene index -> which scene in the data (usecases.closed_loop.names.scene_identity), for messages
+    identities: dict = field(default_factory=dict)
 
     @property
     def scene_ids(self) -> list[int]:
         return [int(s) for s in self.result.scene_ids]
+
+    def scene_name(self, scene: int) -> str:
+        """``scene N (its scenario id and file, or its zarr)`` as messages name it."""
+        from pytest_driveeval.usecases.closed_loop.names import named
+
+        return named(int(scene), self.identities.get(int(scene), {}))
 
 
 def select_scenes(num_scenes: int, scenes: Sequence[int] | None = None, stride: int | None = None
@@ -108,7 +116,10 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     from pytest_driveeval.usecases.closed_loop.score import SceneMaps
 
     unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
+    from pytest_driveeval.usecases.closed_loop.names import scene_identity
+
     unrolled.maps = SceneMaps(dataset)
+    unrolled.identities = {s: scene_identity(dataset, s) for s in ids}
     return unrolled
 
 
@@ -180,6 +191,9 @@ class SceneVerdict:
     markers: list = field(default_factory=list)
     #: the ego as driven (driven_json): what an outside scorer (benchmarks/nuplan_oracle) rescores
     driven: dict = field(default_factory=dict)
+    #: which scene in the data (usecases.closed_loop.names.scene_identity), filled in where the
+    #: dataset is open: the item's process names every verdict, however it was unrolled
+    identity: dict = field(default_factory=dict)
 
 
 def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_fault_only: bool = False

@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from pytest_driveeval.core.outcome import Outcome
+from pytest_driveeval.core.outcome import Finding, Outcome
 from pytest_driveeval.sim.logreplay.agents import LogCells
 from pytest_driveeval.sim.logreplay.logarrays import LogArrays, window_columns
 from pytest_driveeval.search.engine import Example, Verdict
@@ -23,19 +23,23 @@ from pytest_driveeval.strategies import StartPerturbation, start_perturbations
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 from pytest_driveeval.usecases.closed_loop.score import SceneMaps
 from pytest_driveeval.usecases.closed_loop.evaluate import SceneVerdict, judge_scene, stack_log, unroll_config, unroll_log
+from pytest_driveeval.usecases.closed_loop.names import name_findings, named, scene_identity
 
 __all__ = ["closed_loop_searchable", "example_verdict"]
 
 
-def example_verdict(verdict: SceneVerdict) -> Verdict:
-    """A scene's verdict as the search sees it: the first reason, where it happened."""
+def example_verdict(verdict: SceneVerdict, names: dict[int, str] | None = None) -> Verdict:
+    """A scene's verdict as the search sees it: the first reason, where it happened; ``names``
+    (scene index -> names.named) names the scene in the reason as the item's findings name it."""
     if verdict.passed:
         return Verdict(False)
     first = min(verdict.findings, key=lambda f: (f.frame is None, f.frame or 0))
     where = {"scene": verdict.scene}
     if first.frame is not None:
         where["frame"] = int(first.frame)
-    return Verdict(True, first.message, where)
+    reason = Finding(first.message, scene=first.scene)
+    name_findings([reason], names or {})
+    return Verdict(True, reason.message, where)
 
 
 def closed_loop_searchable(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: Sequence[int],
@@ -64,6 +68,7 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
     cells = LogCells(log)
     columns, columns_ok = window_columns(log, spec.HistoryFrames)
     maps = SceneMaps(dataset)
+    names = {int(s): named(int(s), scene_identity(dataset, int(s))) for s in ids}
     # An example's verdict needs the score only where the conditions bound it (about 4 ms a scene)
     scored = config.Conditions.Score is not None
 
@@ -85,7 +90,7 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
         unrolled = unroll_log(copies(tuple(rows.tolist())), model, settings, [e.perturbation for e in examples],
                               cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
         unrolled.maps = maps
-        return [example_verdict(judge_scene(unrolled, i, config.Conditions, score=scored))
+        return [example_verdict(judge_scene(unrolled, i, config.Conditions, score=scored), names)
                 for i in range(len(examples))]
 
     return evaluate_many

@@ -19,6 +19,7 @@ from pytest_driveeval.core.usecase import MODEL_OPTION_NOTE, Case, RunContext, U
 from pytest_driveeval.usecases.policy_benchmark.baselines import baseline
 from pytest_driveeval.usecases.policy_benchmark import regression
 from pytest_driveeval.usecases.policy_benchmark.config import BASELINES, BenchmarkConditions, PolicyBenchmarkConfig
+from pytest_driveeval.usecases.policy_benchmark.scene_names import gif_part, name_outcome, scene_identity
 
 __all__ = ["PolicyBenchmark", "baseline", "load_policy"]
 
@@ -99,6 +100,7 @@ class PolicyBenchmark(UseCase):
             from pytest_driveeval.usecases.policy_benchmark.commonroad import scene_for
 
             blueprint = scene_for(config, ctx, params)
+        identity = scene_identity(blueprint)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
         model = ctx.fixtures["driveeval_model"]
         executor, source, stays_local = self._executor(config, ctx, model)
@@ -110,8 +112,8 @@ class PolicyBenchmark(UseCase):
 
             ledger = ChunkLedger()
             searchable = policy_searchable(config, blueprint, seeds, model, policy, ctx, executor=executor,
-                                           source=source, ledger=ledger)
-            outcome = run_item(self.name, searchable, config.Perturbation, ctx)
+                                           source=source, ledger=ledger, gif_part=gif_part(identity))
+            outcome = name_outcome(run_item(self.name, searchable, config.Perturbation, ctx), identity)
             if ledger.runs:
                 outcome.details["executor"] = ledger.details()
             elif stays_local:
@@ -156,7 +158,7 @@ class PolicyBenchmark(UseCase):
         keys = [f"{outcome}_rate" for _, outcome in RATES.values()]
         rates = {name: {k: judgement.intervals[k] for k in keys} if name == policy
                  else rate_intervals(r, conditions.Confidence, config.FirstSeed) for name, r in runs.items()}
-        artefacts = write_artefacts(ctx, mine, recorder, rates, config, replay=replay)
+        artefacts = write_artefacts(ctx, mine, recorder, rates, config, replay=replay, scene=identity)
         figures = mine.figures()
         summary = (f"'{policy}' on {blueprint.name}: goal {figures['goal_rate']:.1f} %, collision "
                    f"{figures['collision_rate']:.1f} %, off road {figures['off_road_rate']:.1f} % of "
@@ -167,8 +169,8 @@ class PolicyBenchmark(UseCase):
                    "episode_outcomes": regression.episode_outcomes(mine.seeds, mine.outcome_names())}
         if where:
             details["executor"] = where
-        return Outcome(self.name, PASSED if judgement.passed else FAILED, summary, figures=figures,
-                       findings=judgement.findings, details=details, artefacts=artefacts)
+        return name_outcome(Outcome(self.name, PASSED if judgement.passed else FAILED, summary, figures=figures,
+                                    findings=judgement.findings, details=details, artefacts=artefacts), identity)
 
     @staticmethod
     def _executor(config: PolicyBenchmarkConfig, ctx: RunContext, model: Any) -> tuple[Any, Any, dict]:

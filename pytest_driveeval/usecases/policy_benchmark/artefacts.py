@@ -53,13 +53,18 @@ def _chosen(run: PolicyRun, animations: str) -> int | None:
 
 
 def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder | None, intervals: dict,
-                    config: Any, replay: Callable[[int], EpisodeRecorder] | None = None) -> dict[str, Path]:
+                    config: Any, replay: Callable[[int], EpisodeRecorder] | None = None,
+                    scene: dict | None = None) -> dict[str, Path]:
     """``replay(row)``: that episode run again alone and recorded, for a run whose episodes ran
     elsewhere (chunks on Ray workers) and were not recorded here; an episode depends on its seed
-    alone, so the GIF is the one a recorded local run draws."""
+    alone, so the GIF is the one a recorded local run draws.  ``scene``: a CommonRoad scene's
+    identity (scene_names.scene_identity), written to episodes.json and into the GIF's name."""
+    from pytest_driveeval.usecases.policy_benchmark.scene_names import gif_part
+
     out: dict[str, Path] = {}
     result = ctx.artefact("episodes.json")
-    write_text_atomic(result, json.dumps({"policy": run.policy, "blueprint": run.blueprint, "episodes": [
+    write_text_atomic(result, json.dumps({"policy": run.policy, "blueprint": run.blueprint,
+                                          **({"scene": scene} if scene else {}), "episodes": [
         {"seed": int(s), "stratum": int(g), "outcome": o, "return": float(r), "steps": int(n)}
         for s, g, o, r, n in zip(run.seeds, run.strata, run.outcome_names(), run.returns, run.steps)]}, indent=1))
     out["episodes"] = result
@@ -73,8 +78,8 @@ def write_artefacts(ctx: RunContext, run: PolicyRun, recorder: EpisodeRecorder |
     if row is not None:
         seed = int(run.seeds[row])
         shown, shown_row = (recorder, row) if recorder is not None else (replay(row), 0)
-        out[f"episode_{seed}_gif"] = episode_gif(ctx.artefact(f"episode_seed_{seed}.gif"), shown, shown_row,
-                                                 config.AgentLimit,
+        gif = ctx.artefact(f"episode_seed_{seed}{gif_part(scene)}.gif")
+        out[f"episode_{seed}_gif"] = episode_gif(gif, shown, shown_row, config.AgentLimit,
                                                  f"{run.policy} seed {seed}: {run.outcome_names()[row]}")
     return out
 

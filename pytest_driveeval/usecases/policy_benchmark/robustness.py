@@ -50,12 +50,13 @@ def episode_verdict(run: PolicyRun, row: int, fail_on: Sequence[str]) -> Verdict
 
 def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.ndarray, policy: Callable,
                       name: str, ctx: Any, *, executor: Any = None, source: Any = None,
-                      ledger: Any = None) -> Searchable:
+                      ledger: Any = None, gif_part: str = "") -> Searchable:
     """The search of ``policy`` (called ``name``) over the episodes of ``seeds``.
 
     With a Ray ``executor`` (and the policy's ``source``, chunked.PolicySource) each generation's
     episodes run as chunks of the Executor's ChunkSize on the cluster, the ``ledger``
-    (executor.ChunkLedger) counting where; the picture of the case found is drawn here."""
+    (executor.ChunkLedger) counting where; the picture of the case found is drawn here, ``gif_part``
+    added to its name after the seed (a CommonRoad scene's, scene_names.gif_part)."""
     spec = config.Perturbation
     fail_on = tuple(spec.FailOn)
     if executor is not None and ledger is None:
@@ -85,14 +86,15 @@ def policy_searchable(config: PolicyBenchmarkConfig, blueprint: Any, seeds: np.n
         return [episode_verdict(done, i, fail_on) for i in range(len(examples))]
 
     def show(example: Example) -> Outcome:
-        return show_episode(config, ctx, name, int(seeds[example.case]), example.perturbation, fail_on, run)
+        return show_episode(config, ctx, name, int(seeds[example.case]), example.perturbation, fail_on, run,
+                            gif_part=gif_part)
 
     return Searchable(case_name="seed", case_labels=[int(s) for s in seeds], perturbation_type=EpisodePerturbation,
                       perturbations=episode_perturbations(**spec.ranges()), evaluate_many=evaluate_many, show=show)
 
 
 def show_episode(config: PolicyBenchmarkConfig, ctx: Any, name: str, seed: int, perturbation: EpisodePerturbation,
-                 fail_on: Sequence[str], run: Callable[..., PolicyRun]) -> Outcome:
+                 fail_on: Sequence[str], run: Callable[..., PolicyRun], gif_part: str = "") -> Outcome:
     """One perturbed episode as an item's outcome, with its GIF unless the scenario's Animations are "none"
     (the case a search reports is worth its picture whatever the benchmark's own setting)."""
     from pytest_driveeval.usecases.policy_benchmark.artefacts import EpisodeRecorder, episode_gif
@@ -105,7 +107,7 @@ def show_episode(config: PolicyBenchmarkConfig, ctx: Any, name: str, seed: int, 
     artefacts = {}
     if recorder is not None:
         artefacts[f"episode_{seed}_gif"] = episode_gif(
-            ctx.artefact(f"episode_seed_{seed}_perturbed.gif"), recorder, 0, config.AgentLimit,
+            ctx.artefact(f"episode_seed_{seed}{gif_part}_perturbed.gif"), recorder, 0, config.AgentLimit,
             f"{name} seed {seed}, {changed}: {outcome}")
     findings = [Finding(f"seed {seed} under {changed}: {verdict.reason}", frame=steps,
                         keypath=("Evaluation", "Perturbation", "FailOn"))] if verdict.failed else []

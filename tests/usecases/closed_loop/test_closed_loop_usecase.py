@@ -64,8 +64,9 @@ def test_constant_velocity_fails_naming_scene_frame_agent_with_artefacts(cl):
     cl.makefile(".scenario.yaml", cv=scenario(model="constant_velocity", unroll="    StartFrame: 10\n    Steps: 100"))
     result = cl.runpytest("-q")
     result.assert_outcomes(failed=1)
-    result.stdout.fnmatch_lines(["*scene 0: 1 at-fault front collision frame(s), 0 allowed; first at frame 73 "
-                                 "with agent 1 (cv.scenario.yaml:14)"])
+    # the scene by its index and its zarr: a user with several stores sees which one
+    result.stdout.fnmatch_lines(["*scene 0 (real.zarr): 1 at-fault front collision frame(s), 0 allowed; first at "
+                                 "frame 73 with agent 1 (cv.scenario.yaml:14)"])
     (record,) = summary(cl).values()
     assert record["status"] == "failed" and record["figures"]["at_fault"] >= 1
     assert record["figures"]["drift_resets"] == 3 and "displacement_error" not in record["figures"]
@@ -75,6 +76,11 @@ def test_constant_velocity_fails_naming_scene_frame_agent_with_artefacts(cl):
         assert (out / record["artefacts"][name]).stat().st_size > 1000
     detail = json.loads((out / record["artefacts"]["result"]).read_text())["scenes"][0]
     assert {"frame": 73, "kind": "front", "track_id": 1, "at_fault": True} in detail["collisions"]
+    assert detail["scene"] == 0 and detail["identity"] == {"index": 0, "zarr": "real.zarr"}
+    assert detail["name"] == "real.zarr" and detail["findings"][0]["message"].startswith("scene 0 (real.zarr): ")
+    (scene,) = record["details"]["scenes"]
+    assert scene["scene"] == 0 and scene["name"] == "real.zarr"
+    assert record["artefacts"]["scene_0_gif"].endswith("scene_0_real.gif")
 
 
 def test_allowing_not_at_fault_collisions_changes_the_verdict(cl):
@@ -132,7 +138,8 @@ BAD_MODELS = {
                       "        if batch['centroid'].shape[0] == 3:\n"
                       "            out['positions'][0] = float('nan')\n"
                       "        return out\n",
-                      "*scene 2: model returned NaN/inf in its first pose at frame 5*"),
+                      # the engine's message, named as every finding of a scene is
+                      "*scene 2 (gen.zarr): model returned NaN/inf in its first pose at frame 5*"),
     "wrong_shape": ("import torch\nclass M(torch.nn.Module):\n"
                     "    def forward(self, batch):\n"
                     "        b = batch['centroid'].shape[0]\n"
@@ -161,6 +168,8 @@ def test_bad_model_output_fails_clearly_and_keeps_results(cl, kind):
     steps = {s["scene"]: s["steps"] for s in record["details"]["scenes"]}
     if kind == "nan_first_row":
         assert steps == {2: 1, 3: 30, 4: 30}  # only its logged start frame; the others ran to the end
+        error = {s["scene"]: s["error"] for s in record["details"]["scenes"]}[2]
+        assert error.startswith("scene 2 (gen.zarr): model returned NaN/inf")
     assert set(steps) == {2, 3, 4}
 
 

@@ -91,7 +91,7 @@ def test_a_broken_scenario_in_a_folder_fails_alone_and_the_others_run(pytester, 
     assert record["verdict"] == "failed"
     assert [s["scene"] for s in record["details"]["scenes"]] == [0, 1]  # the readable two were unrolled
     messages = [f["message"] for f in record["findings"] if f.get("scene") == 2]
-    assert len(messages) == 1 and "scene 2 cannot be read:" in messages[0]
+    assert len(messages) == 1 and "scene 2 (sd_zz_cut.pkl) cannot be read:" in messages[0]
     assert "sd_zz_cut.pkl is not a readable pickle" in messages[0] and "truncated" in messages[0]
 
 
@@ -120,6 +120,13 @@ def test_the_repositorys_scenes_are_a_closed_loop_dataset_without_the_shared_dat
     assert record["figures"]["scenes"] == 3 and record["figures"]["steps"] == 3 * 60
     assert [s["scene"] for s in record["details"]["scenes"]] == [0, 1, 2]
     assert all(s["error"] is None and np.isfinite(s["max_displacement"]) for s in record["details"]["scenes"])
+    # each scene says which scenario and file it is, beside its index (what Scenes: and baselines use)
+    first = record["details"]["scenes"][0]
+    assert first["identity"] == {"index": 0, "file": "sd_nuscenes_v1.0-mini_scene-0103.pkl",
+                                 "scenario_id": "scene-0103"}
+    assert first["name"] == "scenario scene-0103, sd_nuscenes_v1.0-mini_scene-0103.pkl"
+    written = json.loads((pytester.path / "driveeval-results" / record["artefacts"]["result"]).read_text())
+    assert [s["identity"]["scenario_id"] for s in written["scenes"]] == ["scene-0103", "scene-0553", "scene-0757"]
 
 
 def test_reactive_agents_on_scenarionet_scenes_brake_for_the_car_the_log_drives_into(pytester):
@@ -140,6 +147,8 @@ def test_reactive_agents_on_scenarionet_scenes_brake_for_the_car_the_log_drives_
     assert records["reactive"]["details"]["scenes"][0]["mean_displacement"] != \
         records["replayed"]["details"]["scenes"][0]["mean_displacement"]
     assert "scene_0_gif" in records["reactive"]["artefacts"]  # drawn from the scenario's own tracks
+    # the GIF's name says which scenario it shows; its key stays the index's
+    assert records["reactive"]["artefacts"]["scene_0_gif"].endswith("/scene_0_scene-0103.gif")
 
 
 SEARCH = """\
@@ -280,5 +289,7 @@ def test_each_bad_file_of_a_folder_is_that_scenes_error_and_the_good_scenes_besi
     }
     assert sorted(problems) == sorted(expected)
     for scene_id, text in expected.items():
-        assert f"scene {scene_id} cannot be read: " in problems[scene_id] and text in problems[scene_id], \
-            (scene_id, problems[scene_id])
+        # the index and the file (no scenario id: the file could not be read to tell it)
+        file = text.split(" ", 1)[0]
+        assert problems[scene_id].startswith(f"scene {scene_id} ({file}) cannot be read: ") \
+            and text in problems[scene_id], (scene_id, problems[scene_id])

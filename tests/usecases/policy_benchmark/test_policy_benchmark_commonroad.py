@@ -62,10 +62,30 @@ def test_one_item_per_policy_and_planning_problem_results_the_same_with_two_work
                            for i in (100, 101)}
     mine = records(pytester)["cr.scenario.yaml::policy_benchmark[mine-problem101]"]
     assert mine["figures"]["goal_rate"] == 100.0 and mine["details"]["blueprint"].endswith("problem 101")
-    gifs = list((pytester.path / "driveeval-results").rglob("*mine-problem100*/episode_seed_0.gif"))
+    gifs = list((pytester.path / "driveeval-results").rglob(
+        "*mine-problem100*/episode_seed_0_ZAM_Tutorial-1_1_T-1_problem100.gif"))
     assert len(gifs) == 1 and gifs[0].stat().st_size > 1000
     pytester.runpytest("-q", "-n", "2")
     assert {k: (r["status"], r["figures"], r["details"]["intervals"]) for k, r in records(pytester).items()} == serial
+
+
+def test_the_findings_summary_and_gif_name_the_benchmark_the_planning_problem_and_the_file(pytester):
+    """A folder of one's own: the file's name is not its benchmark id (as ZAM_Loading_Bay-1_1_T.xml
+    holds ZAM_Tutorial-1_1_T-1), so each place names both, with the planning problem."""
+    shutil.copy(TUTORIAL, pytester.path / "my_bay.xml")
+    text = scenario(path="my_bay.xml").replace("Judged: [mine]", "Judged: [random]").replace(
+        "Baseline: random", "Baseline: mine")
+    pytester.makefile(".scenario.yaml", cr=text)
+    pytester.runpytest("-q", "-p", "no:randomly").assert_outcomes(passed=1, failed=1)
+    record = records(pytester)["cr.scenario.yaml::policy_benchmark[random-problem100]"]
+    name = "benchmark ZAM_Tutorial-1_1_T-1, planning problem 100 (my_bay.xml)"
+    assert record["details"]["scene"] == {"benchmark_id": "ZAM_Tutorial-1_1_T-1", "planning_problem": 100,
+                                          "file": "my_bay.xml", "name": name}
+    assert record["findings"] and all(f["message"].startswith(name + ": ") for f in record["findings"])
+    folder = pytester.path / "driveeval-results"
+    assert json.loads((folder / record["artefacts"]["episodes"]).read_text())["scene"]["file"] == "my_bay.xml"
+    gif = record["artefacts"][next(k for k in record["artefacts"] if k.endswith("_gif"))]
+    assert gif.rsplit("/", 1)[-1].startswith("episode_seed_") and gif.endswith("_ZAM_Tutorial-1_1_T-1_problem100.gif")
 
 
 def test_a_named_planning_problem_makes_one_item_per_policy(pytester):
