@@ -2,18 +2,26 @@
 writes them (metadriverse/scenarionet @ cebcbe6, scenarionet/converter/*/utils.py): nuScenes' and nuPlan's
 outline rings (boundary_<n>), Argoverse 2's rings cut into 20-point pieces, Waymo's road edges, driveways
 and measured lane widths; the lane-width stand-in only where the map has none of them."""
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import shapely
 from shapely.geometry import Polygon
 
 from pytest_driveeval.io.scenarionet.scenarionet import read_scenario
+from pytest_driveeval.metrics.nuplan_score import score_scene
+from pytest_driveeval.metrics.nuplan_score.case import inputs_from_case
 from pytest_driveeval.io.scenarionet.scenarionet_drivable import STAND_IN, outline_rings
 from pytest_driveeval.io.scenarionet.scenarionet_map import scenario_map
 from pytest_driveeval.metrics.nuplan_score.road_edges import RoadEdges
 from pytest_driveeval.usecases.closed_loop.score import score_map_of
 
 from scenarionet_made import scenario, write
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "metrics"))  # the score's hand-checkable set-up
+from nuplan_cases import FRAMES, case  # noqa: E402
 
 
 def _ring(x0, y0, x1, y1, step=1.0, clockwise=False):
@@ -141,3 +149,32 @@ def test_the_real_nuscenes_outlines_match_shapely(shared_data):
         points = np.random.default_rng(0).uniform(lo, hi, (5000, 2))
         np.testing.assert_array_equal(score_map.in_outlines(points),
                                       shapely.contains_xy(area, points[:, 0], points[:, 1]), err_msg=path.name)
+
+
+def _drive(score_map, y):
+    """The score of the hand-checkable set-up (tests/metrics/nuplan_cases.py) on ``score_map``, the ego at
+    lateral offset ``y`` throughout."""
+    inputs = inputs_from_case(case("drive", 10.0 + np.arange(FRAMES) * 1.0, y=np.full(FRAMES, y)))
+    inputs.map = score_map
+    return score_scene(inputs).terms["drivable_area_compliance"]
+
+
+def test_the_terms_reason_names_the_stand_in_and_a_failure_repeats_it(tmp_path):
+    source = _scene(tmp_path, {"lane": _lane(0, 300, 0)})
+    score_map = score_map_of(source, scenario_map(source))
+    on, off = _drive(score_map, 0.0), _drive(score_map, 2.5)  # the stand-in lane is 3.7 m wide
+    assert on.value == 1.0 and STAND_IN in on.reason
+    assert off.value == 0.0 and off.message.endswith(score_map.drivable_reason)
+
+
+def test_a_lane_surface_that_is_a_stand_in_does_not_hold_a_corner_the_outline_does_not(tmp_path):
+    # the outline is 1.5 m either side of y = 0; the lane's stand-in surface (no polygon) 1.85 m
+    outline = _ring(-10, -1.5, 310, 1.5, step=0.5)
+    source = _scene(tmp_path, {"boundary_0": {"type": "ROAD_LINE_SOLID_SINGLE_WHITE", "polyline": outline},
+                               "lane": _lane(0, 300, 0)})
+    score_map = score_map_of(source, scenario_map(source))
+    # a 2.297 m wide ego 0.7 m off the middle: a corner 0.35 m past the outline, inside the stand-in
+    term = _drive(score_map, 0.7)
+    assert term.value == 0.0 and "outline" in term.reason and STAND_IN not in term.reason
+    assert term.detail["max_corner_off_drivable_area"] == pytest.approx(0.3485, abs=1e-3)
+    assert _drive(score_map, 0.5).value == 1.0  # 0.15 m past it: within nuPlan's 0.3 m

@@ -172,6 +172,14 @@ def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.n
     return out
 
 
+def _segments(rings: list[np.ndarray]) -> list[np.ndarray]:
+    """Each ring's segments as outlines of two points, for distances: a point near an outline of thousands
+    of vertices measures only the few segments in the grid cells near it, not the whole ring."""
+    if not rings:
+        return []
+    return list(np.concatenate([np.stack([ring[:-1], ring[1:]], axis=1) for ring in rings]))
+
+
 def _distance_within(points: np.ndarray, surfaces: PolygonSet, within: float) -> np.ndarray:
     """(P,) distance to the nearest outline of ``surfaces``, inf beyond ``within`` (m)."""
     if not len(surfaces) or not len(points):
@@ -263,7 +271,7 @@ class ScoreMap:
         # query (inside the first scene's score): the lane surfaces and the drivable polygons for
         # distances to any of them (vertices only), the baselines as one flat table.
         counted = extra if self.lane_drivable is not None else self.polygons + extra
-        self.surface_set = PolygonSet(counted + self.drivable_outlines, edges=False)
+        self.surface_set = PolygonSet(counted + _segments(self.drivable_outlines), edges=False)
         self.baseline_table = self._baseline_table()
         self.heading_table = np.concatenate(self.headings) if self.headings else np.zeros(0)
         #: incoming[n]: the lanes leading into lane n, ascending
@@ -286,7 +294,7 @@ class ScoreMap:
         points = np.concatenate([self.baselines[n] for n in left_out])
         owner = np.repeat(left_out, [len(self.baselines[n]) for n in left_out])
         off = np.flatnonzero(~self.in_drivable(points))
-        near = PolygonSet(self.drivable_outlines + extra, edges=False)
+        near = PolygonSet(_segments(self.drivable_outlines) + extra, edges=False)
         leaving = np.unique(owner[off[~(_distance_within(points[off], near, LEAVING) < LEAVING)]])
         if len(leaving):
             self.lane_drivable[leaving] = True

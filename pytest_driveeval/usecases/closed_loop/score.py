@@ -1,5 +1,6 @@
 """nuPlan's closed-loop score of an unrolled scene (metrics.nuplan_score) from what the engine
-recorded, on the scene's map where the dataset has one (ScenarioNet), and the findings that the
+recorded, on the scene's map where the dataset has one (ScenarioNet) or is given one (an L5 zarr's
+semantic map), and the findings that the
 scenario's ``Conditions.Score`` draws from it.
 
 The collisions are the engine's, blamed by its own rules (metrics.collisions), each agent counted
