@@ -5,7 +5,10 @@ ScenarioNet gives a lane as its centre line, with a surface polygon in some data
 not in others (Waymo gives boundaries by reference, Argoverse 2 / nuPlan their own); the L5 model
 wants its two boundaries.  Each lane's boundaries are its centre line moved half the lane's width to
 each side.  The width is measured where the lane has a polygon (twice the median distance from the
-centre line's inner points to the polygon's outline), else :data:`DEFAULT_LANE_WIDTH`.  A traffic light
+centre line's inner points to the polygon's outline); where the converter measured each point's
+distances to the lane's left and right boundary lines (Waymo's ``width``, (K, 2)), the boundaries are
+the centre line moved by those; else the width is :data:`DEFAULT_LANE_WIDTH`.  The drivable area is
+built from the map's own surfaces and edges (:mod:`.scenarionet_drivable`).  A traffic light
 becomes three faces (red, yellow, green) on the lane it controls, as an L5 light has.
 """
 from __future__ import annotations
@@ -18,6 +21,7 @@ from ...geometry.planar import arc_lengths
 from ...geometry.polygons import outline_distance
 from ..l5.l5_semantic_map import GREEN, RED, YELLOW, Polylines, SemanticMap
 from .scenarionet import ScenarioNetScene
+from .scenarionet_drivable import DrivableArea, drivable_area
 from .scenarionet_types import LIGHT_FACES
 
 #: metres: a typical urban lane, for lanes whose data gives no surface to measure
@@ -33,10 +37,15 @@ FACES = (("red", RED), ("yellow", YELLOW), ("green", GREEN))
 class ScenarioMap:
     semantic: SemanticMap
     lane_widths: np.ndarray  # (N,) metres, per lane of ``semantic``
-    #: where each lane's width came from: "polygon" or "default"
+    #: where each lane's width came from: "polygon", "boundaries" (the converter's measured distances) or "default"
     width_sources: tuple[str, ...]
     #: the drivable surfaces: each lane's own polygon where given, else its boundaries as one outline
     surfaces: Polylines
+    #: the drivable area from the map's own surfaces and edges (None: not made)
+    drivable: DrivableArea | None = None
+    #: each lane's centre line as read (repeated points dropped): the midline of its boundaries only where
+    #: they are the same distance off it
+    centres: Polylines | None = None
 
 
 def _normals(line: np.ndarray) -> np.ndarray:
@@ -63,6 +72,23 @@ def lane_width(centre: np.ndarray, polygon: np.ndarray | None) -> tuple[float, s
     return DEFAULT_LANE_WIDTH, "default"
 
 
+def boundary_widths(given, keep: np.ndarray) -> np.ndarray | None:
+    """(K, 2) each kept point's distances to the lane's left and right boundaries, from the converter's
+    ``width`` (Waymo's: 0 on a side without a boundary line, the other side's distance copied where one
+    side has none); None where it gives no usable distance (absent, another shape, not finite, no point
+    with a boundary).  A point with neither boundary takes the lane's median."""
+    if not isinstance(given, np.ndarray) or given.ndim != 2 or given.shape != (len(keep), 2):
+        return None
+    sides = given.astype(np.float64)[keep]
+    if not np.isfinite(sides).all() or (sides < 0).any():
+        return None
+    known = (sides > 0).all(axis=1) & (sides.sum(axis=1) >= WIDTH_RANGE[0]) & (sides.sum(axis=1) <= WIDTH_RANGE[1])
+    if not known.any():
+        return None
+    sides[~known] = np.median(sides[known], axis=0)
+    return sides
+
+
 def face_id(scene_index: int, light_index: int, colour: str) -> str:
     """A face's id: l5kit's face table holds 16 characters, so ids are made, not the light's own."""
     return f"{scene_index}:{light_index}:{colour[0]}"
@@ -70,7 +96,7 @@ def face_id(scene_index: int, light_index: int, colour: str) -> str:
 
 def scenario_map(scene: ScenarioNetScene, index: int = 0) -> ScenarioMap:
     lanes = [f for f in scene.map_features if f.group == "lane" and f.polyline is not None]
-    ids, lefts, rights, widths, sources, surfaces = [], [], [], [], [], []
+    ids, lefts, rights, widths, sources, surfaces, centres = [], [], [], [], [], [], []
     for lane in lanes:
         centre = lane.polyline[:, :2]  # nuScenes' third column is the heading, not a height
         keep = np.concatenate([[True], np.linalg.norm(np.diff(centre, axis=0), axis=1) > 1e-6])
@@ -78,14 +104,21 @@ def scenario_map(scene: ScenarioNetScene, index: int = 0) -> ScenarioMap:
         if len(centre) < 2:
             continue
         width, source = lane_width(centre, lane.polygon)
-        offset = _normals(centre) * (width / 2)
+        normals = _normals(centre)
+        sides = boundary_widths(lane.extra.get("width"), keep) if source == "default" else None
+        if sides is not None:
+            width, source = float(np.median(sides.sum(axis=1))), "boundaries"
+            left, right = centre + normals * sides[:, :1], centre - normals * sides[:, 1:]
+        else:
+            left, right = centre + normals * (width / 2), centre - normals * (width / 2)
         ids.append(lane.id)
-        lefts.append(centre + offset)
-        rights.append(centre - offset)
+        centres.append(centre)
+        lefts.append(left)
+        rights.append(right)
         widths.append(width)
         sources.append(source)
         surfaces.append(lane.polygon[:, :2] if lane.polygon is not None and source == "polygon"
-                        else np.concatenate([centre + offset, (centre - offset)[::-1]]))
+                        else np.concatenate([left, right[::-1]]))
     controls: dict[str, list[str]] = {lane_id: [] for lane_id in ids}
     face_ids, colours, light_ids, light_index = [], [], [], []
     for number, light in enumerate(scene.lights):
@@ -114,7 +147,8 @@ def scenario_map(scene: ScenarioNetScene, index: int = 0) -> ScenarioMap:
         traffic_light_ids=np.array(light_ids, dtype=str),
         face_light_index=np.array(light_index, np.int64),
     )
-    return ScenarioMap(semantic, np.array(widths), tuple(sources), Polylines.from_list(surfaces))
+    return ScenarioMap(semantic, np.array(widths), tuple(sources), Polylines.from_list(surfaces),
+                       drivable_area(scene, tuple(sources)), Polylines.from_list(centres))
 
 
 def active_faces(scene: ScenarioNetScene, step: int, index: int = 0) -> list[str]:

@@ -1,5 +1,6 @@
 """The map as nuPlan's closed-loop score reads it: lanes (surface polygon, baseline, speed limit,
-successors), extra drivable polygons and intersections, with the point queries the terms ask.
+successors), the drivable area (extra drivable polygons, outlines taken even-odd, road edges) and
+intersections, with the point queries the terms ask.
 
 Lookups are vectorised over points: a bounding-box test of every point against every polygon, then the
 exact crossing-number test only for the polygons some point's box test admitted; the compiled paths
@@ -15,6 +16,7 @@ from pytest_driveeval.geometry.planar import arc_lengths
 from pytest_driveeval.geometry.polygons import odd_crossings, outline_distance, polygon_edges, segment_projections
 
 from . import kernels
+from .road_edges import RoadEdges
 
 
 def _bounds(polygons: list[np.ndarray]) -> np.ndarray:
@@ -57,9 +59,13 @@ def _grid(bounds: np.ndarray) -> tuple:
 EDGES_PER_BAND = 4
 #: bands of one polygon, at most
 MOST_BANDS = 64
+#: bands of one drivable-area outline, at most (one outline may hold thousands of edges)
+OUTLINE_BANDS = 2048
+#: metres: a stand-in lane whose centre line lies this far off the map's own drivable area leaves it
+LEAVING = 1.0
 
 
-def _bands(table: np.ndarray, starts: np.ndarray, bounds: np.ndarray) -> tuple:
+def _bands(table: np.ndarray, starts: np.ndarray, bounds: np.ndarray, most: int = MOST_BANDS) -> tuple:
     """Each polygon's edges by horizontal band, for the compiled crossing test: polygon n's y range cut into
     ``count[n]`` bands of height ``height[n]``, band b listing ``edges[band_starts[first[n] + b]:
     band_starts[first[n] + b + 1]]``, every edge whose y range meets it.  An edge counts a crossing at y
@@ -67,7 +73,7 @@ def _bands(table: np.ndarray, starts: np.ndarray, bounds: np.ndarray) -> tuple:
     operations before it are monotonic, so the point's band is one its crossing edges list.
     Returns (first, count, height, band_starts, edges)."""
     n = len(starts) - 1
-    count = np.clip(np.diff(starts) // EDGES_PER_BAND, 1, MOST_BANDS).astype(np.int64)
+    count = np.clip(np.diff(starts) // EDGES_PER_BAND, 1, most).astype(np.int64)
     first = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64) if n else np.zeros(0, np.int64)
     height = (bounds[:, 3] - bounds[:, 1]) / count if n else np.zeros(0)
     owner = np.repeat(np.arange(n), np.diff(starts))
@@ -93,10 +99,12 @@ class PolygonSet:
     """Polygons as flat tables: the (xi, yi, yj, slope) columns of their non-horizontal edges
     (geometry.polygons.polygon_edges' table), polygon n's edges at ``edge_starts[n]:edge_starts[n + 1]``;
     their vertices, polygon n's at ``vertex_starts[n]:vertex_starts[n + 1]``; and their bounds.
-    ``edges=False``: no edge table (a set only measured distances to, which read the vertices)."""
+    ``edges=False``: no edge table (a set only measured distances to, which read the vertices);
+    ``most_bands``: bands per polygon at most (a drivable area's outline has thousands of edges)."""
 
-    def __init__(self, polygons: list[np.ndarray], edges: bool = True):
+    def __init__(self, polygons: list[np.ndarray], edges: bool = True, most_bands: int = MOST_BANDS):
         self.polygons = polygons
+        self.most_bands = most_bands
         self.bounds = _bounds(polygons)
         lengths = np.array([len(p) for p in polygons], dtype=np.int64)
         self.vertex_starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
@@ -112,7 +120,7 @@ class PolygonSet:
         counts = np.bincount(np.repeat(np.arange(len(polygons)), lengths)[keep], minlength=len(polygons))
         table = table[keep]
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        self.bands = _bands(table, starts, self.bounds)
+        self.bands = _bands(table, starts, self.bounds, self.most_bands)
         return (starts, *(np.ascontiguousarray(table[:, i]) for i in range(4)))
 
     def __len__(self) -> int:
@@ -164,6 +172,31 @@ def _nearest_outlines(points: np.ndarray, polygons: PolygonSet, pair_point: np.n
     return out
 
 
+def _segments(rings: list[np.ndarray]) -> list[np.ndarray]:
+    """Each ring's segments as outlines of two points, for distances: a point near an outline of thousands
+    of vertices measures only the few segments in the grid cells near it, not the whole ring."""
+    if not rings:
+        return []
+    return list(np.concatenate([np.stack([ring[:-1], ring[1:]], axis=1) for ring in rings]))
+
+
+def _distance_within(points: np.ndarray, surfaces: PolygonSet, within: float) -> np.ndarray:
+    """(P,) distance to the nearest outline of ``surfaces``, inf beyond ``within`` (m)."""
+    if not len(surfaces) or not len(points):
+        return np.full(len(points), np.inf)
+    if kernels.wanted():
+        out = np.empty(len(points))
+        kernels.kernels().nearest_outlines_within(np.ascontiguousarray(points, dtype=np.float64), surfaces.vertices,
+                                                  surfaces.vertex_starts, surfaces.bounds, float(within),
+                                                  *surfaces.grid, out)
+        return np.where(out < within, out, np.inf)
+    bounds, x, y = surfaces.bounds, points[:, 0:1], points[:, 1:2]
+    near = ((x >= bounds[:, 0] - within) & (x <= bounds[:, 2] + within)
+            & (y >= bounds[:, 1] - within) & (y <= bounds[:, 3] + within))
+    out = _nearest_outlines(points, surfaces, *np.nonzero(near))
+    return np.where(out < within, out, np.inf)
+
+
 def project(points: np.ndarray, line: np.ndarray, cumulative: np.ndarray) -> np.ndarray:
     """(P,) arc length along ``line`` of each point's nearest point on it (shapely's ``project``)."""
     if kernels.wanted():
@@ -193,6 +226,20 @@ class ScoreMap:
     intersections: list[np.ndarray] = field(default_factory=list)
     #: why the map has no speed limits, where its source says (said in the term's reason)
     no_limits_reason: str | None = None
+    #: closed rings of one drivable area taken even-odd, its outer outlines and its holes alike (a point
+    #: inside an odd number of them is on it): ScenarioNet writes nuScenes', nuPlan's and Argoverse 2's
+    #: drivable area as the outline of their union
+    drivable_outlines: list[np.ndarray] = field(default_factory=list)
+    #: lines with the road on their left (Waymo's road edges): a point off every surface is on the road
+    #: when the nearest edge has it on its left
+    road_edges: list[np.ndarray] = field(default_factory=list)
+    #: (N,) which lanes' surfaces are part of the drivable area (None: all); a lane whose surface is a
+    #: stand-in (its centre line widened) is left out where the map gives the area itself
+    lane_drivable: np.ndarray | None = None
+    #: what the drivable area is made of, where the map's maker says (the term's reason)
+    drivable_reason: str | None = None
+    #: the drivable area is partly a stand-in (lanes widened by an assumed width): a failure says so
+    drivable_stand_in: bool = False
 
     def __post_init__(self):
         self.polygons = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.polygons]
@@ -207,6 +254,15 @@ class ScoreMap:
         # found twice is found once as well.  Half the polygons tested, the same answers.
         surfaces = {(p.shape, p.tobytes()) for p in self.polygons}
         extra = [p for p in self.drivable if (p.shape, p.tobytes()) not in surfaces]
+        self.drivable_outlines = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.drivable_outlines]
+        self.outline_set = PolygonSet(self.drivable_outlines, most_bands=OUTLINE_BANDS)
+        self.edges = RoadEdges(self.road_edges)
+        if self.lane_drivable is not None:
+            self.lane_drivable = np.asarray(self.lane_drivable, dtype=bool).reshape(len(self.polygons))
+            self._count_lanes_leaving(extra)
+            # Some lanes do not count: the drivable queries are asked of every point, not only those off every
+            # lane, so the counted lanes' surfaces join the drivable polygons.
+            extra = [p for p, counted in zip(self.polygons, self.lane_drivable) if counted] + extra
         self.drivable_set = PolygonSet(extra)
         self.intersection_set = PolygonSet(self.intersections)
         self.cumulative = [arc_lengths(b) for b in self.baselines]
@@ -214,7 +270,8 @@ class ScoreMap:
         # Every table the queries read is made here, with the map (its loading), rather than on a first
         # query (inside the first scene's score): the lane surfaces and the drivable polygons for
         # distances to any of them (vertices only), the baselines as one flat table.
-        self.surface_set = PolygonSet(self.polygons + extra, edges=False)
+        counted = extra if self.lane_drivable is not None else self.polygons + extra
+        self.surface_set = PolygonSet(counted + _segments(self.drivable_outlines), edges=False)
         self.baseline_table = self._baseline_table()
         self.heading_table = np.concatenate(self.headings) if self.headings else np.zeros(0)
         #: incoming[n]: the lanes leading into lane n, ascending
@@ -225,6 +282,25 @@ class ScoreMap:
         counts = np.array([len(ahead) for ahead in self.outgoing], dtype=np.int64)
         self.outgoing_table = (np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                                np.array([m for ahead in self.outgoing for m in ahead], dtype=np.int64))
+
+    def _count_lanes_leaving(self, extra: list[np.ndarray]) -> None:
+        """A lane left out (its surface a stand-in) whose centre line leaves the map's own area counts after all:
+        the map leaves out where it goes (nuPlan's car parks, which ScenarioNet does not write; the ways into
+        them in nuScenes), and nuPlan counts a corner on any lane.  Said in the reason."""
+        left_out = np.flatnonzero(~self.lane_drivable)
+        if not len(left_out):
+            return
+        self.drivable_set = PolygonSet(extra)
+        points = np.concatenate([self.baselines[n] for n in left_out])
+        owner = np.repeat(left_out, [len(self.baselines[n]) for n in left_out])
+        off = np.flatnonzero(~self.in_drivable(points))
+        near = PolygonSet(_segments(self.drivable_outlines) + extra, edges=False)
+        leaving = np.unique(owner[off[~(_distance_within(points[off], near, LEAVING) < LEAVING)]])
+        if len(leaving):
+            self.lane_drivable[leaving] = True
+            self.drivable_reason = (f"{self.drivable_reason or 'drivable area: the map'}; {len(leaving)} lane(s) "
+                                    "leaving it (where the map gives no surface), as lane centre lines widened "
+                                    "by half their width")
 
     @property
     def num_lanes(self) -> int:
@@ -242,29 +318,41 @@ class ScoreMap:
         """:meth:`lanes_at`, with (P,) some lane holds the point and (N,) the lane holds some point."""
         return _containing(points, self.lane_set)
 
+    @property
+    def every_lane_drivable(self) -> bool:
+        """Every lane's surface is part of the drivable area (a point on any lane is on it)."""
+        return self.lane_drivable is None or bool(self.lane_drivable.all())
+
+    def in_outlines(self, points: np.ndarray) -> np.ndarray:
+        """(P,) bool: inside an odd number of the drivable area's outlines."""
+        if not len(self.outline_set):
+            return np.zeros(len(points), dtype=bool)
+        return (np.count_nonzero(_containing(points, self.outline_set)[0], axis=1) & 1).astype(bool)
+
     def in_drivable(self, points: np.ndarray) -> np.ndarray:
-        """(P,) bool: in one of the drivable polygons besides the lane surfaces (asked of points off every lane)."""
-        return _containing(points, self.drivable_set)[1]
+        """(P,) bool: on the drivable area besides the lane surfaces that every_lane_drivable counts (asked of
+        points off every lane, or of all when not every lane counts): inside an odd number of its outlines,
+        in one of its polygons, or on the road side of the nearest road edge."""
+        out = self.in_outlines(points)
+        rest = np.flatnonzero(~out)
+        if len(rest) and len(self.drivable_set):
+            out[rest] = _containing(points[rest], self.drivable_set)[1]
+            rest = rest[~out[rest]]
+        if len(rest) and len(self.edges):
+            out[rest] = self.edges.signed_distances(points[rest]) < 0
+        return out
 
     def in_intersection(self, points: np.ndarray) -> np.ndarray:
         return _containing(points, self.intersection_set)[1]
 
     def distance_to_drivable(self, points: np.ndarray, within: float) -> np.ndarray:
-        """(P,) distance to the nearest lane surface or drivable polygon, inf beyond ``within`` (m)."""
-        surfaces = self.surface_set
-        if not len(surfaces) or not len(points):
-            return np.full(len(points), np.inf)
-        if kernels.wanted():
-            out = np.empty(len(points))
-            kernels.kernels().nearest_outlines_within(np.ascontiguousarray(points, dtype=np.float64), surfaces.vertices,
-                                                      surfaces.vertex_starts, surfaces.bounds, float(within),
-                                                      *surfaces.grid, out)
-            return np.where(out < within, out, np.inf)
-        bounds, x, y = surfaces.bounds, points[:, 0:1], points[:, 1:2]
-        near = ((x >= bounds[:, 0] - within) & (x <= bounds[:, 2] + within)
-                & (y >= bounds[:, 1] - within) & (y <= bounds[:, 3] + within))
-        out = _nearest_outlines(points, surfaces, *np.nonzero(near))
-        return np.where(out < within, out, np.inf)
+        """(P,) distance to the nearest lane surface or drivable polygon or outline, inf beyond ``within`` (m);
+        of a point off the road, to the nearest road edge as well."""
+        out = _distance_within(points, self.surface_set, within)
+        if len(self.edges) and len(points):
+            edge = self.edges.signed_distances(points)
+            out = np.minimum(out, np.where((edge >= 0) & (edge < within), edge, np.inf))
+        return out
 
     def distance_to_lanes(self, points: np.ndarray, lanes: list[list[int]], within: float) -> np.ndarray:
         """(P,) distance from point p to the nearest of the lanes ``lanes[p]``, inf beyond ``within``."""

@@ -55,7 +55,8 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_on
     score_map: ScoreMap = inputs.map
     t = len(corners)
     points = corners.reshape(-1, 2)
-    outside = ~corner_on_lane
+    # where a lane's surface is a stand-in and the map gives the area itself, being on a lane settles nothing
+    outside = ~corner_on_lane if score_map.every_lane_drivable else np.ones(len(points), dtype=bool)
     outside[outside] = ~score_map.in_drivable(points[outside])
     far = np.zeros(len(points), dtype=bool)
     depth = np.zeros(len(points))
@@ -66,13 +67,15 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_on
         # is is measured up to DEPTH_REPORTED; beyond, only that it is at least that.
         reported = score_map.distance_to_drivable(points[rows], DEPTH_REPORTED)
         to_drivable = np.where(reported < DRIVABLE_MARGIN, reported, np.inf)
-        to_route = score_map.distance_to_lanes(points[rows], [route[r // 4] for r in rows], DRIVABLE_MARGIN)
+        counted = score_map.lane_drivable
+        near = [route[r // 4] if counted is None else [n for n in route[r // 4] if counted[n]] for r in rows]
+        to_route = score_map.distance_to_lanes(points[rows], near, DRIVABLE_MARGIN)
         far[rows] = ~((to_drivable < DRIVABLE_MARGIN) | (to_route < DRIVABLE_MARGIN))
         depth[rows] = np.where(far[rows], np.minimum(reported, DEPTH_REPORTED),
                                np.where(np.isfinite(to_drivable), to_drivable, 0.0))
     far = far.reshape(t, 4)
     frames = np.flatnonzero(far.any(axis=1))
-    term = Term(name, 0.0 if len(frames) else 1.0,
+    term = Term(name, 0.0 if len(frames) else 1.0, reason=score_map.drivable_reason,
                 detail={"frames_off_drivable_area": int(len(frames)),
                         "max_corner_off_drivable_area": float(depth.max()) if len(depth) else 0.0})
     if len(frames):
@@ -82,7 +85,8 @@ def drivable_area_compliance(inputs: ScoreInputs, corners: np.ndarray, corner_on
         term.places = [tuple(p) for p in corners[frames, corner].tolist()]
         k0, c0 = frames[0], corner[0]
         term.message = (f"a corner {depth[k0, c0]:.2f} m off the drivable area at frame "
-                        f"{int(inputs.frame_numbers[k0])} ({len(frames)} frame(s)); {DRIVABLE_MARGIN:g} m tolerated")
+                        f"{int(inputs.frame_numbers[k0])} ({len(frames)} frame(s)); {DRIVABLE_MARGIN:g} m tolerated"
+                        + (f"; {score_map.drivable_reason}" if score_map.drivable_stand_in else ""))
     return term
 
 

@@ -88,8 +88,9 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     one per scene; see :mod:`pytest_driveeval.strategies`).  ``raster``
     (raster.RasterParams): the policy also gets ``image``, l5kit's raster of
     its driven history; ``py_semantic`` needs ``semantic_map``
-    (io.l5_semantic_map.SemanticMap, e.g. from raster_inputs.load_semantic_map).
-    ``progress(done, total)``: the steps unrolled, as they go.
+    (io.l5_semantic_map.SemanticMap, e.g. from raster_inputs.load_semantic_map); an L5 dataset's scenes
+    also score on it (its lanes are the drivable area), and without it the score's map terms are not
+    available.  ``progress(done, total)``: the steps unrolled, as they go.
     """
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
@@ -118,7 +119,7 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
     from pytest_driveeval.usecases.closed_loop.names import scene_identity
 
-    unrolled.maps = SceneMaps(dataset)
+    unrolled.maps = SceneMaps(dataset, semantic_map)
     unrolled.identities = {s: scene_identity(dataset, s) for s in ids}
     return unrolled
 

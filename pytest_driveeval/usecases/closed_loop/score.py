@@ -1,5 +1,6 @@
 """nuPlan's closed-loop score of an unrolled scene (metrics.nuplan_score) from what the engine
-recorded, on the scene's map where the dataset has one (ScenarioNet), and the findings that the
+recorded, on the scene's map where the dataset has one (ScenarioNet) or is given one (an L5 zarr's
+semantic map), and the findings that the
 scenario's ``Conditions.Score`` draws from it.
 
 The collisions are the engine's, blamed by its own rules (metrics.collisions), each agent counted
@@ -33,8 +34,9 @@ def _label_groups() -> np.ndarray:
 
 def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
-    as the score reads it.  ScenarioNet has no roadblocks, connectors or drivable-area layer: every lane
-    is a lane, and the drivable area is the lanes' surfaces plus any driveway."""
+    as the score reads it.  ScenarioNet has no roadblocks or connectors: every lane is a lane.  The
+    drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines, road edges, driveways,
+    the lanes' own surfaces), lanes widened by an assumed width only where the map gives no other."""
     semantic = scenario_map.semantic
     ids = [str(i) for i in semantic.lane_ids]
     features = {f.id: f for f in source.map_features}
@@ -51,10 +53,17 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
                 if features.get(i) is not None else [] for i in ids]
     surfaces = [scenario_map.surfaces[n] for n in range(len(ids))]
     driveways = [f.polygon[:, :2] for f in source.map_features if f.type == "DRIVEWAY" and f.polygon is not None]
-    return ScoreMap(lane_ids=ids, polygons=surfaces,
-                    baselines=[(semantic.lanes_left[n] + semantic.lanes_right[n]) / 2 for n in range(len(ids))],
+    area = scenario_map.drivable
+    extra = {} if area is None else dict(
+        drivable_outlines=area.outlines, road_edges=area.road_edges, drivable_reason=area.reason,
+        drivable_stand_in=area.stand_in, lane_drivable=None if area.lane_counts.all() else area.lane_counts)
+    # a lane whose boundaries lie unequally off its centre line (Waymo's measured widths) keeps that line
+    uneven = {n for n, source in enumerate(scenario_map.width_sources) if source == "boundaries"}
+    baselines = [scenario_map.centres[n] if n in uneven else (semantic.lanes_left[n] + semantic.lanes_right[n]) / 2
+                 for n in range(len(ids))]
+    return ScoreMap(lane_ids=ids, polygons=surfaces, baselines=baselines,
                     speed_limits=limits, connector=np.zeros(len(ids), bool), outgoing=outgoing,
-                    drivable=surfaces + driveways, no_limits_reason=unknown)
+                    drivable=surfaces + driveways, no_limits_reason=unknown, **extra)
 
 
 def dataset_score_maps(dataset: Any, ids: Sequence[int]) -> dict[int, ScoreMap | None]:
@@ -74,10 +83,21 @@ class SceneMaps:
 
     _made: "weakref.WeakKeyDictionary[Any, dict[int, ScoreMap]]" = weakref.WeakKeyDictionary()
 
-    def __init__(self, dataset: Any):
+    def __init__(self, dataset: Any, semantic_map: Any = None):
         self._dataset = dataset if hasattr(dataset, "scenario_map") else None
+        # An L5 zarr's scenes score on the semantic map the caller has (made per scene, kept with this object)
+        self._semantic = (dataset, semantic_map) if self._dataset is None and semantic_map is not None \
+            and len(getattr(semantic_map, "lane_ids", ())) else None
+        self._own: dict[int, ScoreMap | None] = {}
 
     def get(self, scene: int, default: Any = None) -> ScoreMap | None:
+        if self._semantic is not None:
+            if scene not in self._own:
+                from pytest_driveeval.usecases.closed_loop.semantic_score_map import scene_ego_xy, semantic_score_map
+
+                dataset, semantic = self._semantic
+                self._own[scene] = semantic_score_map(semantic, scene_ego_xy(dataset, scene))
+            return self._own[scene]
         if self._dataset is None:
             return default
         made = self._made.setdefault(self._dataset, {})
