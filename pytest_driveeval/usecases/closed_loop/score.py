@@ -34,7 +34,9 @@ def _label_groups() -> np.ndarray:
 def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
     as the score reads it.  ScenarioNet has no roadblocks, connectors or drivable-area layer: every lane
-    is a lane, and the drivable area is the lanes' surfaces plus any driveway."""
+    is its own roadblock, and the drivable area is the lanes' surfaces plus any driveway.  Every lane is a
+    lane connector to nuPlan's route extractor, which lets connectors overlap (ScenarioNet's lanes do, at
+    junctions; nuPlan's lanes never do), so a point on several lanes is on all of them, in the map's order."""
     semantic = scenario_map.semantic
     ids = [str(i) for i in semantic.lane_ids]
     features = {f.id: f for f in source.map_features}
@@ -53,7 +55,7 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     driveways = [f.polygon[:, :2] for f in source.map_features if f.type == "DRIVEWAY" and f.polygon is not None]
     return ScoreMap(lane_ids=ids, polygons=surfaces,
                     baselines=[(semantic.lanes_left[n] + semantic.lanes_right[n]) / 2 for n in range(len(ids))],
-                    speed_limits=limits, connector=np.zeros(len(ids), bool), outgoing=outgoing,
+                    speed_limits=limits, connector=np.ones(len(ids), bool), outgoing=outgoing,
                     drivable=surfaces + driveways, no_limits_reason=unknown)
 
 
