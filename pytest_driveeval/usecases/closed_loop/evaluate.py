@@ -194,6 +194,11 @@ def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_
             for t in np.flatnonzero(hit)]
 
 
+#: said where a condition counts an agent on several frames: the score's collision term counts it once
+COUNTED_BY_FRAME = ("; every frame in contact counts here, by the engine's blame (the score's "
+                    "no_ego_at_fault_collisions counts each agent once, by nuPlan's rules)")
+
+
 def collision_detail(event: dict) -> str:
     """Who the ego hit, as failures say it: " with agent N", and whether it was not the ego's fault."""
     return f" with agent {event['track_id']}" + ("" if event["at_fault"] else " (not at fault)")
@@ -250,6 +255,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True
     for kind in KINDS:
         events = collision_events(unroll, row, (kind,), limits.AtFaultOnly)
         detail = collision_detail(events[0]) if events else ""
+        if len(events) > len({e["track_id"] for e in events}):
+            detail += COUNTED_BY_FRAME
         blame = "at-fault " if limits.AtFaultOnly else ""
         findings.append(violations([e["frame"] for e in events], getattr(limits, kind.capitalize()),
                                    what=f"{blame}{kind} collision frame(s)", figure=kind, scene=scene,
