@@ -281,7 +281,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True
                                    figure="drift_resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
     from pytest_driveeval.usecases.closed_loop.score import markers, scene_score, score_findings, terms_json
 
-    score = scene_score(unroll, row) if score else None
+    rules = conditions.Score.Blame if conditions.Score is not None else "nuplan"
+    score = scene_score(unroll, row, rules) if score else None
     terms, marks = {}, []
     if score is not None:
         frame_numbers = np.flatnonzero(r.valid[row])

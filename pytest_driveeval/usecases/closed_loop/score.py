@@ -2,8 +2,9 @@
 recorded, on the scene's map where the dataset has one (ScenarioNet), and the findings that the
 scenario's ``Conditions.Score`` draws from it.
 
-The collisions are the engine's, blamed by its own rules (metrics.collisions), each agent counted
-at its first contact as nuPlan does; the engine records one partner per frame (l5kit's rule).
+The collisions the score counts are found and blamed by nuPlan's own rules, from the ego's and the
+agents' boxes (metrics.nuplan_score.collisions), each agent once; ``blame="engine"`` takes the engine's
+instead (metrics.collisions: one partner per frame, l5kit's rule, blamed by its own rules).
 """
 from __future__ import annotations
 
@@ -120,8 +121,9 @@ def _ego_states(unroll: Any) -> dict[int, Any]:
     return made
 
 
-def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInputs | None:
-    """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled)."""
+def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None, blame: str = "nuplan") -> ScoreInputs | None:
+    """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled).  ``blame``: whose rules
+    find the collisions the score counts (ScoreInputs.blame); the engine's are kept in the inputs either way."""
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
     r, log = unroll.result, unroll.log
@@ -153,15 +155,17 @@ def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInpu
         cell = np.flatnonzero(tokens[k] == token)
         group_of[token] = GROUPS[int(groups[k, cell[0]])] if len(cell) else "object"
     collisions = first_collisions(hit, hit_tokens, r.collision_at_fault[row][keep][hit], group_of)
-    return ScoreInputs(times, ego, expert, agents, collisions, score_map, frame_numbers=frames)
+    return ScoreInputs(times, ego, expert, agents, collisions, score_map, frame_numbers=frames, blame=blame)
 
 
-def scene_score(unroll: Any, row: int) -> SceneScore | None:
-    """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by."""
+def scene_score(unroll: Any, row: int, blame: str = "nuplan") -> SceneScore | None:
+    """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by.
+    ``blame``: "nuplan" (nuPlan's collision rules) or "engine" (the engine's collisions and blame)."""
     if unroll.log is None:
         return None
     maps = getattr(unroll, "maps", None)
-    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])) if maps is not None else None)
+    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])) if maps is not None else None,
+                          blame)
     return score_scene(inputs) if inputs is not None else None
 
 
