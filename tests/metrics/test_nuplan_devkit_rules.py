@@ -31,8 +31,13 @@ def strip(lane_id, x0, x1, y0=-2.0, y1=2.0, *, backwards=False, connector=True, 
 
 
 def on_map(spec: dict, lanes: list[dict]) -> dict:
-    spec["map"] = {"lanes": lanes, "roadblocks": [], "drivable_area": [lane["polygon"] for lane in lanes],
-                   "intersections": []}
+    """The case on these lanes, each in a roadblock of its own (its polygon the lane's), as compare_scenes
+    exports ScenarioNet's lanes; incoming edges from the outgoing ones."""
+    for lane in lanes:
+        lane["incoming"] = [other["id"] for other in lanes if lane["id"] in other["outgoing"]]
+    spec["map"] = {"lanes": lanes, "drivable_area": [lane["polygon"] for lane in lanes], "intersections": [],
+                   "roadblocks": [{"id": lane["roadblock"], "polygon": lane["polygon"], "connector": lane["connector"]}
+                                  for lane in lanes]}
     return spec
 
 
@@ -191,3 +196,56 @@ def test_an_expert_never_on_a_lane_gives_one():
     spec = on_map(case("parking", cruising(1.0)), [strip("far", 0, 500, 50.0, 54.0)])
     term = expert_progress(inputs_from_case(spec))
     assert term.value == 1.0 and "never on a lane" in term.reason
+
+
+# ---------------------------------------------------------------- the same cases in nuplan-devkit
+
+def own_edges(spec: dict) -> dict:
+    """nuPlan's speed limit takes max() over a connector's edges, which raises on a connector without any:
+    such a connector gets itself as its edge, as compare_scenes exports it (the harness reads it the same)."""
+    for lane in (spec["map"] or {}).get("lanes", []):
+        if lane["connector"] and not lane["incoming"] and not lane["outgoing"]:
+            lane["incoming"], lane["outgoing"] = [lane["id"]], [lane["id"]]
+    return spec
+
+
+def devkit_cases() -> list[dict]:
+    drift = agent("v", "vehicle", (10.0, 5.0), heading=-0.05, speed=10.0, length=4.0, width=2.0)
+    speed = np.full(FRAMES, 10.0)
+    speed[40:70] = 15.0 + 2.23
+    named = {
+        "cone": case("", cruising(), agents=[agent("c", "traffic_cone", (60.0, 0.0))]),
+        "front": case("", cruising(), agents=[agent("v", "vehicle", (40.0, 0.0), speed=5.0, length=4.0, width=2.0)]),
+        "rear": case("", cruising(), agents=[agent("v", "vehicle", (-10.0, 0.0), speed=20.0, length=4.0, width=2.0)]),
+        "side straddling": case("", cruising(), y=np.full(FRAMES, 1.5), agents=[drift]),
+        "backward connector first": on_map(case("", cruising()), [strip("bwd", 0, 500, backwards=True),
+                                                                  strip("fwd", 0, 500)]),
+        "edgeless connector": on_map(case("", cruising(), speed=speed), [strip("c", 0, 500, speed_limit=15.0)]),
+        "half progress": on_map(case("", cruising(5.0)), two_roadblocks()),
+        "beside the route": on_map(case("", cruising(), y=np.full(FRAMES, 4.0)), two_roadblocks()),
+    }
+    return [{**own_edges(spec), "name": name} for name, spec in named.items()]
+
+
+def test_nuplan_devkit_scores_these_cases_as_the_harness_does():
+    import importlib.util
+
+    from conftest import REPO_ROOT
+    from pytest_driveeval.metrics.nuplan_score.case import answer
+
+    spec = importlib.util.spec_from_file_location("nuplan_oracle_venv", REPO_ROOT / "benchmarks" / "nuplan_oracle"
+                                                  / "oracle_venv.py")
+    venv = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(venv)
+    python = venv.existing_python()
+    if python is None:
+        pytest.skip("nuplan-devkit oracle venv absent (python benchmarks/nuplan_oracle/oracle_venv.py builds it)")
+    cases = devkit_cases()
+    differences = []
+    for case_, theirs in zip(cases, venv.run_metrics(cases, python)):
+        assert "error" not in theirs, theirs
+        ours = answer(case_)
+        for name, value in theirs["metrics"].items():
+            if name in ours["metrics"] and abs(ours["metrics"][name] - value) > 1e-6:
+                differences.append(f"{case_['name']}: {name} ours {ours['metrics'][name]} nuplan {value}")
+    assert not differences, "\n".join(differences)
