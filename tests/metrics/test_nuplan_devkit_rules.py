@@ -14,7 +14,7 @@ from pytest_driveeval.metrics.nuplan_score import score_scene
 from pytest_driveeval.metrics.nuplan_score.case import inputs_from_case, map_from_case
 from pytest_driveeval.metrics.nuplan_score.collisions import nuplan_collisions
 from pytest_driveeval.metrics.nuplan_score.progress import _Progress, expert_progress
-from pytest_driveeval.metrics.nuplan_score.route import centre_route, corners_in_one_lane
+from pytest_driveeval.metrics.nuplan_score.route import centre_route, corners_in_one_lane, lanes_lists
 
 from nuplan_cases import DT, FRAMES, agent, case, cruising
 
@@ -187,7 +187,7 @@ def test_a_roadblock_the_ego_jumps_over_still_counts_its_stretch():
     score_map = map_from_case({"lanes": [strip("l1", 0, 60.5), strip("l2", 60.5, 61.9), strip("l3", 61.9, 400)]})
     x = np.arange(50.0, 80.0, 2.0)
     points = np.stack([x, np.zeros_like(x)], 1)
-    steps = _Progress(score_map, [(0, 0), (1, 1), (2, 2)], points, score_map.lanes_at(points))()
+    steps = _Progress(score_map, [(0, 0), (1, 1), (2, 2)], points, lanes_lists(score_map.lanes_at(points)))()
     assert steps[6] == pytest.approx(2.0)  # from x = 60 (l1) to x = 62 (l3)
     assert sum(steps) == pytest.approx(x[-1] - x[0])
 

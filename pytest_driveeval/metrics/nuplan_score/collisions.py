@@ -21,6 +21,7 @@ import numpy as np
 
 from pytest_driveeval.geometry.boxes import oriented_boxes_overlap, segment_meets_box
 
+from . import kernels
 from .inputs import GROUPS, Collision, ScoreInputs
 
 STOPPED_SPEED = 0.05
@@ -35,14 +36,19 @@ def contacts(inputs: ScoreInputs) -> tuple[np.ndarray, np.ndarray]:
     ego, agents = inputs.ego, inputs.agents
     if agents.token.shape[1] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ego_radius = float(np.hypot(ego.width, ego.length))
+    if kernels.wanted():
+        e_cos, e_sin = ego.heading_unit
+        return kernels.kernels().box_contacts(agents.available, agents.xy, agents.yaw, agents.length, agents.width,
+                                              np.ascontiguousarray(ego.center[:, :2]), e_cos, e_sin, float(ego.length),
+                                              float(ego.width), ego_radius)
     frames, cols = np.nonzero(agents.available)
     xy = agents.xy[frames, cols].astype(np.float64)
     length = agents.length[frames, cols].astype(np.float64)
     width = agents.width[frames, cols].astype(np.float64)
     centre = ego.center[frames, :2]
     # nuPlan's precheck: centres nearer than the two half diagonals (strictly)
-    radius = (np.hypot(ego.width, ego.length) + np.hypot(width, length)) / 2.0
-    near = np.hypot(*(xy - centre).T) < radius
+    near = np.hypot(*(xy - centre).T) < (ego_radius + np.hypot(width, length)) / 2.0
     frames, cols, xy, length, width = frames[near], cols[near], xy[near], length[near], width[near]
     meet = oriented_boxes_overlap(ego.center[frames, :2], ego.center[frames, 2], np.array([ego.length, ego.width]),
                                   xy, agents.yaw[frames, cols].astype(np.float64), np.stack([length, width], axis=1))

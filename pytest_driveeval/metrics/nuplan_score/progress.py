@@ -45,7 +45,9 @@ def route_pairs(score_map: ScoreMap, route: list[list[int]]) -> list[tuple[int, 
 class _Progress:
     """nuPlan's ``PerFrameProgressAlongRouteComputer`` over one run of poses."""
 
-    def __init__(self, score_map: ScoreMap, pairs: list[tuple[int, int]], points: np.ndarray, holding: np.ndarray):
+    def __init__(self, score_map: ScoreMap, pairs: list[tuple[int, int]], points: np.ndarray,
+                 here: list[list[int]]):
+        """``here``: per pose, the lanes holding it (route.lanes_lists)."""
         self.map, self.pairs = score_map, pairs
         lanes = sorted({lane for _, lane in pairs})
         column = {lane: i for i, lane in enumerate(lanes)}
@@ -53,14 +55,28 @@ class _Progress:
         along = score_map.along(np.repeat(points, len(lanes), axis=0), np.tile(lanes, len(points)))
         self.along = along.reshape(len(points), len(lanes))
         self.column = column
-        blocks = sorted({block for block, _ in pairs})
-        self.inside = {b: holding[:, score_map.roadblock == b].any(axis=1) for b in blocks}
+        # a roadblock holds a pose where one of its lanes does
+        block_of = score_map.roadblock
+        blocks = {block for block, _ in pairs}
+        self.inside = {b: np.zeros(len(points), dtype=bool) for b in blocks}
+        for k, lanes_here in enumerate(here):
+            for n in lanes_here:
+                b = int(block_of[n])
+                if b in blocks:
+                    self.inside[b][k] = True
+        self._projected: dict = {}
 
-    def _project(self, lane: int, point: np.ndarray) -> float:
-        return float(project(point[None], self.map.baselines[lane], self.map.cumulative[lane])[0])
+    def _project(self, lane: int, source: int, end: int) -> float:
+        """Where the first (``end`` 0) or last (-1) point of lane ``source``'s baseline projects on lane
+        ``lane``'s (the same few pairs recur at every crossing: each computed once)."""
+        key = (lane, source, end)
+        if key not in self._projected:
+            point = self.map.baselines[source][end]
+            self._projected[key] = float(project(point[None], self.map.baselines[lane], self.map.cumulative[lane])[0])
+        return self._projected[key]
 
     def __call__(self) -> list[float]:
-        pairs, baselines = self.pairs, self.map.baselines
+        pairs = self.pairs
         current = 0
         previous = float(self.along[0, self.column[pairs[0][1]]])
         progress = [0.0]
@@ -75,49 +91,49 @@ class _Progress:
             while ahead < len(pairs):
                 if self.inside[pairs[ahead][0]][k]:
                     rest = float(self.map.cumulative[lane][-1]) - previous
-                    last = baselines[lane][-1]
+                    last_of = lane
                     current, lane = ahead, pairs[ahead][1]
                     s = float(self.along[k, self.column[lane]])
-                    step = rest + (s - self._project(lane, last)) + skipped_total
+                    step = rest + (s - self._project(lane, last_of, -1)) + skipped_total
                     previous = s
                     break
                 if ahead == len(pairs) - 1:
                     break
-                last = baselines[pairs[current if skipped is None else skipped][1]][-1]
+                last_of = pairs[current if skipped is None else skipped][1]
                 skipped = ahead
                 ahead += 1
                 skipped_lane = pairs[skipped][1]
-                skipped_total += (self._project(skipped_lane, baselines[pairs[ahead][1]][0])
-                                  - self._project(skipped_lane, last))
+                skipped_total += (self._project(skipped_lane, pairs[ahead][1], 0)
+                                  - self._project(skipped_lane, last_of, -1))
             progress.append(step)
         return progress
 
 
 def expert_progress(inputs: ScoreInputs, expert_route: list[list[int]] | None = None,
-                    ego_holding: np.ndarray | None = None, expert_holding: np.ndarray | None = None) -> Term:
+                    ego_here: list[list[int]] | None = None, expert_here: list[list[int]] | None = None) -> Term:
     """The term, from the expert's route (route.centre_route of its centres) and the lanes holding the
-    ego's and the expert's centres (``lanes_at``), where the caller has them."""
+    ego's and the expert's centres (route.lanes_lists), where the caller has them."""
     name = "ego_progress_along_expert_route"
     score_map = inputs.map
     if score_map is None:
         return _along_expert_path(inputs)
-    from .route import centre_route
+    from .route import centre_route, lanes_lists
 
     expert = inputs.expert[:, :2]
-    if expert_holding is None:
-        expert_holding = score_map.lanes_at(expert)
+    if expert_here is None:
+        expert_here = lanes_lists(score_map.lanes_at(expert))
     if expert_route is None:
-        expert_route = centre_route(score_map, expert, inputs.expert[:, 2], expert_holding)
+        expert_route = centre_route(score_map, expert, inputs.expert[:, 2], here=expert_here)
     route = simplified(expert_route)
     if not route:
         return Term(name, 1.0, reason="the expert is never on a lane: 1, as nuPlan scores it",
                     detail={"expert_progress": 0.0})
     pairs = route_pairs(score_map, route)
     ego_xy = inputs.ego.center[:, :2]
-    if ego_holding is None:
-        ego_holding = score_map.lanes_at(ego_xy)
-    ego_along = float(np.sum(_Progress(score_map, pairs, ego_xy, ego_holding)()))
-    expert_along = float(np.sum(_Progress(score_map, pairs, expert, expert_holding)()))
+    if ego_here is None:
+        ego_here = lanes_lists(score_map.lanes_at(ego_xy))
+    ego_along = float(np.sum(_Progress(score_map, pairs, ego_xy, ego_here)()))
+    expert_along = float(np.sum(_Progress(score_map, pairs, expert, expert_here)()))
     return _ratio_term(ego_along, expert_along, f" along {len(pairs)} roadblock(s) of the expert's route")
 
 

@@ -19,17 +19,31 @@ import numpy as np
 
 from pytest_driveeval.geometry.planar import wrap_angle
 
+from . import kernels
 from .lanes import ScoreMap
+
+_ZERO = np.zeros(1, dtype=np.int64)
 
 #: metres: nuPlan keeps the previous frame's connectors that are nearer than this (get_route)
 NEAR_CONNECTOR = 5.0
 
 
-def _holding_lists(holding: np.ndarray) -> list[list[int]]:
-    rows, cols = np.nonzero(holding)
-    here: list[list[int]] = [[] for _ in range(len(holding))]
-    for r, c in zip(rows.tolist(), cols.tolist()):
-        here[r].append(c)
+def lanes_lists(holding: np.ndarray, touched: np.ndarray | None = None) -> list[tuple[int, ...]]:
+    """Per point (row of ``holding``, (P, N) bool), the lanes holding it, ascending.  ``touched`` (N,): the
+    lanes holding some point, where the caller has it (the others' columns are not read: a map's lanes are
+    many, a scene's few).  Equal rows share one tuple: a scene's points repeat a few sets of lanes, and
+    few objects kept means few garbage collections while the score runs."""
+    columns = np.flatnonzero(holding.any(axis=0) if touched is None else touched)
+    rows, cols = np.nonzero(holding[:, columns])
+    here: list[tuple[int, ...]] = [()] * len(holding)
+    if not len(rows):
+        return here
+    starts = np.searchsorted(rows, np.arange(len(holding) + 1)).tolist()
+    flat = columns[cols].tolist()
+    shared: dict = {}
+    for r in np.unique(rows).tolist():
+        lanes = tuple(flat[starts[r]:starts[r + 1]])
+        here[r] = shared.setdefault(lanes, lanes)
     return here
 
 
@@ -52,6 +66,11 @@ def _look_up(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: 
 def _with_candidates(score_map: ScoreMap, lanes: list[int], candidates: list[int]) -> list[int]:
     """nuPlan's ``get_route_obj_with_candidates``: the candidates holding the point, else (one candidate)
     those it leads into that hold it.  ``lanes``: the lanes holding the point."""
+    if len(candidates) == 1:  # the steady case, a frame on the lane of the one before: nothing made
+        if candidates[0] in lanes:
+            return candidates
+    elif all(n in lanes for n in candidates):
+        return candidates
     kept = [n for n in candidates if n in lanes]
     if not kept and len(candidates) == 1:
         kept = [n for n in score_map.outgoing[candidates[0]] if n in lanes]
@@ -59,12 +78,13 @@ def _with_candidates(score_map: ScoreMap, lanes: list[int], candidates: list[int
 
 
 def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray | None = None,
-                 holding: np.ndarray | None = None) -> list[list[int]]:
+                 holding: np.ndarray | None = None, here: list[list[int]] | None = None) -> list[list[int]]:
     """Per frame, the lanes assigned to the point (first: the one the terms use), as nuPlan's ``get_route``.
-    ``holding``: ``score_map.lanes_at(points)`` when the caller has it."""
-    holding = score_map.lanes_at(points) if holding is None else holding
-    here = _holding_lists(holding)
+    ``holding``: ``score_map.lanes_at(points)``, or ``here``: its :func:`lanes_lists`, when the caller has it."""
+    if here is None:
+        here = lanes_lists(score_map.lanes_at(points) if holding is None else holding)
     connector = score_map.connector
+    near = _Nearness(score_map, np.ascontiguousarray(points, dtype=np.float64), here)
     route: list[list[int]] = []
     current: list[int] = []
     for k, lanes in enumerate(here):
@@ -74,15 +94,43 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray |
             current = _look_up(score_map, lanes, points[k], None if headings is None else headings[k])
             previous = route[-1] if route else []
             if k > 1 and previous and connector[previous[0]] and (
-                    (current and connector[current[0]])
-                    or (not current and bool(score_map.in_intersection(points[k:k + 1])[0]))):
-                distance = score_map.distance_to_lanes(np.repeat(points[k:k + 1], len(previous), axis=0),
-                                                       [[n] for n in previous], np.inf)
-                near = [n for n, d in zip(previous, distance.tolist()) if d < NEAR_CONNECTOR]
-                if near:
-                    current = near
+                    (current and connector[current[0]]) or (not current and near.in_intersection(k))):
+                kept = [n for n in previous if near.distance(k, n) < NEAR_CONNECTOR]
+                if kept:
+                    current = kept
         route.append(current)
     return remove_extra_connectors(score_map, route)
+
+
+class _Nearness:
+    """The distance of a run's point to a lane's polygon, each pair measured once, and whether each point is
+    in an intersection, for all points at once when first asked (most runs never ask)."""
+
+    def __init__(self, score_map: ScoreMap, points: np.ndarray, here: list[list[int]]):
+        self.map, self.points, self.here = score_map, points, here
+        self._distances: dict = {}
+        self._intersections = None
+        self._out, self._lane = np.full(1, np.inf), np.zeros(1, dtype=np.int64)  # the kernel's, reused
+
+    def distance(self, k: int, lane: int) -> float:
+        """Of point k to lane ``lane``'s polygon, which does not hold it (a lane that held the point would
+        have been kept): the distance to its outline."""
+        key = (k, lane)
+        if key not in self._distances:
+            if kernels.wanted():  # the kernel of distance_to_lanes, for one pair, without its set-up
+                self._out[0], self._lane[0] = np.inf, lane
+                lane_set = self.map.lane_set
+                kernels.kernels().outline_distances(self.points[k:k + 1], lane_set.vertices, lane_set.vertex_starts,
+                                                    _ZERO, self._lane, self._out)
+                self._distances[key] = float(self._out[0])
+            else:
+                self._distances[key] = float(self.map.distance_to_lanes(self.points[k:k + 1], [[lane]], np.inf)[0])
+        return self._distances[key]
+
+    def in_intersection(self, k: int) -> bool:
+        if self._intersections is None:
+            self._intersections = self.map.in_intersection(self.points)
+        return bool(self._intersections[k])
 
 
 def remove_extra_connectors(score_map: ScoreMap, route: list[list[int]]) -> list[list[int]]:
@@ -120,31 +168,39 @@ def first_lanes(route: list[list[int]]) -> np.ndarray:
     return np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
 
 
-def corners_route(score_map: ScoreMap, holding: np.ndarray) -> list[tuple[tuple[int, ...], ...]]:
+def corners_route(score_map: ScoreMap, here: list[list[int]]) -> list[tuple[tuple[int, ...], ...]]:
     """Per frame, each corner's lanes (FL, RL, RR, FR: nuPlan's order), as nuPlan's ``extract_corners_route``
     assigns them: a corner keeps the previous frame's lanes of any corner (or, one such lane, those it
     leads into) that hold it, else looks again; on the second frame, what a corner finds by looking again
-    joins the candidates of the corners after it.  ``holding`` (4T, N): the lanes holding each corner,
+    joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner,
     frame by frame in the order FL, FR, RR, RL (the ego's corners)."""
-    here = _holding_lists(holding)
     t = len(here) // 4
     out = []
-    candidates: list[int] = []
+    candidates: tuple[int, ...] = ()
+    known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
     for k in range(t):
-        found_here: list[int] = []
-        corners = []
-        for c in (0, 3, 2, 1):  # FL, RL, RR, FR
-            lanes = here[4 * k + c]
-            found = _with_candidates(score_map, lanes, candidates) if candidates else []
-            if not found:
-                found = _look_up(score_map, lanes, None, None)
-                if k == 1:
-                    candidates = candidates + [n for n in found if n not in candidates]
-            found_here += [n for n in found if n not in found_here]
-            corners.append(tuple(found))
-        out.append(tuple(corners))
-        candidates = found_here
+        key = (k == 1, candidates, *(tuple(here[4 * k + c]) for c in (0, 3, 2, 1)))
+        if key not in known:
+            known[key] = _corners_frame(score_map, key)
+        corners, candidates = known[key]
+        out.append(corners)
     return out
+
+
+def _corners_frame(score_map: ScoreMap, key: tuple) -> tuple[tuple[tuple[int, ...], ...], tuple[int, ...]]:
+    second, candidates, *lanes_of = key
+    candidates = list(candidates)
+    found_here: list[int] = []
+    corners = []
+    for lanes in lanes_of:  # FL, RL, RR, FR
+        found = _with_candidates(score_map, lanes, candidates) if candidates else []
+        if not found:
+            found = _look_up(score_map, list(lanes), None, None)
+            if second:
+                candidates = candidates + [n for n in found if n not in candidates]
+        found_here += [n for n in found if n not in found_here]
+        corners.append(tuple(found))
+    return tuple(corners), tuple(found_here)
 
 
 def _common_or_connected(score_map: ScoreMap, corners: tuple[tuple[int, ...], ...]) -> bool:
@@ -166,12 +222,15 @@ def _common_or_connected(score_map: ScoreMap, corners: tuple[tuple[int, ...], ..
     return bool((front_left_behind & rear_right_ahead) & (front_right_behind & rear_left_ahead))
 
 
-def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None) -> np.ndarray:
+def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None,
+                        here: list[list[int]] | None = None) -> np.ndarray:
     """(T,) bool: the frame is among nuPlan's ``timestamps_in_common_or_connected_route_objs`` (the ego's
     corners in one lane or two connected ones); False when the ego straddles lanes or is partly or
-    wholly off them.  ``holding`` (4T, N): ``score_map.lanes_at`` of the corners, when the caller has it."""
-    holding = score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding
-    assigned = corners_route(score_map, holding)
+    wholly off them.  ``holding`` (4T, N): ``score_map.lanes_at`` of the corners, or ``here``: its
+    :func:`lanes_lists`, when the caller has it."""
+    if here is None:
+        here = lanes_lists(score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding)
+    assigned = corners_route(score_map, here)
     known: dict = {}
     out = np.zeros(len(assigned), dtype=bool)
     for k, frame in enumerate(assigned):

@@ -10,7 +10,7 @@ import numpy as np
 from . import kernels
 from .comfort import ego_is_comfortable
 from .inputs import ScoreInputs
-from .route import centre_route, corners_in_one_lane
+from .route import centre_route, corners_in_one_lane, lanes_lists
 from .term import MULTIPLIERS, TERMS, WEIGHTS, Term
 from .collisions import nuplan_collisions
 from .progress import expert_progress
@@ -63,16 +63,16 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
     if inputs.map is not None:
         score_map = inputs.map
         # one lookup for the centres, the corners and the expert's centres
-        te = len(inputs.expert)
-        holding, held, _ = score_map.lanes_holding(np.concatenate([inputs.ego.center[:, :2], corners.reshape(-1, 2),
-                                                                   inputs.expert[:, :2]]))
-        centre_lanes, corner_lanes, corner_on_lane = holding[:t], holding[t:5 * t], held[t:5 * t]
-        expert_lanes = holding[5 * t:5 * t + te]
-        route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
-        in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes)
+        holding, held, touched = score_map.lanes_holding(np.concatenate([inputs.ego.center[:, :2],
+                                                                         corners.reshape(-1, 2), inputs.expert[:, :2]]))
+        here = lanes_lists(holding, touched)
+        centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
+        corner_on_lane = held[t:5 * t]
+        route = centre_route(score_map, inputs.ego.center[:, :2], heading, here=centre_here)
+        in_one_lane = corners_in_one_lane(score_map, corners, here=corner_here)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
-        expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], expert_lanes)
-        progress = expert_progress(inputs, expert_route, centre_lanes, expert_lanes)
+        expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], here=expert_here)
+        progress = expert_progress(inputs, expert_route, centre_here, expert_here)
     else:  # as nuplan-devkit's extractor finds no lane anywhere
         corner_on_lane, route = None, [[] for _ in range(inputs.num_frames)]
         in_one_lane = np.zeros(inputs.num_frames, dtype=bool)

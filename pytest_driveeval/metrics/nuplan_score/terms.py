@@ -148,13 +148,17 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     usable = np.where(np.isfinite(score_map.speed_limits) & (score_map.speed_limits > 0), score_map.speed_limits,
                       np.nan)
     limits = np.where(first >= 0, usable[first], np.nan)
-    for k in np.flatnonzero((first >= 0) & score_map.connector[first]):
-        # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have one
-        # (a connector with neither takes its own: nuPlan's max() of no limit raises, and the oracle's cases
-        # give such a connector itself as its edge)
-        around = [m for n in route[k] for m in ((*score_map.outgoing[n], *score_map.incoming[n]) or (n,))]
-        values = usable[around] if around else np.array([np.nan])
-        limits[k] = values.max() if np.all(np.isfinite(values)) else np.nan
+    known_limits: dict = {}  # the frames on the same connectors share their limit
+    for k in np.flatnonzero((first >= 0) & score_map.connector[first]).tolist():
+        lanes = tuple(route[k])
+        if lanes not in known_limits:
+            # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have
+            # one (a connector with neither takes its own: nuPlan's max() of no limit raises, and the oracle's
+            # cases give such a connector itself as its edge)
+            around = [m for n in lanes for m in ((*score_map.outgoing[n], *score_map.incoming[n]) or (n,))]
+            values = usable[around] if around else np.array([np.nan])
+            known_limits[lanes] = values.max() if np.all(np.isfinite(values)) else np.nan
+        limits[k] = known_limits[lanes]
     known = np.isfinite(limits)
     if not known.any():
         why = "no lane the ego drove on gives a speed limit" if score_map.has_speed_limits else \
