@@ -40,14 +40,16 @@ from pytest_driveeval.metrics.nuplan_score.case import answer, case_from_inputs 
 from pytest_driveeval.metrics.nuplan_score.term import TERMS  # noqa: E402
 
 SMOKE_HELP = "one scene, one policy, 20 steps; the oracle skipped where its venv is absent: checks the script runs"
-POLICIES = ("log_replay", "constant_velocity", "model")
-MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
+POLICIES = ("log_replay", "constant_velocity", "model", "raster_model")
+#: the shipped models by policy name
+MODELS = {"model": REPO / "fixtures" / "models" / "planning_model.pt2",
+          "raster_model": REPO / "fixtures" / "models" / "raster_model.pt2"}
 SHORT = {"no_ego_at_fault_collisions": "collisions", "drivable_area_compliance": "drivable area",
          "ego_is_making_progress": "making progress", "driving_direction_compliance": "driving direction",
          "ego_progress_along_expert_route": "progress", "time_to_collision_within_bound": "TTC",
          "speed_limit_compliance": "speed limit", "ego_is_comfortable": "comfort"}
-#: a term or score "agrees" within this (the oracle prints floats; the harness's own are float64 too)
-TOLERANCE = 5e-4
+#: a term or score "agrees" within this (both sides compute in float64; the oracle prints floats in full)
+TOLERANCE = 1e-6
 
 
 def oracle_venv():
@@ -65,14 +67,31 @@ def nuscenes_folder(data: Path | None = None) -> Path:
 
 
 def policy(name: str):
-    if name == "model":
+    if name in MODELS:
         from pytest_driveeval.policies.loading import load_model
 
-        return load_model(str(MODEL))
+        return load_model(str(MODELS[name]))
     from pytest_driveeval.usecases.closed_loop.baselines import baseline
     from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 
     return baseline(name, ClosedLoopConfig(Model=name))
+
+
+def raster_options(name: str, dataset, scenes: list[int]) -> dict:
+    """The raster model's inputs (its json's raster, the scenes' own map), as a scenario's Unroll.Inputs gives
+    them; nothing for the other policies."""
+    if name != "raster_model":
+        return {}
+    import json
+
+    from pytest_driveeval.raster import RasterParams
+
+    spec = json.loads(MODELS[name].with_suffix(".json").read_text())["raster"]
+    params = RasterParams(map_type=spec["map_type"], raster_size=spec["raster_size"], pixel_size=spec["pixel_size"],
+                          ego_center=spec["ego_center"], history_num_frames=spec["history_num_frames"],
+                          filter_agents_threshold=spec["filter_agents_threshold"])
+    return {"raster": params, "semantic_map": dataset.semantic_map(scenes),
+            "history_frames": spec["history_num_frames"]}
 
 
 def scene_cases(folder: Path, policies=POLICIES, scenes=range(6), start_frame: int = 10, steps: int | None = 80
@@ -82,22 +101,32 @@ def scene_cases(folder: Path, policies=POLICIES, scenes=range(6), start_frame: i
     put back on the log) and ``frozen`` (held after an overlap), and ``collisions`` (row, at fault)."""
     from pytest_driveeval.closed_loop import unroll_scenes
     from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
-    from pytest_driveeval.usecases.closed_loop.score import score_inputs
 
     dataset = open_dataset(folder, None)
     out = []
     for name in policies:
-        unroll = unroll_scenes(dataset, policy(name), list(scenes), start_frame=start_frame, steps=steps)
-        for row, scene in enumerate(unroll.result.scene_ids):
-            inputs = score_inputs(unroll, row, unroll.maps.get(int(scene)))
-            keep = unroll.result.valid[row]
-            case = case_from_inputs(inputs, f"{name}/scene{int(scene)}", lanes_as_connectors=True)
-            direct = score_scene(inputs)
-            out.append({"name": case["name"], "case": case, "ours": answer(case),
-                        "direct": {"score": direct.score, "metrics": {n: t.used for n, t in direct.terms.items()}},
-                        "resets": np.flatnonzero(unroll.result.reset[row][keep]).tolist(),
-                        "frozen": np.flatnonzero(unroll.result.frozen[row][keep]).tolist(),
-                        "collisions": [(c.frame, c.at_fault) for c in inputs.collisions]})
+        # a raster draws one map: the raster model drives each scene in an unroll of its own
+        batches = [[s] for s in scenes] if name == "raster_model" else [list(scenes)]
+        for batch in batches:
+            out += _cases_of(name, unroll_scenes(dataset, policy(name), batch, start_frame=start_frame, steps=steps,
+                                                 **raster_options(name, dataset, batch)))
+    return out
+
+
+def _cases_of(name: str, unroll) -> list[dict]:
+    from pytest_driveeval.usecases.closed_loop.score import score_inputs
+
+    out = []
+    for row, scene in enumerate(unroll.result.scene_ids):
+        inputs = score_inputs(unroll, row, unroll.maps.get(int(scene)))
+        keep = unroll.result.valid[row]
+        case = case_from_inputs(inputs, f"{name}/scene{int(scene)}", lanes_as_connectors=True)
+        direct = score_scene(inputs)
+        out.append({"name": case["name"], "case": case, "ours": answer(case),
+                    "direct": {"score": direct.score, "metrics": {n: t.used for n, t in direct.terms.items()}},
+                    "resets": np.flatnonzero(unroll.result.reset[row][keep]).tolist(),
+                    "frozen": np.flatnonzero(unroll.result.frozen[row][keep]).tolist(),
+                    "collisions": [(c.frame, c.at_fault) for c in inputs.collisions]})
     return out
 
 

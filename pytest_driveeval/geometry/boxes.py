@@ -104,15 +104,9 @@ def oriented_boxes_overlap(
     return ok
 
 
-def segment_box_overlap_length(
-    seg_start: np.ndarray, seg_end: np.ndarray, centroid: np.ndarray, yaw: np.ndarray, extent: np.ndarray
-) -> np.ndarray:
-    """Length of the part of each segment lying inside (or on) an oriented box.
-
-    All inputs broadcast: segments (..., 2) endpoints, box (..., 2) centroid,
-    (...) yaw, (..., >=2) extent -> (...) lengths.  Liang-Barsky clipping in
-    the box frame, where the box is axis aligned.
-    """
+def _clip_to_box(seg_start, seg_end, centroid, yaw, extent) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(lo, hi, d): the segment's parameters [lo, hi] (within [0, 1]) inside or on the oriented box, and
+    its direction in the box's frame.  Liang-Barsky clipping in the box frame, where the box is axis aligned."""
     # Rotate into the box frame directly: cheaper than building 3x3 matrices
     # for the small batches this is called with.
     yaw = np.asarray(yaw, dtype=np.float64)
@@ -135,9 +129,28 @@ def segment_box_overlap_length(
     in_slab = (p0 >= -half) & (p0 <= half)
     tmin = np.where(parallel, np.where(in_slab, -np.inf, np.inf), np.minimum(ta, tb))
     tmax = np.where(parallel, np.where(in_slab, np.inf, -np.inf), np.maximum(ta, tb))
-    lo = np.maximum(tmin.max(axis=-1), 0.0)
-    hi = np.minimum(tmax.min(axis=-1), 1.0)
+    return np.maximum(tmin.max(axis=-1), 0.0), np.minimum(tmax.min(axis=-1), 1.0), d
+
+
+def segment_box_overlap_length(
+    seg_start: np.ndarray, seg_end: np.ndarray, centroid: np.ndarray, yaw: np.ndarray, extent: np.ndarray
+) -> np.ndarray:
+    """Length of the part of each segment lying inside (or on) an oriented box.
+
+    All inputs broadcast: segments (..., 2) endpoints, box (..., 2) centroid,
+    (...) yaw, (..., >=2) extent -> (...) lengths.
+    """
+    lo, hi, d = _clip_to_box(seg_start, seg_end, centroid, yaw, extent)
     return np.maximum(hi - lo, 0.0) * norm2d(d)
+
+
+def segment_meets_box(
+    seg_start: np.ndarray, seg_end: np.ndarray, centroid: np.ndarray, yaw: np.ndarray, extent: np.ndarray
+) -> np.ndarray:
+    """(...) bool: the segment has a point inside or on the oriented box (shapely's ``intersects``: a
+    segment touching a corner or an edge meets it), broadcasting as :func:`segment_box_overlap_length`."""
+    lo, hi, _ = _clip_to_box(seg_start, seg_end, centroid, yaw, extent)
+    return hi >= lo
 
 
 class PointsInBoxes(NamedTuple):

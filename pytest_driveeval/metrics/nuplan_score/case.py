@@ -1,6 +1,7 @@
 """A score case (benchmarks/nuplan_oracle/CASE_FORMAT.md) as the score's inputs: what nuplan-devkit
-and the harness are both fed when they are compared.  Collisions are found and blamed by the
-engine's own rules (metrics.collisions), one agent at a time, so each agent's first contact counts."""
+and the harness are both fed when they are compared.  The score finds and blames the collisions by
+nuPlan's rules (collisions.py); the engine's own (metrics.collisions, one agent at a time, each agent's
+first contact) are kept in the inputs for ``blame="engine"``."""
 from __future__ import annotations
 
 import numpy as np
@@ -26,13 +27,17 @@ def map_from_case(spec: dict | None) -> ScoreMap | None:
     lanes = spec.get("lanes", [])
     index = {lane["id"]: n for n, lane in enumerate(lanes)}
     limits = [np.nan if lane.get("speed_limit") is None else float(lane["speed_limit"]) for lane in lanes]
+    blocks = {}
+    for lane in lanes:  # lanes sharing a roadblock share its index; a lane without one has its own
+        blocks.setdefault(lane.get("roadblock", ("lane", lane["id"])), len(blocks))
     return ScoreMap(lane_ids=[lane["id"] for lane in lanes],
                     polygons=[_array(lane["polygon"], 2) for lane in lanes],
                     baselines=[_array(lane["baseline"], 2) for lane in lanes],
                     speed_limits=np.array(limits), connector=[bool(lane.get("connector")) for lane in lanes],
                     outgoing=[[index[o] for o in lane.get("outgoing", []) if o in index] for lane in lanes],
                     drivable=[_array(p, 2) for p in spec.get("drivable_area", [])],
-                    intersections=[_array(p, 2) for p in spec.get("intersections", [])])
+                    intersections=[_array(p, 2) for p in spec.get("intersections", [])],
+                    roadblock=[blocks[lane.get("roadblock", ("lane", lane["id"]))] for lane in lanes])
 
 
 def agents_from_case(specs: list[dict], frames: int) -> AgentCells:

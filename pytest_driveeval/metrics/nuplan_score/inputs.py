@@ -15,6 +15,8 @@ from .lanes import ScoreMap
 REAR_AXLE_SHARE = 1.461 / 5.176
 #: nuPlan's collision groups; a collision with a static object of group "object" costs half
 GROUPS = ("vehicle", "vru", "object")
+#: whose rules find and blame the collisions the score counts (ScoreInputs.blame)
+BLAMES = ("nuplan", "engine")
 
 
 @dataclass
@@ -134,18 +136,22 @@ class AgentCells:
 
 @dataclass(frozen=True)
 class Collision:
-    """The ego's first contact with one agent: at frame row ``frame``, blamed on the ego or not."""
+    """The ego's first contact with one agent: at frame row ``frame``, blamed on the ego or not;
+    ``kind``: nuPlan's collision type where nuPlan's rules classified it (collisions.py), else None."""
 
     frame: int
     token: int
     group: str
     at_fault: bool
+    kind: str | None = None
 
 
 @dataclass
 class ScoreInputs:
     """One scene.  ``times`` (T,) seconds; ``frame_numbers`` (T,) how findings name the frames (the
-    log's numbering); ``expert`` (Te, 3) the logged ego's centre poses."""
+    log's numbering); ``expert`` (Te, 3) the logged ego's centre poses.  ``blame``: whose rules find and
+    blame the collisions the score counts: "nuplan" (nuplan-devkit's, from the ego's and the agents'
+    boxes: collisions.py) or "engine" (``collisions`` as the engine recorded and blamed them)."""
 
     times: np.ndarray
     ego: EgoStates
@@ -154,8 +160,11 @@ class ScoreInputs:
     collisions: list[Collision]
     map: ScoreMap | None
     frame_numbers: np.ndarray = field(default=None)
+    blame: str = "nuplan"
 
     def __post_init__(self):
+        if self.blame not in BLAMES:
+            raise ValueError(f"blame {self.blame!r}: one of {', '.join(BLAMES)}")
         if self.frame_numbers is None:
             self.frame_numbers = np.arange(len(self.times))
 

@@ -161,6 +161,33 @@ def _compile():
                 and abs(dy * cb - dx * sb) <= bw + sin_rel * al + cos_rel * aw + 0.0)
 
     @jit
+    def box_contacts(available, xy, yaw, length, width, ego_xy, ego_cos, ego_sin, ego_length, ego_width, ego_radius):
+        """(frames, cols) of the available cells whose box meets the ego's (collisions.contacts: nuPlan's
+        bounding-circle precheck, centres nearer than the half diagonals' sum, then the boxes' overlap,
+        touching counts), frame by frame.  The float32 cells widen to float64 before any arithmetic."""
+        t, a = available.shape
+        frames = np.empty(t * a, dtype=np.int64)
+        cols = np.empty(t * a, dtype=np.int64)
+        m = 0
+        for f in range(t):
+            ex, ey = ego_xy[f, 0], ego_xy[f, 1]
+            for c in range(a):
+                if not available[f, c]:
+                    continue
+                ax, ay = np.float64(xy[f, c, 0]), np.float64(xy[f, c, 1])
+                al, aw = np.float64(length[f, c]), np.float64(width[f, c])
+                radius = (ego_radius + math.hypot(aw, al)) / 2.0
+                if not math.hypot(ax - ex, ay - ey) < radius:
+                    continue
+                h = np.float64(yaw[f, c])
+                if _overlap(ex, ey, ego_cos[f], ego_sin[f], 0.5 * ego_length, 0.5 * ego_width, ax, ay, math.cos(h),
+                            math.sin(h), 0.5 * al, 0.5 * aw):
+                    frames[m] = f
+                    cols[m] = c
+                    m += 1
+        return frames[:m], cols[:m]
+
+    @jit
     def first_meeting(frame, ego_xy, e_cos, e_sin, e_step, e_sweep, e_length, e_width, a_xy, a_cos, a_sin, a_step,
                       a_sweep, a_length, a_width, half_reach, steps, out):
         """out[k]: for pair k (the ego at frame[k], agent k), the first step s - 1 (s in 1..steps) at which
@@ -331,4 +358,4 @@ def _compile():
     return SimpleNamespace(outline_distances=outline_distances, first_meeting=first_meeting,
                            project=project, directions=directions, meeting_candidates=meeting_candidates,
                            nearest_outlines_within=nearest_outlines_within, containing_in_grid=containing_in_grid,
-                           follow_lanes=follow_lanes)
+                           follow_lanes=follow_lanes, box_contacts=box_contacts)

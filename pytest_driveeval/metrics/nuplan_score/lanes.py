@@ -240,6 +240,9 @@ class ScoreMap:
     drivable_reason: str | None = None
     #: the drivable area is partly a stand-in (lanes widened by an assumed width): a failure says so
     drivable_stand_in: bool = False
+    #: (N,) each lane's roadblock (nuPlan's group of parallel lanes, which the progress term walks); None:
+    #: each lane its own (ScenarioNet's maps have no roadblocks)
+    roadblock: np.ndarray | None = None
 
     def __post_init__(self):
         self.polygons = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.polygons]
@@ -248,6 +251,8 @@ class ScoreMap:
         self.intersections = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.intersections]
         self.speed_limits = np.asarray(self.speed_limits, dtype=np.float64)
         self.connector = np.asarray(self.connector, dtype=bool)
+        self.roadblock = (np.arange(len(self.lane_ids)) if self.roadblock is None
+                          else np.asarray(self.roadblock, dtype=np.int64))
         self.lane_set = PolygonSet(self.polygons)
         # A drivable polygon that is also a lane surface (ScenarioNet's maps list every lane among the drivable
         # area) is left out of the drivable queries: they ask of points off every lane, and a nearest outline

@@ -1,10 +1,17 @@
 """Which lanes the ego is on, frame by frame, as nuPlan's route extractor assigns them
-(``nuplan/planning/metrics/utils/route_extractor.py``).
+(``nuplan/planning/metrics/utils/route_extractor.py``: ``get_route``, ``extract_corners_route`` and
+``extract_common_or_connecting_route_objs``), step for step, since every map term reads the result.
 
 A frame keeps the previous frame's lanes that still hold the point, else the lanes that the
-previous single lane leads into, else it looks again: one lane (nuPlan's maps never overlap lanes;
-ScenarioNet's may, so the one whose baseline points most nearly along the ego's heading), or else
-every lane connector holding the point.  An empty list: off every lane.
+previous single lane leads into, else it looks again: the one lane (not connector) holding the point,
+or else every lane connector holding it, in the map's order.  A connector followed by other connectors
+(or by nothing, inside an intersection) keeps the previous frame's connectors that are less than 5 m
+away.  Last, going backwards, a frame's several connectors are cut down to those its successor frame
+keeps, or to the incoming connectors of the lane it ends up in.  An empty list: off every lane.
+
+nuPlan's maps never overlap two lanes (its lookup raises there); a map whose lanes do overlap should
+mark them connectors (as the ScenarioNet maps are marked).  Where two plain lanes still hold a point,
+the one whose baseline points most nearly along the heading is taken, rather than raising.
 """
 from __future__ import annotations
 
@@ -15,38 +22,135 @@ from pytest_driveeval.geometry.planar import wrap_angle
 from . import kernels
 from .lanes import ScoreMap
 
+_ZERO = np.zeros(1, dtype=np.int64)
 
-def _aligned_first(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
-    if len(lanes) < 2:
-        return lanes
+#: metres: nuPlan keeps the previous frame's connectors that are nearer than this (get_route)
+NEAR_CONNECTOR = 5.0
+
+
+def lanes_lists(holding: np.ndarray, touched: np.ndarray | None = None) -> list[tuple[int, ...]]:
+    """Per point (row of ``holding``, (P, N) bool), the lanes holding it, ascending.  ``touched`` (N,): the
+    lanes holding some point, where the caller has it (the others' columns are not read: a map's lanes are
+    many, a scene's few).  Equal rows share one tuple: a scene's points repeat a few sets of lanes, and
+    few objects kept means few garbage collections while the score runs."""
+    columns = np.flatnonzero(holding.any(axis=0) if touched is None else touched)
+    rows, cols = np.nonzero(holding[:, columns])
+    here: list[tuple[int, ...]] = [()] * len(holding)
+    if not len(rows):
+        return here
+    starts = np.searchsorted(rows, np.arange(len(holding) + 1)).tolist()
+    flat = columns[cols].tolist()
+    shared: dict = {}
+    for r in np.unique(rows).tolist():
+        lanes = tuple(flat[starts[r]:starts[r + 1]])
+        here[r] = shared.setdefault(lanes, lanes)
+    return here
+
+
+def _aligned(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> int:
     directions = score_map.directions(np.repeat(point[None], len(lanes), axis=0), lanes)
     off = [abs(float(wrap_angle(d - heading))) for d in directions]
-    return [lanes[i] for i in np.argsort(off, kind="stable")]
+    return lanes[int(np.argmin(off))]
 
 
-def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray,
-                 holding: np.ndarray | None = None) -> list[list[int]]:
-    """Per frame, the lanes assigned to the point (first: the one the terms use).
-    ``holding``: ``score_map.lanes_at(points)`` when the caller has it."""
-    holding = score_map.lanes_at(points) if holding is None else holding
-    if kernels.wanted():
-        return _centre_route_compiled(score_map, points, headings, holding)
-    rows, cols = np.nonzero(holding)
-    here: list[list[int]] = [[] for _ in range(len(points))]
-    for r, c in zip(rows.tolist(), cols.tolist()):
-        here[r].append(c)
-    outgoing = score_map.outgoing
+def _look_up(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float | None) -> list[int]:
+    """nuPlan's ``get_current_route_objects``: the one lane holding the point, else every connector."""
+    plain = [n for n in lanes if not score_map.connector[n]]
+    if len(plain) == 1:
+        return plain
+    if plain:  # nuPlan raises here (its lanes never overlap): the lane along the heading, else the first
+        return plain[:1] if heading is None else [_aligned(score_map, plain, point, heading)]
+    return list(lanes)
+
+
+def _with_candidates(score_map: ScoreMap, lanes: list[int], candidates: list[int]) -> list[int]:
+    """nuPlan's ``get_route_obj_with_candidates``: the candidates holding the point, else (one candidate)
+    those it leads into that hold it.  ``lanes``: the lanes holding the point."""
+    if len(candidates) == 1:  # the steady case, a frame on the lane of the one before: nothing made
+        if candidates[0] in lanes:
+            return candidates
+    elif all(n in lanes for n in candidates):
+        return candidates
+    kept = [n for n in candidates if n in lanes]
+    if not kept and len(candidates) == 1:
+        kept = [n for n in score_map.outgoing[candidates[0]] if n in lanes]
+    return kept
+
+
+def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray | None = None,
+                 holding: np.ndarray | None = None, here: list[list[int]] | None = None) -> list[list[int]]:
+    """Per frame, the lanes assigned to the point (first: the one the terms use), as nuPlan's ``get_route``.
+    ``holding``: ``score_map.lanes_at(points)``, or ``here``: its :func:`lanes_lists`, when the caller has it."""
+    if here is None:
+        here = lanes_lists(score_map.lanes_at(points) if holding is None else holding)
+    connector = score_map.connector
+    near = _Nearness(score_map, np.ascontiguousarray(points, dtype=np.float64), here)
     route: list[list[int]] = []
-    previous: list[int] = []
+    current: list[int] = []
     for k, lanes in enumerate(here):
-        kept = [n for n in previous if n in lanes]
-        if not kept and len(previous) == 1:
-            kept = [n for n in outgoing[previous[0]] if n in lanes]
-        if not kept and lanes:
-            kept = _look_again(score_map, lanes, points[k], headings[k])
-        route.append(kept)
-        previous = kept
-    return route
+        if current:
+            current = _with_candidates(score_map, lanes, current)
+        if not current:
+            current = _look_up(score_map, lanes, points[k], None if headings is None else headings[k])
+            previous = route[-1] if route else []
+            if k > 1 and previous and connector[previous[0]] and (
+                    (current and connector[current[0]]) or (not current and near.in_intersection(k))):
+                kept = [n for n in previous if near.distance(k, n) < NEAR_CONNECTOR]
+                if kept:
+                    current = kept
+        route.append(current)
+    return remove_extra_connectors(score_map, route)
+
+
+class _Nearness:
+    """The distance of a run's point to a lane's polygon, each pair measured once, and whether each point is
+    in an intersection, for all points at once when first asked (most runs never ask)."""
+
+    def __init__(self, score_map: ScoreMap, points: np.ndarray, here: list[list[int]]):
+        self.map, self.points, self.here = score_map, points, here
+        self._distances: dict = {}
+        self._intersections = None
+        self._out, self._lane = np.full(1, np.inf), np.zeros(1, dtype=np.int64)  # the kernel's, reused
+
+    def distance(self, k: int, lane: int) -> float:
+        """Of point k to lane ``lane``'s polygon, which does not hold it (a lane that held the point would
+        have been kept): the distance to its outline."""
+        key = (k, lane)
+        if key not in self._distances:
+            if kernels.wanted():  # the kernel of distance_to_lanes, for one pair, without its set-up
+                self._out[0], self._lane[0] = np.inf, lane
+                lane_set = self.map.lane_set
+                kernels.kernels().outline_distances(self.points[k:k + 1], lane_set.vertices, lane_set.vertex_starts,
+                                                    _ZERO, self._lane, self._out)
+                self._distances[key] = float(self._out[0])
+            else:
+                self._distances[key] = float(self.map.distance_to_lanes(self.points[k:k + 1], [[lane]], np.inf)[0])
+        return self._distances[key]
+
+    def in_intersection(self, k: int) -> bool:
+        if self._intersections is None:
+            self._intersections = self.map.in_intersection(self.points)
+        return bool(self._intersections[k])
+
+
+def remove_extra_connectors(score_map: ScoreMap, route: list[list[int]]) -> list[list[int]]:
+    """nuPlan's ``remove_extra_lane_connectors``, backwards from the last frame: a frame with several
+    lanes takes its successor's when those are fewer and all among its own, then (if the successor frame
+    is on a lane) those of its own that lead into that lane, if any.  Both tests read the frame's lanes
+    as they were, and the successor as already cut."""
+    out = list(route)
+    for k in range(len(out) - 2, -1, -1):
+        own = route[k]
+        if len(own) <= 1:
+            continue
+        after = out[k + 1]
+        if len(own) > len(after) and all(n in own for n in after):
+            out[k] = after
+        if after and not score_map.connector[after[0]]:
+            keep = [n for n in own if n in score_map.incoming[after[0]]]
+            if keep:
+                out[k] = keep
+    return out
 
 
 class Route(list):
@@ -64,66 +168,73 @@ def first_lanes(route: list[list[int]]) -> np.ndarray:
     return np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
 
 
-def _look_again(score_map: ScoreMap, lanes: list[int], point: np.ndarray, heading: float) -> list[int]:
-    plain = [n for n in lanes if not score_map.connector[n]]
-    if plain:
-        return _aligned_first(score_map, plain, point, heading)[:1]
-    return _aligned_first(score_map, lanes, point, heading)
+def corners_route(score_map: ScoreMap, here: list[list[int]]) -> list[tuple[tuple[int, ...], ...]]:
+    """Per frame, each corner's lanes (FL, RL, RR, FR: nuPlan's order), as nuPlan's ``extract_corners_route``
+    assigns them: a corner keeps the previous frame's lanes of any corner (or, one such lane, those it
+    leads into) that hold it, else looks again; on the second frame, what a corner finds by looking again
+    joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner,
+    frame by frame in the order FL, FR, RR, RL (the ego's corners)."""
+    t = len(here) // 4
+    out = []
+    candidates: tuple[int, ...] = ()
+    known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
+    for k in range(t):
+        key = (k == 1, candidates, *(tuple(here[4 * k + c]) for c in (0, 3, 2, 1)))
+        if key not in known:
+            known[key] = _corners_frame(score_map, key)
+        corners, candidates = known[key]
+        out.append(corners)
+    return out
 
 
-def _centre_route_compiled(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray, holding: np.ndarray
-                           ) -> list[list[int]]:
-    """:func:`centre_route`'s loop in a kernel (kernels' ``follow_lanes``), but for the frames that look
-    again among several lanes, which :func:`_look_again` decides here as there."""
-    t = len(points)
-    out_starts, out_lanes = score_map.outgoing_table
-    # a frame keeps lanes that hold its point, or the previous lane's successors: no more than either count
-    widest = max(1, holding.shape[1], int(np.diff(out_starts).max()) if len(out_starts) > 1 else 1)
-    starts = np.zeros(t + 1, dtype=np.int64)
-    lanes = np.empty(t * widest, dtype=np.int64)
-    follow = kernels.kernels().follow_lanes
-    holding = np.ascontiguousarray(holding)
-    k, m, previous = 0, 0, np.zeros(0, dtype=np.int64)
-    while True:
-        k, m = follow(holding, score_map.connector, out_starts, out_lanes, k, previous, starts, lanes, m)
-        if k >= t:
-            break
-        kept = _look_again(score_map, np.flatnonzero(holding[k]).tolist(), points[k], headings[k])
-        starts[k] = m
-        lanes[m:m + len(kept)] = kept
-        m += len(kept)
-        starts[k + 1] = m
-        previous = np.array(kept, dtype=np.int64)
-        k += 1
-    flat, bounds = lanes[:m].tolist(), starts.tolist()
-    route = Route(flat[bounds[j]:bounds[j + 1]] for j in range(t))
-    route.first = np.where(starts[1:] > starts[:-1], lanes[np.minimum(starts[:-1], max(m - 1, 0))], -1) if m else \
-        np.full(t, -1, dtype=np.int64)
-    return route
+def _corners_frame(score_map: ScoreMap, key: tuple) -> tuple[tuple[tuple[int, ...], ...], tuple[int, ...]]:
+    second, candidates, *lanes_of = key
+    candidates = list(candidates)
+    found_here: list[int] = []
+    corners = []
+    for lanes in lanes_of:  # FL, RL, RR, FR
+        found = _with_candidates(score_map, lanes, candidates) if candidates else []
+        if not found:
+            found = _look_up(score_map, list(lanes), None, None)
+            if second:
+                candidates = candidates + [n for n in found if n not in candidates]
+        found_here += [n for n in found if n not in found_here]
+        corners.append(tuple(found))
+    return tuple(corners), tuple(found_here)
+
+
+def _common_or_connected(score_map: ScoreMap, corners: tuple[tuple[int, ...], ...]) -> bool:
+    """Whether nuPlan's ``extract_common_or_connecting_route_objs`` finds a non-empty set: all four corners
+    on lanes, and one lane common to all, or the rear corners on one lane or on lanes one leading into
+    the other, each front corner on the lane of the opposite rear corner or on a lane leading out of it."""
+    if any(not c for c in corners):
+        return False
+    front_left, rear_left, rear_right, front_right = (set(c) for c in corners)
+    if front_left & rear_left & rear_right & front_right:
+        return True
+    outgoing, incoming = score_map.outgoing, score_map.incoming
+    rear_right_ahead = rear_right | {m for n in rear_right for m in outgoing[n]}
+    rear_left_ahead = rear_left | {m for n in rear_left for m in outgoing[n]}
+    if not ((rear_left & rear_right_ahead) | (rear_right & rear_left_ahead)):
+        return False
+    front_left_behind = front_left | {m for n in front_left for m in incoming[n]}
+    front_right_behind = front_right | {m for n in front_right for m in incoming[n]}
+    return bool((front_left_behind & rear_right_ahead) & (front_right_behind & rear_left_ahead))
 
 
 def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.ndarray | None = None,
-                        lanes: np.ndarray | None = None) -> np.ndarray:
-    """(T,) bool: all four corners (FL, FR, RR, RL) on one lane, or the rear ones on a lane that leads
-    into the front ones' lane (nuPlan's "common or connected" route objects); False when the ego
-    straddles lanes or is partly or wholly off them.  ``lanes``: ascending, lanes among which are all
-    those holding a corner (the others are left out of the comparisons), when the caller knows them."""
-    t = len(corners)
-    holding = score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding
-    if lanes is None:
-        lanes = np.flatnonzero(holding.any(axis=0))
-    holding = holding[:, lanes].reshape(t, 4, -1)
-    front = holding[:, 0] & holding[:, 1]
-    rear = holding[:, 2] & holding[:, 3]
-    out = (front & rear).any(axis=1)
-    straddling = np.flatnonzero(~out & front.any(axis=1) & rear.any(axis=1))
-    if len(straddling):
-        # over the map's links n -> m between those lanes at once: a rear corners' lane n leading into a
-        # front corners' lane m
-        starts, ahead = score_map.outgoing_table
-        behind = np.repeat(np.arange(len(starts) - 1), np.diff(starts))
-        local = np.full(len(starts) - 1, -1)
-        local[lanes] = np.arange(len(lanes))
-        link = (local[behind] >= 0) & (local[ahead] >= 0)
-        out[straddling] = (rear[straddling][:, local[behind[link]]] & front[straddling][:, local[ahead[link]]]).any(axis=1)
+                        here: list[list[int]] | None = None) -> np.ndarray:
+    """(T,) bool: the frame is among nuPlan's ``timestamps_in_common_or_connected_route_objs`` (the ego's
+    corners in one lane or two connected ones); False when the ego straddles lanes or is partly or
+    wholly off them.  ``holding`` (4T, N): ``score_map.lanes_at`` of the corners, or ``here``: its
+    :func:`lanes_lists`, when the caller has it."""
+    if here is None:
+        here = lanes_lists(score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding)
+    assigned = corners_route(score_map, here)
+    known: dict = {}
+    out = np.zeros(len(assigned), dtype=bool)
+    for k, frame in enumerate(assigned):
+        if frame not in known:
+            known[frame] = _common_or_connected(score_map, frame)
+        out[k] = known[frame]
     return out

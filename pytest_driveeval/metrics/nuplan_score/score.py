@@ -10,10 +10,12 @@ import numpy as np
 from . import kernels
 from .comfort import ego_is_comfortable
 from .inputs import ScoreInputs
-from .route import centre_route, corners_in_one_lane
+from .route import centre_route, corners_in_one_lane, lanes_lists
 from .term import MULTIPLIERS, TERMS, WEIGHTS, Term
+from .collisions import nuplan_collisions
+from .progress import expert_progress
 from .terms import (driving_direction_compliance, drivable_area_compliance, ego_corners, ego_is_making_progress,
-                    expert_progress, no_ego_at_fault_collisions, speed_limit_compliance)
+                    no_ego_at_fault_collisions, speed_limit_compliance)
 from .ttc import time_to_collision_within_bound
 
 
@@ -58,31 +60,37 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
     corners = ego_corners(inputs)
     heading = inputs.ego.center[:, 2]
     t = inputs.num_frames
-    expert_on_lane = None
     if inputs.map is not None:
         score_map = inputs.map
-        # one lookup for the centres and the corners; the expert's first pose nearly always settles whether
-        # it drives on a lane, and its others are looked up only where it does not
+        # one lookup for the centres, the corners and the expert's centres
         holding, held, touched = score_map.lanes_holding(np.concatenate([inputs.ego.center[:, :2],
-                                                                         corners.reshape(-1, 2)]))
-        centre_lanes, corner_lanes, corner_on_lane = holding[:t], holding[t:5 * t], held[t:5 * t]
-        expert_on_lane = bool(score_map.lanes_at(inputs.expert[:1, :2]).any()
-                              or score_map.lanes_at(inputs.expert[1:, :2]).any())
-        route = centre_route(score_map, inputs.ego.center[:, :2], heading, centre_lanes)
-        in_one_lane = corners_in_one_lane(score_map, corners, corner_lanes, np.flatnonzero(touched))
+                                                                         corners.reshape(-1, 2), inputs.expert[:, :2]]))
+        here = lanes_lists(holding, touched)
+        centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
+        corner_on_lane = held[t:5 * t]
+        route = centre_route(score_map, inputs.ego.center[:, :2], heading, here=centre_here)
+        in_one_lane = corners_in_one_lane(score_map, corners, here=corner_here)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
+        expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], here=expert_here)
+        progress = expert_progress(inputs, expert_route, centre_here, expert_here)
     else:  # as nuplan-devkit's extractor finds no lane anywhere
         corner_on_lane, route = None, [[] for _ in range(inputs.num_frames)]
         in_one_lane = np.zeros(inputs.num_frames, dtype=bool)
         in_intersection = np.zeros(inputs.num_frames, dtype=bool)
-    progress = expert_progress(inputs, expert_on_lane)
+        progress = expert_progress(inputs)
+    later: dict[int, int] = {}
+    if inputs.blame == "nuplan":
+        collisions, later = nuplan_collisions(inputs, in_one_lane)
+    else:
+        collisions = inputs.collisions
     terms = {
-        "no_ego_at_fault_collisions": no_ego_at_fault_collisions(inputs),
+        "no_ego_at_fault_collisions": no_ego_at_fault_collisions(inputs, collisions, later),
         "drivable_area_compliance": drivable_area_compliance(inputs, corners, corner_on_lane, route),
         "ego_is_making_progress": ego_is_making_progress(progress),
         "driving_direction_compliance": driving_direction_compliance(inputs, route),
         "ego_progress_along_expert_route": progress,
-        "time_to_collision_within_bound": time_to_collision_within_bound(inputs, in_one_lane, in_intersection),
+        "time_to_collision_within_bound": time_to_collision_within_bound(inputs, in_one_lane, in_intersection,
+                                                                         collisions),
         "speed_limit_compliance": speed_limit_compliance(inputs, route),
         "ego_is_comfortable": ego_is_comfortable(inputs),
     }

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pytest_driveeval.geometry.planar import arc_lengths
-
 from .inputs import ScoreInputs
-from .lanes import ScoreMap, project
+from .lanes import ScoreMap
 from .route import first_lanes
 from .term import Term
 
@@ -16,28 +14,39 @@ DRIVABLE_MARGIN = 0.3
 #: metres: a corner further off the drivable area is reported as this far (the term fails either way)
 DEPTH_REPORTED = 3.0
 DIRECTION_COMPLIANCE, DIRECTION_VIOLATION, DIRECTION_HORIZON = 2.0, 6.0, 1.0
-PROGRESS_THRESHOLD, MIN_PROGRESS_RATIO = 2.0, 0.2
+MIN_PROGRESS_RATIO = 0.2
 MAX_OVERSPEED = 2.23
 #: nuPlan's allowance of at-fault collisions per group before the multiplier reaches 0
 ALLOWED = {"vehicle": 0, "vru": 0, "object": 1}
 
 
-def no_ego_at_fault_collisions(inputs: ScoreInputs) -> Term:
+def no_ego_at_fault_collisions(inputs: ScoreInputs, collisions: list | None = None,
+                               later: dict[int, int] | None = None) -> Term:
+    """``collisions``: those the score counts (default ``inputs.collisions``), one per agent; ``later``: per
+    agent, its frames in contact after the first, which nuPlan does not count (said in the message)."""
+    collisions = inputs.collisions if collisions is None else collisions
+    later = later or {}
     counts = {g: 0 for g in ALLOWED}
-    blamed = [c for c in inputs.collisions if c.at_fault]
+    blamed = [c for c in collisions if c.at_fault]
     for c in blamed:
         counts[c.group] = counts.get(c.group, 0) + 1
     value = 1.0
     for group, n in counts.items():
         value *= max(0.0, 1.0 - n / (ALLOWED.get(group, 0) + 1))
-    term = Term("no_ego_at_fault_collisions", value, detail={f"at_fault_{g}": n for g, n in counts.items()})
-    if blamed:
-        xy = inputs.ego.center[:, :2]
+    rules = "nuPlan's" if inputs.blame == "nuplan" else "the engine's"
+    term = Term("no_ego_at_fault_collisions", value,
+                detail={**{f"at_fault_{g}": n for g, n in counts.items()}, "collisions": len(collisions)})
+    xy = inputs.ego.center[:, :2]
+    if collisions:
         term.frames = [c.frame for c in blamed]
         term.places = [tuple(map(float, xy[c.frame])) for c in blamed]
-        first = blamed[0]
-        term.message = (f"{len(blamed)} at-fault collision(s), first with agent {first.token} ({first.group}) "
-                        f"at frame {int(inputs.frame_numbers[first.frame])}")
+        parts = [f"agent {c.token} ({c.group}{', ' + c.kind if c.kind else ''}) at frame "
+                 f"{int(inputs.frame_numbers[c.frame])}, {'at fault' if c.at_fault else 'not at fault'}"
+                 for c in collisions]
+        repeats = [f"{n} later contact frame(s) with agent {token}" for token, n in sorted(later.items())]
+        term.message = (f"{len(blamed)} at-fault collision(s) of {len(collisions)} by {rules} rules: "
+                        + "; ".join(parts) + "; counted once per agent, as nuPlan counts"
+                        + (": " + ", ".join(repeats) + " not counted" if repeats else ""))
     return term
 
 
@@ -126,37 +135,6 @@ def driving_direction_compliance(inputs: ScoreInputs, route: list[list[int]]) ->
     return term
 
 
-def expert_progress(inputs: ScoreInputs, expert_on_lane: bool | None = None) -> Term:
-    """``ego_progress_along_expert_route``.  nuPlan measures progress along the baselines of the
-    roadblocks the expert drove; ScenarioNet maps have no roadblocks, so both are measured along the
-    expert's own path (equal where the expert follows one lane's baseline).  The per-frame steps
-    nuPlan sums telescope, so only the first and last positions' projections count.
-    ``expert_on_lane``: whether the expert touches a lane, when the caller has looked."""
-    name = "ego_progress_along_expert_route"
-    expert = inputs.expert[:, :2]
-    if expert_on_lane is None and inputs.map is not None:
-        expert_on_lane = bool(inputs.map.lanes_at(expert).any())
-    if inputs.map is not None and not expert_on_lane:
-        return Term(name, 1.0, reason="the expert never drives on a lane: 1, as nuPlan scores it",
-                    detail={"ego_progress": float("nan"), "expert_progress": 0.0})
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(expert, axis=0), axis=1) > 1e-9])
-    path = expert[keep]
-    if len(path) < 2:
-        ego_along, expert_along = 0.0, 0.0
-    else:
-        cumulative = arc_lengths(path)
-        s = project(inputs.ego.center[[0, -1], :2], path, cumulative)
-        ego_along, expert_along = float(s[-1] - s[0]), float(cumulative[-1])
-    if ego_along < -PROGRESS_THRESHOLD:
-        ratio = 0.0
-    else:
-        ratio = min(1.0, max(ego_along, PROGRESS_THRESHOLD) / max(expert_along, PROGRESS_THRESHOLD))
-    term = Term(name, ratio, detail={"ego_progress": ego_along, "expert_progress": expert_along})
-    if ratio < 1.0:
-        term.message = f"{ego_along:.1f} m along the expert's route against its {expert_along:.1f} m"
-    return term
-
-
 def ego_is_making_progress(progress: Term) -> Term:
     value = 1.0 if progress.used >= MIN_PROGRESS_RATIO else 0.0
     term = Term("ego_is_making_progress", value, reason=progress.reason)
@@ -174,11 +152,17 @@ def speed_limit_compliance(inputs: ScoreInputs, route: list[list[int]]) -> Term:
     usable = np.where(np.isfinite(score_map.speed_limits) & (score_map.speed_limits > 0), score_map.speed_limits,
                       np.nan)
     limits = np.where(first >= 0, usable[first], np.nan)
-    for k in np.flatnonzero((first >= 0) & score_map.connector[first]):
-        # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have one
-        around = [m for n in route[k] for m in (*score_map.outgoing[n], *score_map.incoming[n])]
-        values = usable[around] if around else np.array([np.nan])
-        limits[k] = values.max() if np.all(np.isfinite(values)) else np.nan
+    known_limits: dict = {}  # the frames on the same connectors share their limit
+    for k in np.flatnonzero((first >= 0) & score_map.connector[first]).tolist():
+        lanes = tuple(route[k])
+        if lanes not in known_limits:
+            # a connector's limit: the highest of the lanes into and out of its frame's connectors, if all have
+            # one (a connector with neither takes its own: nuPlan's max() of no limit raises, and the oracle's
+            # cases give such a connector itself as its edge)
+            around = [m for n in lanes for m in ((*score_map.outgoing[n], *score_map.incoming[n]) or (n,))]
+            values = usable[around] if around else np.array([np.nan])
+            known_limits[lanes] = values.max() if np.all(np.isfinite(values)) else np.nan
+        limits[k] = known_limits[lanes]
     known = np.isfinite(limits)
     if not known.any():
         why = "no lane the ego drove on gives a speed limit" if score_map.has_speed_limits else \

@@ -22,12 +22,16 @@ STEPS = np.arange(STEP, HORIZON, STEP)  # 0.1 .. 2.9 s, as nuplan-devkit's arang
 REACH = HORIZON / STEP
 
 
-def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray) -> np.ndarray:
-    """(T,) each frame's time to collision, inf where none within the horizon."""
+def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray,
+                       collisions: list | None = None) -> np.ndarray:
+    """(T,) each frame's time to collision, inf where none within the horizon.  ``collisions``: those the
+    score counts (default ``inputs.collisions``): their agents leave the projection from their first
+    contact on, and an at-fault one's frame has 0."""
     ego, agents = inputs.ego, inputs.agents
+    collisions = inputs.collisions if collisions is None else collisions
     t = inputs.num_frames
     ttc = np.full(t, np.inf)
-    at_fault = sorted({c.frame for c in inputs.collisions if c.at_fault})
+    at_fault = sorted({c.frame for c in collisions if c.at_fault})
     if agents.token.shape[1] == 0:
         ttc[at_fault] = 0.0
         return ttc
@@ -39,10 +43,10 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     # The bearing of the cells that could count only (most cells are empty, the ego stands still, or the
     # agent is far); agents already hit (at fault or not) are out of the projection from their first contact on.
     if compiled:
-        frames, cols = _candidates(ego, agents, moving, inputs.collisions, motion)
+        frames, cols = _candidates(ego, agents, moving, collisions, motion)
     else:
         collided = np.zeros(agents.token.shape, dtype=bool)
-        for c in inputs.collisions:
+        for c in collisions:
             collided[c.frame:] |= agents.token[c.frame:] == c.token
         frames, cols = np.nonzero(agents.available & ~collided & moving[:, None])
     to_agent = agents.xy[frames, cols] - rear[frames]
@@ -147,9 +151,9 @@ def _first_meetings_compiled(ego, agents, frames: np.ndarray, cols: np.ndarray, 
     return out
 
 
-def time_to_collision_within_bound(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray
-                                   ) -> Term:
-    ttc = times_to_collision(inputs, in_one_lane, in_intersection)
+def time_to_collision_within_bound(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersection: np.ndarray,
+                                   collisions: list | None = None) -> Term:
+    ttc = times_to_collision(inputs, in_one_lane, in_intersection, collisions)
     bad = np.flatnonzero(~(ttc > LEAST_TTC))
     term = Term("time_to_collision_within_bound", 0.0 if len(bad) else 1.0,
                 detail={"min_time_to_collision": float(ttc.min()) if len(ttc) else float("inf"),

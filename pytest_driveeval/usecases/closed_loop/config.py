@@ -305,6 +305,9 @@ class ScoreConditions(Section):
     Terms: dict[str, float] | None = Field(None, description=(
         "a lower bound per score term, by nuPlan's metric name, e.g. {drivable_area_compliance: 1}; a bounded "
         "term a scene cannot compute fails that scene"))
+    Blame: Literal["nuplan", "engine"] = Field("nuplan", description=(
+        "whose rules find and blame the collisions the score counts: nuplan (nuplan-devkit's collision types, "
+        "each agent once) or engine (the engine's own collisions and blame, as the Collisions condition counts)"))
 
     @field_validator("Terms")
     @classmethod

@@ -211,6 +211,11 @@ def collision_events(unroll: Unroll, row: int, kinds: Sequence[str] = KINDS, at_
             for t in np.flatnonzero(hit)]
 
 
+#: said where a condition counts an agent on several frames: the score's collision term counts it once
+COUNTED_BY_FRAME = ("; every frame in contact counts here, by the engine's blame (the score's "
+                    "no_ego_at_fault_collisions counts each agent once, by nuPlan's rules)")
+
+
 def collision_detail(event: dict) -> str:
     """Who the ego hit, as failures say it: " with agent N", and whether it was not the ego's fault."""
     return f" with agent {event['track_id']}" + ("" if event["at_fault"] else " (not at fault)")
@@ -267,6 +272,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True
     for kind in KINDS:
         events = collision_events(unroll, row, (kind,), limits.AtFaultOnly)
         detail = collision_detail(events[0]) if events else ""
+        if len(events) > len({e["track_id"] for e in events}):
+            detail += COUNTED_BY_FRAME
         blame = "at-fault " if limits.AtFaultOnly else ""
         findings.append(violations([e["frame"] for e in events], getattr(limits, kind.capitalize()),
                                    what=f"{blame}{kind} collision frame(s)", figure=kind, scene=scene,
@@ -291,7 +298,8 @@ def judge_scene(unroll: Unroll, row: int, conditions: Any, *, score: bool = True
                                    figure="drift_resets", scene=scene, keypath=("Evaluation", "Conditions", "MaxResets")))
     from pytest_driveeval.usecases.closed_loop.score import markers, scene_score, score_findings, terms_json
 
-    score = scene_score(unroll, row) if score else None
+    rules = conditions.Score.Blame if conditions.Score is not None else "nuplan"
+    score = scene_score(unroll, row, rules) if score else None
     terms, marks = {}, []
     if score is not None:
         frame_numbers = np.flatnonzero(r.valid[row])

@@ -3,8 +3,9 @@ recorded, on the scene's map where the dataset has one (ScenarioNet) or is given
 semantic map), and the findings that the
 scenario's ``Conditions.Score`` draws from it.
 
-The collisions are the engine's, blamed by its own rules (metrics.collisions), each agent counted
-at its first contact as nuPlan does; the engine records one partner per frame (l5kit's rule).
+The collisions the score counts are found and blamed by nuPlan's own rules, from the ego's and the
+agents' boxes (metrics.nuplan_score.collisions), each agent once; ``blame="engine"`` takes the engine's
+instead (metrics.collisions: one partner per frame, l5kit's rule, blamed by its own rules).
 """
 from __future__ import annotations
 
@@ -34,9 +35,12 @@ def _label_groups() -> np.ndarray:
 
 def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
-    as the score reads it.  ScenarioNet has no roadblocks or connectors: every lane is a lane.  The
-    drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines, road edges, driveways,
-    the lanes' own surfaces), lanes widened by an assumed width only where the map gives no other."""
+    as the score reads it.  ScenarioNet has no roadblocks or connectors: every lane is its own roadblock,
+    and a lane connector to nuPlan's route extractor, which lets connectors overlap (ScenarioNet's lanes
+    do, at junctions; nuPlan's lanes never do), so a point on several lanes is on all of them, in the
+    map's order.  The drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines,
+    road edges, driveways, the lanes' own surfaces), lanes widened by an assumed width only where the
+    map gives no other."""
     semantic = scenario_map.semantic
     ids = [str(i) for i in semantic.lane_ids]
     features = {f.id: f for f in source.map_features}
@@ -62,7 +66,7 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     baselines = [scenario_map.centres[n] if n in uneven else (semantic.lanes_left[n] + semantic.lanes_right[n]) / 2
                  for n in range(len(ids))]
     return ScoreMap(lane_ids=ids, polygons=surfaces, baselines=baselines,
-                    speed_limits=limits, connector=np.zeros(len(ids), bool), outgoing=outgoing,
+                    speed_limits=limits, connector=np.ones(len(ids), bool), outgoing=outgoing,
                     drivable=surfaces + driveways, no_limits_reason=unknown, **extra)
 
 
@@ -138,8 +142,9 @@ def _ego_states(unroll: Any) -> dict[int, Any]:
     return made
 
 
-def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInputs | None:
-    """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled)."""
+def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None, blame: str = "nuplan") -> ScoreInputs | None:
+    """Scene ``row`` of an unroll as the score's inputs (None: no frame was unrolled).  ``blame``: whose rules
+    find the collisions the score counts (ScoreInputs.blame); the engine's are kept in the inputs either way."""
     from pytest_driveeval.sim.logreplay import EGO_EXTENT
 
     r, log = unroll.result, unroll.log
@@ -171,15 +176,17 @@ def score_inputs(unroll: Any, row: int, score_map: ScoreMap | None) -> ScoreInpu
         cell = np.flatnonzero(tokens[k] == token)
         group_of[token] = GROUPS[int(groups[k, cell[0]])] if len(cell) else "object"
     collisions = first_collisions(hit, hit_tokens, r.collision_at_fault[row][keep][hit], group_of)
-    return ScoreInputs(times, ego, expert, agents, collisions, score_map, frame_numbers=frames)
+    return ScoreInputs(times, ego, expert, agents, collisions, score_map, frame_numbers=frames, blame=blame)
 
 
-def scene_score(unroll: Any, row: int) -> SceneScore | None:
-    """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by."""
+def scene_score(unroll: Any, row: int, blame: str = "nuplan") -> SceneScore | None:
+    """Scene ``row``'s score; None without an unrolled frame, or without the agents' log to judge it by.
+    ``blame``: "nuplan" (nuPlan's collision rules) or "engine" (the engine's collisions and blame)."""
     if unroll.log is None:
         return None
     maps = getattr(unroll, "maps", None)
-    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])) if maps is not None else None)
+    inputs = score_inputs(unroll, row, maps.get(int(unroll.result.scene_ids[row])) if maps is not None else None,
+                          blame)
     return score_scene(inputs) if inputs is not None else None
 
 

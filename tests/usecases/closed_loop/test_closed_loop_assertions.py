@@ -107,3 +107,17 @@ def test_failure_traceback_stops_at_the_test_not_inside_the_helper(pytester):
     result.assert_outcomes(failed=1)
     result.stdout.fnmatch_lines(["*AssertionError: scene 3: displacement should be <= 2 m*frame 2 (4 m)*"])
     assert "assertions.py" not in result.stdout.str()
+
+
+def test_a_collision_condition_on_one_agents_several_frames_says_the_score_counts_it_once():
+    """The condition counts every frame in contact (the engine's blame); nuPlan's collision term counts an
+    agent once: the finding says so, as the term's message says which later contacts it left out."""
+    unroll = hand_made_unroll()
+    unroll.result.collision_kind[0, 4], unroll.result.collision_track_id[0, 4] = 1, 42
+    unroll.result.collision_at_fault[0, 4] = True
+    conditions = ClosedLoopConditions.model_validate({"Collisions": {"Front": 0, "AtFaultOnly": True}})
+    (finding,) = judge_scene(unroll, 0, conditions, score=False).findings
+    assert finding.message == (
+        "scene 7: 2 at-fault front collision frame(s), 0 allowed; first at frame 3 with agent 42; every frame in "
+        "contact counts here, by the engine's blame (the score's no_ego_at_fault_collisions counts each agent "
+        "once, by nuPlan's rules)")

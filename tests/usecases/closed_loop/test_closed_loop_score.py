@@ -144,3 +144,21 @@ def test_the_gif_markers_start_each_run_of_failing_frames(nuscenes):
     marked = [frame for frame, _, _, kind in verdict.markers if kind == "off_drivable_area"]
     starts = [f for i, f in enumerate(area) if i == 0 or area[i - 1] != f - 1]
     assert marked == starts and marked[0] == area[0]
+
+
+def test_the_collision_term_follows_nuplans_blame_unless_the_engines_is_asked_for(nuscenes):
+    """Constant velocity grazes an agent in scene 1 with its front bumper: nuPlan's rules blame the ego
+    (ACTIVE_FRONT), the engine's excuse it (the agent closed faster).  Score.Blame: engine keeps the engine's."""
+    from pytest_driveeval.closed_loop import judge_scene
+    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
+
+    unroll = unrolled(nuscenes, "constant_velocity", [1])
+    nuplan = judge_scene(unroll, 0, ClosedLoopConditions.model_validate({"Score": {}}))
+    engine = judge_scene(unroll, 0, ClosedLoopConditions.model_validate({"Score": {"Blame": "engine"}}))
+    assert nuplan.score_terms["no_ego_at_fault_collisions"]["value"] == 0.0
+    assert "by nuPlan's rules" in nuplan.score_terms["no_ego_at_fault_collisions"]["message"]
+    assert "active front" in nuplan.score_terms["no_ego_at_fault_collisions"]["message"]
+    assert engine.score_terms["no_ego_at_fault_collisions"]["value"] == 1.0
+    assert "by the engine's rules" in engine.score_terms["no_ego_at_fault_collisions"]["message"]
+    with pytest.raises(ValueError, match="Blame"):
+        ClosedLoopConditions.model_validate({"Score": {"Blame": "mine"}})

@@ -1,0 +1,164 @@
+"""``ego_progress_along_expert_route`` as nuplan-devkit computes it (docs/nuplan_score.md §3.4;
+``ego_progress_along_expert_route.py``, ``route_extractor.py``): the expert's route is the lanes its
+centre is assigned frame by frame (route.centre_route), consecutive repeats dropped; each change of
+roadblock along it adds a (roadblock, baseline of the first lane there) pair.  The ego and the expert
+then each make progress along those baselines: inside the current roadblock, the change of the
+position projected on its baseline; on entering a later roadblock of the route, the rest of the
+current baseline, the way into the new one, and the stretches of the roadblocks skipped between;
+outside every later roadblock, nothing.  The ratio of the two sums is the term.
+
+A lane's roadblock is ``ScoreMap.roadblock`` (nuPlan's maps group parallel lanes in one; a map
+without roadblocks gives each lane its own, as the oracle's cases do).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .inputs import ScoreInputs
+from .lanes import ScoreMap, project
+from .term import Term
+
+PROGRESS_THRESHOLD = 2.0
+
+
+def simplified(route: list[list[int]]) -> list[list[int]]:
+    """nuPlan's ``get_route_simplified``: from the first frame on a lane, each frame that is on a lane and
+    shares none of its lanes with the last one kept."""
+    out: list[list[int]] = []
+    for lanes in route:
+        if lanes and (not out or not any(n in lanes for n in out[-1])):
+            out.append(lanes)
+    return out
+
+
+def route_pairs(score_map: ScoreMap, route: list[list[int]]) -> list[tuple[int, int]]:
+    """nuPlan's ``get_route_baseline_roadblock_linkedlist``: (roadblock, lane) at each change of roadblock
+    of the simplified route's first lanes."""
+    pairs: list[tuple[int, int]] = []
+    for lanes in route:
+        block = int(score_map.roadblock[lanes[0]])
+        if not pairs or block != pairs[-1][0]:
+            pairs.append((block, lanes[0]))
+    return pairs
+
+
+class _Progress:
+    """nuPlan's ``PerFrameProgressAlongRouteComputer`` over one run of poses."""
+
+    def __init__(self, score_map: ScoreMap, pairs: list[tuple[int, int]], points: np.ndarray,
+                 here: list[list[int]]):
+        """``here``: per pose, the lanes holding it (route.lanes_lists)."""
+        self.map, self.pairs = score_map, pairs
+        lanes = sorted({lane for _, lane in pairs})
+        column = {lane: i for i, lane in enumerate(lanes)}
+        # every pose projected on every baseline of the route at once (the loop below only looks them up)
+        along = score_map.along(np.repeat(points, len(lanes), axis=0), np.tile(lanes, len(points)))
+        self.along = along.reshape(len(points), len(lanes))
+        self.column = column
+        # a roadblock holds a pose where one of its lanes does
+        block_of = score_map.roadblock
+        blocks = {block for block, _ in pairs}
+        self.inside = {b: np.zeros(len(points), dtype=bool) for b in blocks}
+        for k, lanes_here in enumerate(here):
+            for n in lanes_here:
+                b = int(block_of[n])
+                if b in blocks:
+                    self.inside[b][k] = True
+        self._projected: dict = {}
+
+    def _project(self, lane: int, source: int, end: int) -> float:
+        """Where the first (``end`` 0) or last (-1) point of lane ``source``'s baseline projects on lane
+        ``lane``'s (the same few pairs recur at every crossing: each computed once)."""
+        key = (lane, source, end)
+        if key not in self._projected:
+            point = self.map.baselines[source][end]
+            self._projected[key] = float(project(point[None], self.map.baselines[lane], self.map.cumulative[lane])[0])
+        return self._projected[key]
+
+    def __call__(self) -> list[float]:
+        pairs = self.pairs
+        current = 0
+        previous = float(self.along[0, self.column[pairs[0][1]]])
+        progress = [0.0]
+        for k in range(1, len(self.along)):
+            block, lane = pairs[current]
+            if self.inside[block][k]:
+                s = float(self.along[k, self.column[lane]])
+                progress.append(s - previous)
+                previous = s
+                continue
+            step, skipped_total, ahead, skipped = 0.0, 0.0, current + 1, None
+            while ahead < len(pairs):
+                if self.inside[pairs[ahead][0]][k]:
+                    rest = float(self.map.cumulative[lane][-1]) - previous
+                    last_of = lane
+                    current, lane = ahead, pairs[ahead][1]
+                    s = float(self.along[k, self.column[lane]])
+                    step = rest + (s - self._project(lane, last_of, -1)) + skipped_total
+                    previous = s
+                    break
+                if ahead == len(pairs) - 1:
+                    break
+                last_of = pairs[current if skipped is None else skipped][1]
+                skipped = ahead
+                ahead += 1
+                skipped_lane = pairs[skipped][1]
+                skipped_total += (self._project(skipped_lane, pairs[ahead][1], 0)
+                                  - self._project(skipped_lane, last_of, -1))
+            progress.append(step)
+        return progress
+
+
+def expert_progress(inputs: ScoreInputs, expert_route: list[list[int]] | None = None,
+                    ego_here: list[list[int]] | None = None, expert_here: list[list[int]] | None = None) -> Term:
+    """The term, from the expert's route (route.centre_route of its centres) and the lanes holding the
+    ego's and the expert's centres (route.lanes_lists), where the caller has them."""
+    name = "ego_progress_along_expert_route"
+    score_map = inputs.map
+    if score_map is None:
+        return _along_expert_path(inputs)
+    from .route import centre_route, lanes_lists
+
+    expert = inputs.expert[:, :2]
+    if expert_here is None:
+        expert_here = lanes_lists(score_map.lanes_at(expert))
+    if expert_route is None:
+        expert_route = centre_route(score_map, expert, inputs.expert[:, 2], here=expert_here)
+    route = simplified(expert_route)
+    if not route:
+        return Term(name, 1.0, reason="the expert is never on a lane: 1, as nuPlan scores it",
+                    detail={"expert_progress": 0.0})
+    pairs = route_pairs(score_map, route)
+    ego_xy = inputs.ego.center[:, :2]
+    if ego_here is None:
+        ego_here = lanes_lists(score_map.lanes_at(ego_xy))
+    ego_along = float(np.sum(_Progress(score_map, pairs, ego_xy, ego_here)()))
+    expert_along = float(np.sum(_Progress(score_map, pairs, expert, expert_here)()))
+    return _ratio_term(ego_along, expert_along, f" along {len(pairs)} roadblock(s) of the expert's route")
+
+
+def _ratio_term(ego_along: float, expert_along: float, where: str) -> Term:
+    name = "ego_progress_along_expert_route"
+    if ego_along < -PROGRESS_THRESHOLD:
+        ratio = 0.0
+    else:
+        ratio = min(1.0, max(ego_along, PROGRESS_THRESHOLD) / max(expert_along, PROGRESS_THRESHOLD))
+    term = Term(name, ratio, detail={"ego_progress": ego_along, "expert_progress": expert_along})
+    if ratio < 1.0:
+        term.message = f"{ego_along:.1f} m against the expert's {expert_along:.1f} m{where}"
+    return term
+
+
+def _along_expert_path(inputs: ScoreInputs) -> Term:
+    """Without a map (an L5 scene): progress along the expert's own path, the projections of the ego's
+    first and last positions on it (the sum nuPlan takes along one baseline telescopes to that)."""
+    from pytest_driveeval.geometry.planar import arc_lengths
+
+    expert = inputs.expert[:, :2]
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(expert, axis=0), axis=1) > 1e-9])
+    path = expert[keep]
+    if len(path) < 2:
+        return _ratio_term(0.0, 0.0, " along the expert's path")
+    cumulative = arc_lengths(path)
+    s = project(inputs.ego.center[[0, -1], :2], path, cumulative)
+    return _ratio_term(float(s[-1] - s[0]), float(cumulative[-1]), " along the expert's path")
