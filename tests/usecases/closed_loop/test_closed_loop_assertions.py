@@ -28,7 +28,8 @@ def hand_made_unroll() -> Unroll:
     result = SimpleNamespace(
         scene_ids=np.array([7]), valid=np.ones((1, FRAMES), bool), collision_kind=kind, collision_track_id=track,
         collision_at_fault=fault, displacement_error=drift, distance_to_reference=drift.copy(),
-        speed_difference=np.zeros((1, FRAMES)), reset=reset, errors=[None])
+        speed_difference=np.zeros((1, FRAMES)), reset=reset, errors=[None],
+        driven_xy=np.zeros((1, FRAMES, 2)), driven_yaw=np.zeros((1, FRAMES)))
     return Unroll(result, log=None, drift_threshold=10.0, step_time=0.1)
 
 

@@ -41,10 +41,10 @@ def test_constant_velocity_leaves_the_road_and_the_helpers_say_where(nuscenes):
     area = score.terms["drivable_area_compliance"]
     assert area.value == 0.0 and score.score == 0.0
     first = int(unroll.result.valid[0].nonzero()[0][area.frames[0]])
-    with pytest.raises(AssertionError, match=rf"drivable_area_compliance below 1 in 1 scene\(s\):\n  scene 0: 0.000 "
+    with pytest.raises(AssertionError, match=rf"drivable_area_compliance below 1 in 1 scene\(s\):\n  scene 0 \(scenario scene-0061, [^)]*\): 0.000 "
                                              rf"\(a corner .* m off the drivable area at frame {first} "):
         de.assert_drivable_area_compliant(unroll)
-    with pytest.raises(AssertionError, match="(?s)nuPlan score below 0.5 in 1 scene.*scene 0: score 0.000: .*"
+    with pytest.raises(AssertionError, match="(?s)nuPlan score below 0.5 in 1 scene.*scene 0 \\(scenario scene-0061, [^)]*\\): score 0.000: .*"
                                              "drivable_area_compliance 0"):
         de.assert_score_at_least(unroll, 0.5)
     with pytest.raises(AssertionError, match="(?s)speed_limit_compliance below 1 .* not available .*no speed limit"):
@@ -121,7 +121,8 @@ def test_conditions_score_fails_the_scenes_below_it_and_reports_every_term(pytes
     assert mean["limit"] == 0.5 and mean["keypath"][-1] == "MeanAtLeast"
     markdown = (pytester.path / "driveeval-results" / "summary.md").read_text()
     section = markdown.split(f"#### nuPlan score per scene: `{straight['nodeid']}`")[1]
-    assert "| 0 | " in section and "| 4 | " in section and "n/a" in section
+    # each row names its scene by index and file (the scene's identity)
+    assert "| 0 (scenario scene-0061, " in section and "| 4 (scenario " in section and "n/a" in section
     assert "speed limit: no speed limit in the map (ScenarioNet's nuScenes lanes carry a placeholder" in section
 
 
