@@ -134,7 +134,7 @@ def test_a_worse_planner_fails_naming_each_scene_that_passed_and_fails_now_with_
     at_fault = next(c for c in comparison["changes"] if c["what"] == "at_fault")
     assert at_fault["before"] == 0 and at_fault["after"] == record["figures"]["at_fault"] > 0
     result.stdout.fnmatch_lines(["*regression against baseline*", "    at_fault 0 -> * (lower is better; tolerance 0)",
-                                 "*scene 2 passed before, failed now: front at frame * (scene 2: *"])
+                                 "*scene 2 passed before, failed now: front at frame * (scene 2 (gen.zarr): *"])
 
 
 def test_a_filter_that_loses_the_car_in_two_frames_fails_naming_those_frames(pytester, monkeypatch):
