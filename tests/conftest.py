@@ -40,6 +40,17 @@ except ImportError:
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
+
+def module_at(path: Path, name: str):
+    """The Python file at ``path`` (a benchmark or oracle script, a helper of another test folder) as a
+    module named ``name``: they are not packages, so a test loads them by path."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
 try:
     import torch
 except ImportError:

@@ -6,13 +6,12 @@ nan, so a field is compared where the file gives it, and checked to be 0.0 on it
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 from pytest_driveeval.io.commonroad.commonroad import read_commonroad
 from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached, lanelets_at, obstacle_outline
 from pytest_driveeval.io.commonroad.commonroad_types import Circle, Polygon, Rectangle
@@ -20,15 +19,7 @@ from pytest_driveeval.io.commonroad.commonroad_types import Circle, Polygon, Rec
 FILES = ["FRA_Anglet-1_1_T-1", "USA_Lanker-1_1_T-1", "USA_US101-3_3_T-1", "ZAM_Tutorial-1_2_T-1"]
 
 
-def _oracle_module():
-    spec = importlib.util.spec_from_file_location(
-        "commonroad_oracle_venv", REPO_ROOT / "benchmarks" / "commonroad_oracle" / "oracle_venv.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-ORACLE = _oracle_module()
+ORACLE = module_at(REPO_ROOT / "benchmarks" / "commonroad_oracle" / "oracle_venv.py", "commonroad_oracle_venv")
 
 
 @pytest.fixture(scope="module")

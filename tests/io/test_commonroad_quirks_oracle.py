@@ -11,14 +11,13 @@ makes it; skipped where it is absent), on the shared files that hold them:
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 from pytest_driveeval.io.commonroad.commonroad import read_commonroad
 from pytest_driveeval.io.commonroad.commonroad_geometry import obstacle_outline
 from pytest_driveeval.sim.commonroad_road import corners_on_road
@@ -54,15 +53,7 @@ print(json.dumps(out))
 """
 
 
-def _oracle_module():
-    spec = importlib.util.spec_from_file_location(
-        "commonroad_oracle_venv_quirks", REPO_ROOT / "benchmarks" / "commonroad_oracle" / "oracle_venv.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-ORACLE = _oracle_module()
+ORACLE = module_at(REPO_ROOT / "benchmarks" / "commonroad_oracle" / "oracle_venv.py", "commonroad_oracle_venv_quirks")
 
 
 @pytest.fixture(scope="module")
@@ -139,11 +130,7 @@ def test_point_mass_outlines_are_commonroad_ios(shared_data):
 
 def _road_edge_module():
     """tests/sim/test_commonroad_road_edge.py: its points on the road's edge and the offsets tried there."""
-    spec = importlib.util.spec_from_file_location("commonroad_road_edge_tests",
-                                                  REPO_ROOT / "tests" / "sim" / "test_commonroad_road_edge.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return module_at(REPO_ROOT / "tests" / "sim" / "test_commonroad_road_edge.py", "commonroad_road_edge_tests")
 
 
 def test_off_the_road_only_where_commonroad_io_finds_no_lanelet(shared_data, oracle_python, tmp_path):

@@ -228,15 +228,10 @@ def devkit_cases() -> list[dict]:
 
 
 def test_nuplan_devkit_scores_these_cases_as_the_harness_does():
-    import importlib.util
-
-    from conftest import REPO_ROOT
+    from conftest import REPO_ROOT, module_at
     from pytest_driveeval.metrics.nuplan_score.case import answer
 
-    spec = importlib.util.spec_from_file_location("nuplan_oracle_venv", REPO_ROOT / "benchmarks" / "nuplan_oracle"
-                                                  / "oracle_venv.py")
-    venv = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(venv)
+    venv = module_at(REPO_ROOT / "benchmarks" / "nuplan_oracle" / "oracle_venv.py", "nuplan_oracle_venv")
     python = venv.existing_python()
     if python is None:
         pytest.skip("nuplan-devkit oracle venv absent (python benchmarks/nuplan_oracle/oracle_venv.py builds it)")

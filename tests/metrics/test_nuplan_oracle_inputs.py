@@ -2,7 +2,6 @@
 scenario_map.py): they import neither pytest_driveeval nor the devkit, so they are tested here with the
 project's python.  Each quirk of the converters' output that the oracle rebuilds from has a test.  The ego's
 box and dynamic state (scenario_case.py) need the devkit: tested in its venv where it exists."""
-import importlib.util
 import math
 import os
 import pickle
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, Polygon
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 
 ORACLE = REPO_ROOT / "benchmarks" / "nuplan_oracle"
 
@@ -20,10 +19,7 @@ ORACLE = REPO_ROOT / "benchmarks" / "nuplan_oracle"
 def _load(name):
     sys.path.insert(0, str(ORACLE))  # scenario_map is imported by name inside the oracle's modules
     try:
-        spec = importlib.util.spec_from_file_location(f"nuplan_oracle_{name}", ORACLE / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
+        return module_at(ORACLE / f"{name}.py", f"nuplan_oracle_{name}")
     finally:
         sys.path.remove(str(ORACLE))
 

@@ -6,7 +6,6 @@ protocol), in a pytest run of its own; then the oracle, in its own venv, rebuild
 ego states from the raw file and the driven poses, and compares term by term.  Skipped where the shared data
 or the oracle's venv is absent (``python benchmarks/nuplan_oracle/oracle_venv.py`` builds the venv).
 """
-import importlib.util
 import json
 import os
 import re
@@ -15,7 +14,7 @@ import sys
 
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 
 pytestmark = pytest.mark.slow  # two closed-loop items over six scenes, then nuplan-devkit: a few minutes
 
@@ -41,10 +40,7 @@ ORACLE = REPO_ROOT / "benchmarks" / "nuplan_oracle"
 
 
 def _oracle_venv():
-    spec = importlib.util.spec_from_file_location("nuplan_oracle_venv", ORACLE / "oracle_venv.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return module_at(ORACLE / "oracle_venv.py", "nuplan_oracle_venv")
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import json
 
 import numpy as np
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0
@@ -24,12 +24,7 @@ Evaluation:
 
 def _made():
     """tests/io/scenarionet_made.py, the reader tests' scenario maker (its folder is not on the path here)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("scenarionet_made", REPO_ROOT / "tests" / "io" / "scenarionet_made.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return module_at(REPO_ROOT / "tests" / "io" / "scenarionet_made.py", "scenarionet_made")
 
 
 def _waymo_like(made, steps=40, gap=False):
