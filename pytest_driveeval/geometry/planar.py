@@ -31,6 +31,14 @@ def arc_lengths(line: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
 
 
+def resampled(line: np.ndarray, count: int) -> np.ndarray:
+    """(count, 2) points at equal distances along a polyline (K, 2), its ends kept (a line of one
+    repeated point stays that point)."""
+    along = arc_lengths(line)
+    at = np.linspace(0.0, along[-1], count)
+    return np.stack([np.interp(at, along, line[:, 0]), np.interp(at, along, line[:, 1])], axis=1)
+
+
 def yaw_as_rotation33(yaw: np.ndarray) -> np.ndarray:
     """(...) yaw -> (..., 3, 3) homogeneous rotation."""
     yaw = np.asarray(yaw, dtype=np.float64)

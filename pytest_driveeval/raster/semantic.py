@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..geometry.planar import arc_lengths
+from ..geometry.planar import resampled
 from ..io.l5.l5kit_zarr import L5Scene
 from .draw import compiled, fill_polygons, polylines
 
@@ -87,12 +87,6 @@ def active_faces(scenes: Sequence[L5Scene], n_frames: int) -> ActiveFaces:
     return ActiveFaces(n_frames, offsets, np.concatenate(ids) if ids else np.zeros(0, "<U16"))
 
 
-def _resample(line: np.ndarray, n: int) -> np.ndarray:
-    distance = arc_lengths(line)
-    steps = np.linspace(distance[0], distance[-1], n)
-    return np.stack([np.interp(steps, distance, line[:, 0]), np.interp(steps, distance, line[:, 1])], axis=1)
-
-
 class PreparedMap:
     """A SemanticMap in the arrays the kernel reads, lane polygons resampled lazily."""
 
@@ -115,9 +109,10 @@ class PreparedMap:
         self.crosswalk_offsets = np.asarray(smap.crosswalks.offsets, np.int64)
 
     def ensure_polygons(self, lanes: np.ndarray) -> None:
+        n = INTERPOLATION_POINTS
         for i in lanes[~self._resampled[lanes]].tolist():
-            self.lane_polygons[i, :INTERPOLATION_POINTS] = _resample(self.map.lanes_left[i], INTERPOLATION_POINTS)
-            self.lane_polygons[i, INTERPOLATION_POINTS:] = _resample(self.map.lanes_right[i], INTERPOLATION_POINTS)[::-1]
+            self.lane_polygons[i, :n] = resampled(self.map.lanes_left[i], n)
+            self.lane_polygons[i, n:] = resampled(self.map.lanes_right[i], n)[::-1]
             self._resampled[i] = True
 
     def face_indices(self, faces: ActiveFaces) -> np.ndarray:

@@ -13,20 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from pytest_driveeval.geometry.planar import arc_lengths
+from pytest_driveeval.geometry.planar import resampled
 from pytest_driveeval.metrics.nuplan_score import ScoreMap
 
 #: metres around the logged ego path within which lanes are kept (the drift bound is 10 m by default)
 MARGIN = 150.0
 REASON = "drivable area: the L5 semantic map's lanes, each between its left and right boundary"
-
-
-def _resampled(line: np.ndarray, count: int) -> np.ndarray:
-    along = arc_lengths(line)
-    if along[-1] <= 0:
-        return np.repeat(line[:1], count, axis=0)
-    at = np.linspace(0.0, along[-1], count)
-    return np.stack([np.interp(at, along, line[:, 0]), np.interp(at, along, line[:, 1])], axis=1)
 
 
 def semantic_score_map(semantic: Any, ego_xy: np.ndarray) -> ScoreMap | None:
@@ -42,7 +34,7 @@ def semantic_score_map(semantic: Any, ego_xy: np.ndarray) -> ScoreMap | None:
         count = max(len(left), len(right))
         ids.append(str(semantic.lane_ids[n]))
         polygons.append(np.concatenate([left, right[::-1]]))
-        baselines.append((_resampled(left, count) + _resampled(right, count)) / 2)
+        baselines.append((resampled(left, count) + resampled(right, count)) / 2)
     if not ids:
         return None
     return ScoreMap(lane_ids=ids, polygons=polygons, baselines=baselines, speed_limits=np.full(len(ids), np.nan),
