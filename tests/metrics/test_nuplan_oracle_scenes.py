@@ -91,9 +91,6 @@ def test_on_log_replay_every_term_and_score_agrees(oracle_run):
     assert off == []
 
 
-@pytest.mark.xfail(reason="issue 35: the oracle groups a lane and its neighbours into one roadblock, the score makes "
-                          "each ScenarioNet lane its own (nuScenes has no roadblocks); progress differs on "
-                          "constant_velocity/scene0 (0.8197 against 0.8137) until both take one rule", strict=False)
 def test_every_term_and_score_agrees_within_1e_6(oracle_run):
     _, status, printed = oracle_run
     assert status == 0, "\n".join(re.findall(r"^DISAGREES .*$", printed, flags=re.M))

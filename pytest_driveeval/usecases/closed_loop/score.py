@@ -19,6 +19,7 @@ from pytest_driveeval.metrics.nuplan_score import (AgentCells, SceneScore, Score
                                                    first_collisions, score_scene)
 from pytest_driveeval.metrics.nuplan_score.inputs import GROUPS
 from pytest_driveeval.core.outcome import Finding
+from pytest_driveeval.io.scenarionet.scenarionet_lane_graph import lane_graph
 
 #: l5kit perception labels by the collision group nuPlan gives such an object
 _VEHICLES = {"CAR", "VAN", "TRAM", "BUS", "TRUCK", "EMERGENCY_VEHICLE", "OTHER_VEHICLE"}
@@ -35,16 +36,14 @@ def _label_groups() -> np.ndarray:
 
 def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
-    as the score reads it.  ScenarioNet has no roadblocks or connectors: every lane is its own roadblock,
-    and a lane connector to nuPlan's route extractor, which lets connectors overlap (ScenarioNet's lanes
-    do, at junctions; nuPlan's lanes never do), so a point on several lanes is on all of them, in the
-    map's order.  The drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines,
+    as the score reads it.  Lanes, connectors, the lane graph and the roadblocks are those the file's
+    converter wrote (io.scenarionet.scenarionet_lane_graph: a lane with its own outline is a lane, one
+    without a connector; nuScenes' lanes join where their centre lines meet).  The drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines,
     road edges, driveways, the lanes' own surfaces), lanes widened by an assumed width only where the
     map gives no other."""
     semantic = scenario_map.semantic
     ids = [str(i) for i in semantic.lane_ids]
     features = {f.id: f for f in source.map_features}
-    index = {lane: n for n, lane in enumerate(ids)}
     limits = np.array([features[i].speed_limit_kmh / 3.6 if features.get(i) is not None
                        and features[i].speed_limit_kmh else np.nan for i in ids])
     unknown = None
@@ -53,8 +52,9 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
         # ("TODO Add speed limit if needed" in its source): nuScenes maps have no speed limits.
         limits[:] = np.nan
         unknown = "ScenarioNet's nuScenes lanes carry a placeholder 100 km/h, not a speed limit"
-    outgoing = [[index[str(o)] for o in np.atleast_1d(features[i].extra.get("exit_lanes", [])) if str(o) in index]
-                if features.get(i) is not None else [] for i in ids]
+    centres = [features[i].polyline[:, :2] if features.get(i) is not None and features[i].polyline is not None
+               and len(features[i].polyline) >= 2 else scenario_map.centres[n] for n, i in enumerate(ids)]
+    connector, outgoing, roadblock, _ = lane_graph(ids, features, centres)
     surfaces = [scenario_map.surfaces[n] for n in range(len(ids))]
     driveways = [f.polygon[:, :2] for f in source.map_features if f.type == "DRIVEWAY" and f.polygon is not None]
     area = scenario_map.drivable
@@ -66,7 +66,7 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     baselines = [scenario_map.centres[n] if n in uneven else (semantic.lanes_left[n] + semantic.lanes_right[n]) / 2
                  for n in range(len(ids))]
     return ScoreMap(lane_ids=ids, polygons=surfaces, baselines=baselines,
-                    speed_limits=limits, connector=np.ones(len(ids), bool), outgoing=outgoing,
+                    speed_limits=limits, connector=connector, outgoing=outgoing, roadblock=roadblock,
                     drivable=surfaces + driveways, no_limits_reason=unknown, **extra)
 
 
