@@ -50,20 +50,23 @@ class _Progress:
         """``here``: per pose, the lanes holding it (route.lanes_lists)."""
         self.map, self.pairs = score_map, pairs
         lanes = sorted({lane for _, lane in pairs})
-        column = {lane: i for i, lane in enumerate(lanes)}
         # every pose projected on every baseline of the route at once (the loop below only looks them up)
         along = score_map.along(np.repeat(points, len(lanes), axis=0), np.tile(lanes, len(points)))
-        self.along = along.reshape(len(points), len(lanes))
-        self.column = column
-        # a roadblock holds a pose where one of its lanes does
+        # per baseline, its list of positions (the loop below reads one number at a time: lists are quicker)
+        self.along = {lane: column for lane, column in zip(lanes, along.reshape(len(points), len(lanes)).T.tolist())}
+        self.frames = len(points)
+        # a roadblock holds a pose where one of its lanes does (a run's poses repeat a few sets of lanes)
         block_of = score_map.roadblock
         blocks = {block for block, _ in pairs}
-        self.inside = {b: np.zeros(len(points), dtype=bool) for b in blocks}
+        sets: dict = {}
+        self.inside = {b: [False] * len(points) for b in blocks}
         for k, lanes_here in enumerate(here):
-            for n in lanes_here:
-                b = int(block_of[n])
-                if b in blocks:
-                    self.inside[b][k] = True
+            lanes_here = tuple(lanes_here)
+            found = sets.get(lanes_here)
+            if found is None:
+                found = sets[lanes_here] = [b for b in {int(block_of[n]) for n in lanes_here} if b in blocks]
+            for b in found:
+                self.inside[b][k] = True
         self._projected: dict = {}
 
     def _project(self, lane: int, source: int, end: int) -> float:
@@ -76,24 +79,25 @@ class _Progress:
         return self._projected[key]
 
     def __call__(self) -> list[float]:
-        pairs = self.pairs
+        pairs, along, inside = self.pairs, self.along, self.inside
         current = 0
-        previous = float(self.along[0, self.column[pairs[0][1]]])
+        block, lane = pairs[0]
+        previous = along[lane][0]
         progress = [0.0]
-        for k in range(1, len(self.along)):
-            block, lane = pairs[current]
-            if self.inside[block][k]:
-                s = float(self.along[k, self.column[lane]])
+        for k in range(1, self.frames):
+            if inside[block][k]:
+                s = along[lane][k]
                 progress.append(s - previous)
                 previous = s
                 continue
             step, skipped_total, ahead, skipped = 0.0, 0.0, current + 1, None
             while ahead < len(pairs):
-                if self.inside[pairs[ahead][0]][k]:
+                if inside[pairs[ahead][0]][k]:
                     rest = float(self.map.cumulative[lane][-1]) - previous
                     last_of = lane
-                    current, lane = ahead, pairs[ahead][1]
-                    s = float(self.along[k, self.column[lane]])
+                    current = ahead
+                    block, lane = pairs[ahead]
+                    s = along[lane][k]
                     step = rest + (s - self._project(lane, last_of, -1)) + skipped_total
                     previous = s
                     break

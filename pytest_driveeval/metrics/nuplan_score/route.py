@@ -34,10 +34,17 @@ def lanes_lists(holding: np.ndarray, touched: np.ndarray | None = None) -> list[
     many, a scene's few).  Equal rows share one tuple: a scene's points repeat a few sets of lanes, and
     few objects kept means few garbage collections while the score runs."""
     columns = np.flatnonzero(holding.any(axis=0) if touched is None else touched)
+    if not len(columns):
+        return [()] * len(holding)
+    if len(columns) <= 62:
+        # each row's lanes as the bits of one integer: one np.unique, and one tuple per distinct set
+        codes = holding[:, columns].astype(np.int64) @ (np.int64(1) << np.arange(len(columns), dtype=np.int64))
+        distinct, inverse = np.unique(codes, return_inverse=True)
+        bits = ((distinct[:, None] >> np.arange(len(columns), dtype=np.int64)) & 1).astype(bool)
+        made = [tuple(columns[row].tolist()) for row in bits]
+        return [made[i] for i in inverse.tolist()]
     rows, cols = np.nonzero(holding[:, columns])
     here: list[tuple[int, ...]] = [()] * len(holding)
-    if not len(rows):
-        return here
     starts = np.searchsorted(rows, np.arange(len(holding) + 1)).tolist()
     flat = columns[cols].tolist()
     shared: dict = {}
@@ -174,16 +181,24 @@ def corners_route(score_map: ScoreMap, here: list[list[int]]) -> list[tuple[tupl
     leads into) that hold it, else looks again; on the second frame, what a corner finds by looking again
     joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner,
     frame by frame in the order FL, FR, RR, RL (the ego's corners)."""
-    t = len(here) // 4
+    return [corners for corners, _ in _corner_frames(score_map, here, connected=False)]
+
+
+def _corner_frames(score_map: ScoreMap, here: list, connected: bool) -> list[tuple]:
+    """Per frame, (its corners' lanes as :func:`corners_route` assigns them, and with ``connected`` whether
+    they are :func:`_common_or_connected`, else None)."""
     out = []
     candidates: tuple[int, ...] = ()
     known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
-    for k in range(t):
-        key = (k == 1, candidates, *(tuple(here[4 * k + c]) for c in (0, 3, 2, 1)))
-        if key not in known:
-            known[key] = _corners_frame(score_map, key)
-        corners, candidates = known[key]
-        out.append(corners)
+    for k in range(len(here) // 4):
+        front_left, front_right, rear_right, rear_left = here[4 * k:4 * k + 4]
+        key = (k == 1, candidates, tuple(front_left), tuple(rear_left), tuple(rear_right), tuple(front_right))
+        answer = known.get(key)
+        if answer is None:
+            corners, found = _corners_frame(score_map, key)
+            answer = known[key] = (corners, found, _common_or_connected(score_map, corners) if connected else None)
+        out.append((answer[0], answer[2]))
+        candidates = answer[1]
     return out
 
 
@@ -230,11 +245,28 @@ def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.nd
     :func:`lanes_lists`, when the caller has it."""
     if here is None:
         here = lanes_lists(score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding)
-    assigned = corners_route(score_map, here)
-    known: dict = {}
-    out = np.zeros(len(assigned), dtype=bool)
-    for k, frame in enumerate(assigned):
-        if frame not in known:
-            known[frame] = _common_or_connected(score_map, frame)
-        out[k] = known[frame]
-    return out
+    return np.array([common for _, common in _corner_frames(score_map, here, connected=True)], dtype=bool)
+
+
+class InOneLane:
+    """:func:`corners_in_one_lane`, computed when first read (``frames[k]`` or ``np.asarray``): only a
+    lateral collision and a time to collision with an agent beside the ego ask, and most scenes have neither."""
+
+    def __init__(self, score_map: ScoreMap, corners: np.ndarray, here: list[list[int]]):
+        self._args: tuple | None = (score_map, corners, here)
+        self._frames: np.ndarray | None = None
+
+    def frames(self) -> np.ndarray:
+        if self._frames is None:
+            score_map, corners, here = self._args
+            self._frames, self._args = corners_in_one_lane(score_map, corners, here=here), None
+        return self._frames
+
+    def __array__(self, dtype=None, copy=None):
+        return self.frames() if dtype is None else self.frames().astype(dtype)
+
+    def __getitem__(self, index):
+        return self.frames()[index]
+
+    def __len__(self) -> int:
+        return len(self._frames) if self._frames is not None else len(self._args[2]) // 4

@@ -10,7 +10,7 @@ import numpy as np
 from . import kernels
 from .comfort import ego_is_comfortable
 from .inputs import ScoreInputs
-from .route import centre_route, corners_in_one_lane, lanes_lists
+from .route import InOneLane, centre_route, lanes_lists
 from .term import MULTIPLIERS, TERMS, WEIGHTS, Term
 from .collisions import nuplan_collisions
 from .progress import expert_progress
@@ -69,7 +69,7 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
         centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
         corner_on_lane = held[t:5 * t]
         route = centre_route(score_map, inputs.ego.center[:, :2], heading, here=centre_here)
-        in_one_lane = corners_in_one_lane(score_map, corners, here=corner_here)
+        in_one_lane = InOneLane(score_map, corners, corner_here)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
         expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], here=expert_here)
         progress = expert_progress(inputs, expert_route, centre_here, expert_here)

@@ -52,8 +52,10 @@ def times_to_collision(inputs: ScoreInputs, in_one_lane: np.ndarray, in_intersec
     to_agent = agents.xy[frames, cols] - rear[frames]
     bearing = np.arctan2(to_agent[:, 1], to_agent[:, 0]) - heading[frames]
     angle = np.abs(np.arctan2(np.sin(bearing), np.cos(bearing)))
-    beside = (~in_one_lane | in_intersection)[frames] & (angle <= BEHIND)
-    keep = (angle < AHEAD) | beside
+    keep = angle < AHEAD
+    side = ~keep & (angle <= BEHIND)
+    if side.any():  # only an agent beside the ego asks whether it is in one lane (route.InOneLane: computed then)
+        keep |= side & (~np.asarray(in_one_lane, dtype=bool) | in_intersection)[frames]
     frames, cols = frames[keep], cols[keep]
     if len(frames):
         first = (_first_meetings_compiled(ego, agents, frames, cols, motion) if compiled
