@@ -12,7 +12,7 @@ pytest.importorskip("torch")
 BENCH = POLICY_BENCHMARK_HEAD + """\
   Blueprint:
     Name: merging
-    Params: {{length: {length}}}
+    Params: {{length: {length}, max_steps: {steps}}}
   Episodes: {episodes}
   AgentLimit: {agents}
   Policies:
@@ -41,8 +41,8 @@ BUDGET = ("more than the * an item may use (half this machine's memory; --drivee
           "driveeval_memory_limit sets another, 0: no check)")
 
 
-def bench(name, length=300.0, episodes=4, agents=12):
-    return BENCH.format(name=name, length=length, episodes=episodes, agents=agents)
+def bench(name, length=300.0, episodes=4, agents=12, steps=200):
+    return BENCH.format(name=name, length=length, episodes=episodes, agents=agents, steps=steps)
 
 
 @pytest.fixture(autouse=True)
@@ -53,7 +53,8 @@ def default_budget():
 
 
 def test_each_size_that_cannot_fit_fails_alone_at_its_line_and_the_good_scenario_runs(pytester):
-    pytester.makefile(".scenario.yaml", good=bench("good"), episodes=bench("episodes", episodes=1_000_000_000),
+    # the good item runs: a few steps show that, the sizes refused beside it are what is checked
+    pytester.makefile(".scenario.yaml", good=bench("good", steps=10), episodes=bench("episodes", episodes=1_000_000_000),
                       agents=bench("agents", agents=100_000), length=bench("length", length="1.0e+9"),
                       raster=CLOSED_LOOP,
                       ghosts=SPRAY.replace("GhostPoints: [0, 40]", "GhostPoints: [0, 1000000000]"))
