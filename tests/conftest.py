@@ -62,6 +62,10 @@ if torch is not None:
     from pytest_driveeval.policies.pt2_archive import load_exported_program
 
     load_exported_program(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2").module()
+# For an inner pytest in a fresh process that runs no @given test: hypothesis's pytest plugin imports
+# all of hypothesis at every session's end to print its statistics, about as long as the rest of
+# pytest's start (2.5 s of CPU where no bytecode is cached).
+NO_HYPOTHESIS_PLUGIN = ("-p", "no:hypothesispytest")
 SHARED_DATA = Path(os.environ.get("DRIVEEVAL_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
 

@@ -13,8 +13,8 @@ from typing import Iterable
 
 import pytest
 
-from ..core.errors import Problem, ScenarioError, display_path
-from .failure import ScenarioFailed
+from ..core.errors import DriveEvalError, Problem, ScenarioError, display_path
+from .failure import Failure, ScenarioFailed
 from ..scenario import NotAScenario, Scenario, load_scenario
 from .settings import DECLARED_SUFFIXES, get_settings
 from ..core.usecase import Case, usecase_of
@@ -119,6 +119,14 @@ class ScenarioItem(pytest.Function):
         # that names other items' policies or places ("highway-gnn-vs-mlp" would give -k gnn the mlp).
         self.extra_keyword_matches.add(scenario.use_case)
 
+    def repr_failure(self, excinfo, style=None):
+        # Our errors are reported as the located Failure (results.annotate_report puts it in the
+        # report in every phase); pytest's traceback of them, which reads and parses the source of
+        # every frame, would be rendered only to be replaced.
+        if isinstance(excinfo.value, DriveEvalError):
+            return Failure.of(self, excinfo.value)
+        return super().repr_failure(excinfo, style=style)
+
     def reportinfo(self):
         line = self.driveeval_scenario.line_of("Evaluation") or 1
         return self.path, line - 1, f"{self.driveeval_scenario.name} [{self.name}]"
@@ -134,6 +142,12 @@ class InvalidScenarioItem(pytest.Item):
 
     def runtest(self) -> None:
         raise self.error
+
+    def repr_failure(self, excinfo, style=None):
+        # As ScenarioItem.repr_failure: the located problems, not a traceback to be replaced.
+        if isinstance(excinfo.value, DriveEvalError):
+            return Failure.of(self, excinfo.value)
+        return super().repr_failure(excinfo, style=style)
 
     def reportinfo(self):
         return self.path, (self.error.line or 1) - 1, "invalid scenario"

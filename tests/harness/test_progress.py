@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import pytest
+from conftest import NO_HYPOTHESIS_PLUGIN
 
 from pytest_driveeval.harness.progress import ERASE_RIGHT, RESTORE, SAVE, StatusLine
 
@@ -70,7 +71,7 @@ def _run_on_a_terminal(path, *args: str, ci: bool = False) -> str:
     env.update(TERM="xterm", PYTHONPATH=os.pathsep.join([str(path), env.get("PYTHONPATH", "")]))
     if ci:
         env["CI"] = "true"
-    child = subprocess.Popen([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *args], cwd=path,
+    child = subprocess.Popen([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *NO_HYPOTHESIS_PLUGIN, *args], cwd=path,
                              stdin=subprocess.DEVNULL, stdout=attached, stderr=attached, env=env)
     os.close(attached)
     chunks = []
@@ -113,7 +114,7 @@ def test_a_terminal_shows_each_items_steps_and_the_line_is_erased(stepping, work
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]], ids=["serial", "xdist"])
 def test_without_a_terminal_nothing_is_drawn(stepping, workers):
-    result = stepping.runpytest_subprocess("-q", "-p", "no:cacheprovider", *workers)
+    result = stepping.runpytest_subprocess("-q", "-p", "no:cacheprovider", *NO_HYPOTHESIS_PLUGIN, *workers)
     result.assert_outcomes(passed=2)
     text = result.stdout.str() + result.stderr.str()
     assert SAVE not in text and "steps 0/3" not in text

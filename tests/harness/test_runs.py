@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import GAIN_SCENARIO
+from conftest import GAIN_SCENARIO, NO_HYPOTHESIS_PLUGIN
 from test_fixtures import summary
 
 # With GATE set, the model waits (bounded) until that file exists: a test orders sessions by
@@ -116,7 +116,7 @@ def test_files_the_plugin_did_not_write_are_never_deleted(gain):
 
 def _session(pytester, delay: float, gate: Path | None = None) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": ".", "DELAY": str(delay), "GATE": str(gate or "")}
-    return subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+    return subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *NO_HYPOTHESIS_PLUGIN,
                              "--driveeval-model", "slowmod:double"], cwd=pytester.path,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
 

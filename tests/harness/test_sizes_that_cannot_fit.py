@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from conftest import POLICY_BENCHMARK_HEAD, REPO_ROOT
+from conftest import NO_HYPOTHESIS_PLUGIN, POLICY_BENCHMARK_HEAD, REPO_ROOT
 from pytest_driveeval.core.usecase import memory_budget, set_memory_budget
 
 pytest.importorskip("torch")
@@ -12,7 +12,7 @@ pytest.importorskip("torch")
 BENCH = POLICY_BENCHMARK_HEAD + """\
   Blueprint:
     Name: merging
-    Params: {{length: {length}}}
+    Params: {{length: {length}, max_steps: {steps}}}
   Episodes: {episodes}
   AgentLimit: {agents}
   Policies:
@@ -41,8 +41,8 @@ BUDGET = ("more than the * an item may use (half this machine's memory; --drivee
           "driveeval_memory_limit sets another, 0: no check)")
 
 
-def bench(name, length=300.0, episodes=4, agents=12):
-    return BENCH.format(name=name, length=length, episodes=episodes, agents=agents)
+def bench(name, length=300.0, episodes=4, agents=12, steps=200):
+    return BENCH.format(name=name, length=length, episodes=episodes, agents=agents, steps=steps)
 
 
 @pytest.fixture(autouse=True)
@@ -53,12 +53,13 @@ def default_budget():
 
 
 def test_each_size_that_cannot_fit_fails_alone_at_its_line_and_the_good_scenario_runs(pytester):
-    pytester.makefile(".scenario.yaml", good=bench("good"), episodes=bench("episodes", episodes=1_000_000_000),
+    # the good item runs: a few steps show that, the sizes refused beside it are what is checked
+    pytester.makefile(".scenario.yaml", good=bench("good", steps=10), episodes=bench("episodes", episodes=1_000_000_000),
                       agents=bench("agents", agents=100_000), length=bench("length", length="1.0e+9"),
                       raster=CLOSED_LOOP,
                       ghosts=SPRAY.replace("GhostPoints: [0, 40]", "GhostPoints: [0, 1000000000]"))
     # In a subprocess with a timeout: an allocation that slipped through would take the machine's memory.
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, timeout=240)
     result.assert_outcomes(passed=1, failed=5)
     result.stdout.fnmatch_lines_random([
         "  episodes.scenario.yaml:9: Evaluation.Episodes: 1000000000 episodes of 12 agents stepped together would "
@@ -164,7 +165,7 @@ def test_history_future_and_agent_counts_that_cannot_fit_fail_alone_at_their_lin
         name: UNROLL.format(name=name, data=data, key=key, value=value) for name, key, value in (
             ("good", "HistoryFrames", 10), ("history", "HistoryFrames", 1_000_000_000),
             ("future", "FutureFrames", 10_000_000_000), ("agents", "MaxAgents", 1_000_000_000))})
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, timeout=240)
     result.assert_outcomes(passed=1, failed=3)
     result.stdout.fnmatch_lines_random([
         "  history.scenario.yaml:12: Evaluation.Unroll.HistoryFrames: one scene's policy inputs per step (1000000000 "

@@ -4,7 +4,7 @@ from __future__ import annotations
 import shutil
 
 import pytest
-from conftest import GAIN_SCENARIO, REPO_ROOT, save_torchscript
+from conftest import GAIN_SCENARIO, NO_HYPOTHESIS_PLUGIN, REPO_ROOT, save_torchscript
 
 torch = pytest.importorskip("torch")
 
@@ -74,7 +74,7 @@ def test_a_torchscript_loop_is_left_behind_and_the_session_goes_on(cl, xdist):
     cl.makefile(".scenario.yaml", good=scenario(name="good", unroll="    StartFrame: 10\n    Steps: 5"),
                 spins=with_limit(scenario(name="spins", model="spin.pt"), 2))
     # In its own process: the abandoned loop keeps a core busy until that process ends.
-    result = cl.runpytest_subprocess("-q", "-p", "no:randomly", *xdist, timeout=180)
+    result = cl.runpytest_subprocess("-q", "-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, *xdist, timeout=180)
     result.assert_outcomes(passed=1, failed=1)
     result.stdout.fnmatch_lines(["*TimeLimitExceeded: scenario 'spins'*time limit of 2 s exceeded in a model call "
                                  "that did not return at scenes [[]0[]], frame 10, step 0*"])
