@@ -23,22 +23,61 @@ BENCH = POLICY_BENCHMARK_HEAD + """\
 REFUSED = "cannot reach a Ray cluster at {address}: nothing listens on port 1 of 127.0.0.1 (connection refused)"
 
 
-def test_a_dead_address_fails_each_item_that_needs_it_with_its_line_and_the_good_one_passes(pytester):
-    pytester.makefile(".scenario.yaml", good=BENCH.format(name="good", executor=""),
-                      gcs=BENCH.format(name="gcs", executor='  Executor: {Kind: ray, Address: "127.0.0.1:1"}\n'),
-                      client=BENCH.format(name="client", executor="  Executor:\n    Kind: ray\n"
-                                                                   "    ChunkSize: 2\n"
-                                                                   "    Address: ray://127.0.0.1:1\n"))
-    # In a subprocess with a timeout: the guard against the hang this test is about.
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
-    result.assert_outcomes(passed=1, failed=2)
-    result.stdout.fnmatch_lines([
+def listening_silently(listener):
+    """``listener`` bound and listening: connections are accepted (the kernel's backlog) and never answered."""
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(8)
+    return listener.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def module_silent_port():
+    import socket
+
+    with socket.socket() as listener:
+        yield listening_silently(listener)
+
+
+@pytest.fixture(scope="module")
+def bad_addresses(tmp_path_factory, module_silent_port):
+    """One session of four items: one with no executor, and one each whose scenario names a refused GCS
+    address, a refused Ray Client address, and an address that accepts and never answers (the
+    tests below read it; each such session starts a Python with torch).  In a subprocess with a
+    timeout: the guard against the hang these tests are about (ray.init at a silent port waits for
+    ever and ignores SIGTERM).  Returns (exit code, output, the items' records by scenario name)."""
+    import os
+    import subprocess
+    import sys
+
+    folder = tmp_path_factory.mktemp("bad_addresses")
+    texts = {"good": BENCH.format(name="good", executor=""),
+             "gcs": BENCH.format(name="gcs", executor='  Executor: {Kind: ray, Address: "127.0.0.1:1"}\n'),
+             "client": BENCH.format(name="client", executor="  Executor:\n    Kind: ray\n"
+                                                            "    ChunkSize: 2\n"
+                                                            "    Address: ray://127.0.0.1:1\n"),
+             "silent": BENCH.format(name="silent", executor='  Executor: {Kind: ray, Address: '
+                                                            f'"127.0.0.1:{module_silent_port}"}}\n')}
+    for name, text in texts.items():
+        (folder / f"{name}.scenario.yaml").write_text(text)
+    env = {**{k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"}, "PY_COLORS": "0"}
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider"],
+                          cwd=folder, env=env, capture_output=True, text=True, timeout=240)
+    records = json.loads((folder / "driveeval-results" / "summary.json").read_text())["results"]
+    return done.returncode, done.stdout, {r["scenario"]: r for r in records}
+
+
+def test_a_dead_address_fails_each_item_that_needs_it_with_its_line_and_the_good_one_passes(bad_addresses):
+    ret, out, records = bad_addresses
+    assert ret == 1 and set(records) == {"good", "gcs", "client", "silent"}
+    assert {name: r["status"] for name, r in records.items() if name != "silent"} == {
+        "good": "passed", "gcs": "failed", "client": "failed"}
+    pytest.LineMatcher(out.splitlines()).fnmatch_lines([
         "*UnreachableCluster: client.scenario.yaml:14: Evaluation.Executor.Address: "
         + REFUSED.format(address="ray://127.0.0.1:1") + " (checked once per session*",
         "*UnreachableCluster: gcs.scenario.yaml:11: Evaluation.Executor.Address: "
         + REFUSED.format(address="127.0.0.1:1") + "*",
     ])
-    assert "Traceback" not in result.stdout.str()
+    assert "Traceback" not in out
 
 
 def test_the_session_option_address_is_probed_once_and_named_for_every_item(pytester):
@@ -87,9 +126,7 @@ def silent_port():
     import socket
 
     with socket.socket() as listener:
-        listener.bind(("127.0.0.1", 0))
-        listener.listen(8)
-        yield listener.getsockname()[1]
+        yield listening_silently(listener)
 
 
 def test_a_listener_that_never_answers_fails_the_probe_within_its_time(silent_port, monkeypatch):
@@ -135,15 +172,15 @@ def test_a_grpc_server_passes_the_probe_and_another_server_does_not(monkeypatch)
         "listens there; check the port ('ray start --head' prints the GCS address)")
 
 
-def test_an_item_whose_address_never_answers_fails_at_its_line_and_the_good_one_passes(pytester, silent_port):
-    pytester.makefile(".scenario.yaml", good=BENCH.format(name="good", executor=""),
-                      silent=BENCH.format(name="silent",
-                                          executor=f'  Executor: {{Kind: ray, Address: "127.0.0.1:{silent_port}"}}\n'))
-    # In a subprocess with a timeout: ray.init at such a port waits for ever and ignores SIGTERM.
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", timeout=240)
-    result.assert_outcomes(passed=1, failed=1)
-    result.stdout.fnmatch_lines([
+def test_an_item_whose_address_never_answers_fails_at_its_line_and_the_good_one_passes(bad_addresses,
+                                                                                         module_silent_port):
+    ret, out, records = bad_addresses
+    silent_port = module_silent_port
+    assert ret == 1 and set(records) == {"good", "gcs", "client", "silent"}
+    assert {name: r["status"] for name, r in records.items() if name in ("good", "silent")} == {
+        "good": "passed", "silent": "failed"}
+    pytest.LineMatcher(out.splitlines()).fnmatch_lines([
         f"*UnreachableCluster: silent.scenario.yaml:11: Evaluation.Executor.Address: cannot reach a Ray cluster at "
         f"127.0.0.1:{silent_port}: 127.0.0.1:{silent_port} accepted the connection but did not answer a gRPC (HTTP/2) "
         "greeting within 3 s*"])
-    assert "Traceback" not in result.stdout.str()
+    assert "Traceback" not in out

@@ -1,6 +1,7 @@
 """closed_loop items with their scenes in chunks on a real local Ray cluster (a head and two
 worker nodes on this machine, tests/ray_items.py): the dataset reaches the workers by
-its path, the model by its loading spec, and the verdicts, figures and GIFs come back."""
+its path, the model by its loading spec, and the verdicts, figures and GIFs come back; L5 scenes
+and ScenarioNet ones (one cluster for both: each start-up costs a head, two nodes and their workers)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,6 +20,8 @@ pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
 GENERATED = REPO / "fixtures" / "l5kit" / "generated.zarr"
+#: three real nuScenes-mini scenes, all boston-seaport (fixtures/SOURCES.md): scene-0103, -0553, -0757
+FIXTURE_SCENES = REPO / "fixtures" / "scenarionet" / "nuscenes"
 PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
 
 SCENARIO = """\
@@ -45,7 +48,8 @@ def scenario(model, executor="", steps=40, animations="failing") -> str:
 def test_a_baseline_on_both_nodes_gives_the_one_batch_runs_outcome_and_gifs(cluster, pytester):
     # The engine keeps scenes apart, so a batch-invariant policy gives the one-batch run bit for bit.
     pytester.makefile(".scenario.yaml", scenes=scenario("constant_velocity", animations="all"))
-    local = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "local")
+    # Here, in this process; the Ray run in a separate one that connects to the cluster by its address.
+    local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local")
     option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 2, MaxInFlight: 4}}"
     remote = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "remote",
                                            "--driveeval-executor", option)
@@ -114,3 +118,48 @@ def test_a_closed_loop_search_runs_its_generations_on_both_nodes(cluster, pytest
     where = record["details"]["executor"]
     assert set(where["chunks_per_node"]) and sum(where["chunks_per_node"].values()) >= 3
     assert len(where["chunks_per_node"]) == 2, "chunks of a generation in flight on both nodes"
+
+
+SCENARIONET = """\
+ScenarioFormatVersion: 3.0.0
+ScenarioName: scenes
+Evaluation:
+  UseCaseName: closed_loop
+  UseCaseFormatVersion: 0.1.0
+  Datasets:
+    - nuscenes_mini:
+        Path: {data}
+  Model: {model}
+  Unroll:
+    Agents: reactive
+    StartFrame: 10
+    Steps: 40
+  Conditions:
+    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
+    Displacement: {{Max: 30.0}}
+{executor}"""
+
+
+def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester):
+    """The fixtures' folder in chunks on two worker nodes, reactive agents included: each worker
+    opens the folder by its path and reads the format from its files.  The same chunks run here
+    give the same record; the one-batch run the same verdicts.  Its figures differ slightly: the
+    model's float32 sums round with the batch size (~1e-6 m), and agents that brake for the ego
+    amplify that (scene-0103: 2e-4 m after 40 steps; with constant velocity, bit for bit)."""
+    def run(output, executor):
+        pytester.makefile(".scenario.yaml", scenes=SCENARIONET.format(data=FIXTURE_SCENES, model=PLANNING_MODEL,
+                                                                      executor=executor))
+        return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
+
+    here = run("local", executor_section(Kind="local", ChunkSize=2))
+    there = run("remote", executor_section(Kind="ray", ChunkSize=2, MaxInFlight=2))
+    batch = run("batch", "")
+    assert here.ret == there.ret == batch.ret
+    record, = assert_same_items(pytester.path / "local", pytester.path / "remote", plain_local=False).values()
+    assert [c["work"] for c in record["details"]["executor"]["chunks"]] == ["scenes 0..1 of nuscenes",
+                                                                            "scenes 2..2 of nuscenes"]
+    one_batch, = results(pytester.path / "batch").values()
+    assert record["figures"]["scenes"] == one_batch["figures"]["scenes"] == 3
+    for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
+        assert (chunked["scene"], chunked["passed"]) == (whole["scene"], whole["passed"])
+        assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-3)

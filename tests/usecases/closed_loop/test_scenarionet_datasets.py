@@ -1,15 +1,14 @@
 """ScenarioNet scenario folders as closed-loop datasets in a scenario file: recognised from their
 files or declared with Format, the real nuScenes-mini scenes driven by the shipped planning model,
-with reactive agents, a robustness search and the Ray executor as on L5 scenes.  The repository's
-three Boston scenes (fixtures/scenarionet/nuscenes) need no shared data; the six in it are used
-where they are present."""
+with reactive agents and a robustness search as on L5 scenes (on the Ray executor: test_closed_loop_ray.py,
+which shares its cluster).  The repository's three Boston scenes (fixtures/scenarionet/nuscenes) need no
+shared data; the six in it are used where they are present."""
 import json
 
 import numpy as np
 import pytest
 
 from conftest import REPO_ROOT
-from ray_items import assert_same_items, cluster, executor_section, results  # noqa: F401  (cluster: a fixture)
 from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.usecases.closed_loop.datasets import format_of, open_dataset
 
@@ -180,32 +179,6 @@ def test_a_robustness_search_on_a_scenarionet_scene_reports_a_replay_line_that_r
     # The edge reported beside it, replayed, passes: the search located the boundary, not any failure.
     pytester.runpytest(node, "--driveeval-replay", f"scene=1,heading={edge!r}", "--driveeval-output", "edge"
                        ).assert_outcomes(passed=1)
-
-
-@pytest.mark.ray
-def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester):
-    """The fixtures' folder in chunks on two worker nodes, reactive agents included: each worker
-    opens the folder by its path and reads the format from its files.  The same chunks run here
-    give the same record; the one-batch run the same verdicts.  Its figures differ slightly: the
-    model's float32 sums round with the batch size (~1e-6 m), and agents that brake for the ego
-    amplify that (scene-0103: 2e-4 m after 40 steps; with constant velocity, bit for bit)."""
-    def run(output, executor):
-        pytester.makefile(".scenario.yaml", scenes=scenario_text("scenes", FIXTURE_SCENES, steps=40,
-                                                                 agents="reactive", tail=executor))
-        return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
-
-    here = run("local", executor_section(Kind="local", ChunkSize=2))
-    there = run("remote", executor_section(Kind="ray", ChunkSize=2, MaxInFlight=2))
-    batch = run("batch", "")
-    assert here.ret == there.ret == batch.ret
-    record, = assert_same_items(pytester.path / "local", pytester.path / "remote", plain_local=False).values()
-    assert [c["work"] for c in record["details"]["executor"]["chunks"]] == ["scenes 0..1 of nuscenes",
-                                                                            "scenes 2..2 of nuscenes"]
-    one_batch, = results(pytester.path / "batch").values()
-    assert record["figures"]["scenes"] == one_batch["figures"]["scenes"] == 3
-    for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
-        assert (chunked["scene"], chunked["passed"]) == (whole["scene"], whole["passed"])
-        assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-3)
 
 
 def _made():
