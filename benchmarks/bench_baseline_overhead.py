@@ -81,9 +81,9 @@ def session(folder: Path, output: str, *options: str) -> tuple[dict[str, float],
     return {"wall": wall, "cpu": cpu, "session": float(summary["duration"])}, summary
 
 
-def direct_cost(folder: Path, baselines: Path, summary: dict) -> dict[str, float]:
+def direct_cost(folder: Path, baselines: Path, summary: dict, repeats: int = REPEATS) -> dict[str, float]:
     """Seconds of the baselines' own work in a session, measured here, each part a median over
-    REPEATS: per item ``make_payload`` (made with or without baselines) and ``Gate.compare`` (reading
+    ``repeats``: per item ``make_payload`` (made with or without baselines) and ``Gate.compare`` (reading
     the item's baseline file, comparing), summed over the items; once per session the look for
     baselines of items that no longer exist, with the names the files collected and (xdist) by loading them."""
     gate = Gate(BaselineOptions(folder=baselines))
@@ -96,7 +96,7 @@ def direct_cost(folder: Path, baselines: Path, summary: dict) -> dict[str, float
         seed = record["baseline"]["fingerprint"]["seed"]
         use_case = get_usecase(record["use_case"])
         made, compared = [], []
-        for _ in range(REPEATS):
+        for _ in range(repeats):
             t0 = time.perf_counter()
             payload = make_payload(outcome, record["nodeid"], use_case=use_case, scenario=scenario, dataset=None,
                                    seed=seed, item=item, file=file)
@@ -122,7 +122,7 @@ def direct_cost(folder: Path, baselines: Path, summary: dict) -> dict[str, float
 
     for name, items_of in (("unused baselines", collected.get), ("unused baselines, xdist", loaded)):
         ends = []
-        for _ in range(max(3, REPEATS // 4)):
+        for _ in range(max(min(3, repeats), repeats // 4)):
             t0 = time.perf_counter()
             assert unused_baselines(baselines, folder, items_of) == []
             ends.append(time.perf_counter() - t0)
@@ -135,11 +135,13 @@ def main() -> None:
     parser.add_argument("--items", type=int, default=30)
     parser.add_argument("--episodes", type=int, default=64)
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--smoke", action="store_true", help="3 items of 4 episodes, one round: checks the script runs")
+    parser.add_argument("--smoke", action="store_true",
+                        help="2 items of 2 episodes, one round, one repeat in-process: checks the script runs")
     args = parser.parse_args()
     if args.smoke:
-        args.items, args.episodes, args.rounds = 3, 4, 1
-        print("smoke run: 3 items of 4 episodes, one round; the figures mean nothing")
+        # Two items (one file, both policies): the sessions still compare more than one item each.
+        args.items, args.episodes, args.rounds = 2, 2, 1
+        print("smoke run: 2 items of 2 episodes, one round, one repeat in-process; the figures mean nothing")
     times: dict[str, dict[str, list[float]]] = {"without": {}, "with": {}}
     with tempfile.TemporaryDirectory(prefix="driveeval-bench-baseline-") as tmp:
         folder = Path(tmp)
@@ -160,7 +162,7 @@ def main() -> None:
                     assert statuses == {"unchanged"}, statuses
                 print(f"  round {round_ + 1} {label:8} baselines: {measured['wall']:7.2f} s wall, "
                       f"{measured['cpu']:7.2f} s CPU, {measured['session']:7.2f} s session (summary.json)")
-        cost = direct_cost(folder, baselines, last)
+        cost = direct_cost(folder, baselines, last, 1 if args.smoke else REPEATS)
     for key, what in (("wall", "wall time of the pytest process"), ("cpu", "CPU time of the pytest process"),
                       ("session", "session duration in summary.json")):
         without, with_ = statistics.median(times["without"][key]), statistics.median(times["with"][key])

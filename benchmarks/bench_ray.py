@@ -337,7 +337,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.smoke:
         with tempfile.TemporaryDirectory() as data:
-            args.episodes, args.episode_chunk, args.scenes, args.scene_chunk, args.steps = 16, 8, 4, 2, 5
+            # two chunks of each workload, the least that exercises merging them
+            args.episodes, args.episode_chunk, args.scenes, args.scene_chunk, args.steps = 8, 4, 2, 1, 5
             args.no_cluster, args.data, args.reuse_off = True, data, True
             print("smoke run: tiny sizes, no cluster, scenes generated in a temporary folder; the figures mean "
                   "nothing")

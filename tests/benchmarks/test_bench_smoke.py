@@ -8,11 +8,13 @@ smoke run mean nothing and are never compared with a target.
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from conftest import REPO_ROOT
@@ -72,15 +74,43 @@ NOT_SMOKED = {
 }
 
 
-def run_smoke(script: str) -> subprocess.CompletedProcess:
+class Done:
+    """What the test reads of a finished run: as subprocess.CompletedProcess."""
+
+    def __init__(self, returncode: int, stdout: str, stderr: str):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+@pytest.fixture(scope="module")
+def run_smoke(tmp_path_factory):
+    """``run_smoke(script)`` runs ``python benchmarks/SCRIPT --smoke`` in a process of its own, forked
+    from one that imported torch and the package once (smoke_forkserver.py): each script still runs
+    start to end, only the interpreter's start and the imports are not paid twenty times over."""
     # This checkout's package, not whichever one the environment has installed.
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")]))}
-    return subprocess.run([sys.executable, str(BENCHMARKS / script), "--smoke"], capture_output=True, text=True,
-                          timeout=600, check=False, cwd=REPO_ROOT, env=env)
+    server = subprocess.Popen([sys.executable, str(Path(__file__).with_name("smoke_forkserver.py"))],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO_ROOT, env=env)
+    assert json.loads(server.stdout.readline()) == {"ready": True}
+    folder = tmp_path_factory.mktemp("smoke")
+
+    def run(script: str) -> Done:
+        out, err = folder / f"{script.replace('/', '_')}.out", folder / f"{script.replace('/', '_')}.err"
+        out.touch()
+        err.touch()
+        ask = {"script": str(BENCHMARKS / script), "out": str(out), "err": str(err), "cwd": str(REPO_ROOT),
+               "timeout": 600}
+        server.stdin.write(json.dumps(ask) + "\n")
+        server.stdin.flush()
+        answer = json.loads(server.stdout.readline())
+        return Done(answer["returncode"], out.read_text(), err.read_text())
+
+    yield run
+    server.stdin.close()
+    server.wait(timeout=60)
 
 
 @pytest.mark.parametrize("script", sorted(SMOKED))
-def test_the_script_runs_at_smoke_size_and_prints_its_figure(script):
+def test_the_script_runs_at_smoke_size_and_prints_its_figure(script, run_smoke):
     pattern, needs = SMOKED[script]
     for module in needs:
         if importlib.util.find_spec(module) is None:
