@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from conftest import POLICY_BENCHMARK_HEAD, REPO_ROOT
+from module_pytester import module_pytester
 
 pytest.importorskip("torch")
 
@@ -50,12 +51,27 @@ def make_runs(pytester) -> tuple[str, str]:
     return first, second
 
 
+@pytest.fixture(scope="module")
+def two_runs(request, tmp_path_factory) -> tuple[Path, str, str]:
+    """make_runs once per module: its folder and the two run ids. Each test works in a copy (one adds
+    a third run, one a broken baseline folder), so neither sees the other's."""
+    with module_pytester(request, tmp_path_factory) as pytester:
+        first, second = make_runs(pytester)
+        return pytester.path, first, second
+
+
+def copy_of(two_runs, folder: Path) -> tuple[str, str]:
+    made, first, second = two_runs
+    shutil.copytree(made, folder, dirs_exist_ok=True)
+    return first, second
+
+
 def rows(result: subprocess.CompletedProcess) -> dict[str, dict]:
     return {row["nodeid"]: row for row in json.loads(result.stdout)["rows"]}
 
 
-def test_the_later_run_against_the_earlier_names_the_regression_and_exits_1(pytester):
-    first, second = make_runs(pytester)
+def test_the_later_run_against_the_earlier_names_the_regression_and_exits_1(pytester, two_runs):
+    first, second = copy_of(two_runs, pytester.path)
     result = cli(pytester.path, "last~1", "last")
     assert result.returncode == 1, result.stderr
     out = result.stdout.splitlines()
@@ -96,8 +112,8 @@ def test_the_later_run_against_the_earlier_names_the_regression_and_exits_1(pyte
         in beyond.stderr
 
 
-def test_every_way_of_naming_a_run_gives_the_same_rows(pytester):
-    first, second = make_runs(pytester)
+def test_every_way_of_naming_a_run_gives_the_same_rows(pytester, two_runs):
+    first, second = copy_of(two_runs, pytester.path)
     runs = pytester.path / "driveeval-results" / "runs"
     expected = rows(cli(pytester.path, "last~1", "last", "--format", "json"))
     assert {n: r["status"] for n, r in expected.items()} == {

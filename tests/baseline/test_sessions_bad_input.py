@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 
 import pytest
 
 pytest.importorskip("torch")
 
+from module_pytester import module_pytester  # noqa: E402
 from baseline_sessions import (  # noqa: E402
     BASELINES,
     baseline_path,
@@ -24,12 +26,25 @@ DRIVE, OTHER = "drive.scenario.yaml::closed_loop[logs]", "other.scenario.yaml::c
 BOMB = "[" * 100_000 + "]" * 100_000
 
 
-@pytest.fixture
-def cl(pytester):
+def with_two_scenarios_updated(pytester) -> None:
     with_closed_loop_data(pytester)
     pytester.makefile(".scenario.yaml", drive=closed_loop(scenes="[0, 1]", steps=10),
                       other=closed_loop(name="other", scenes="[2]", steps=10))
     run(pytester, "--driveeval-baseline-update").assert_outcomes(passed=2)
+
+
+@pytest.fixture(scope="module")
+def updated(request, tmp_path_factory):
+    """The folder after the update every test here starts from, made once per module."""
+    with module_pytester(request, tmp_path_factory) as pytester:
+        with_two_scenarios_updated(pytester)
+        return pytester.path
+
+
+@pytest.fixture
+def cl(pytester, updated):
+    """A copy of the updated folder (copytree keeps the files' times, which one test compares)."""
+    shutil.copytree(updated, pytester.path, dirs_exist_ok=True)
     return pytester
 
 

@@ -10,6 +10,7 @@ import pytest
 
 pytest.importorskip("torch")
 
+from module_pytester import module_pytester  # noqa: E402
 from baseline_sessions import (  # noqa: E402
     BASELINES,
     baseline_path,
@@ -37,13 +38,30 @@ def short(**kw) -> str:
     return closed_loop(**{"scenes": "[0, 1]", "steps": 10, **kw})
 
 
+@pytest.fixture(scope="module")
+def short_updated(request, tmp_path_factory):
+    """A folder with drive=short() and its baseline written, made once per module."""
+    with module_pytester(request, tmp_path_factory) as pytester:
+        with_closed_loop_data(pytester)
+        pytester.makefile(".scenario.yaml", drive=short())
+        run(pytester, "--driveeval-baseline-update").assert_outcomes(passed=1)
+        return pytester.path
+
+
+@pytest.fixture
+def cl_updated(cl, short_updated):
+    """``cl`` as it is after updating drive=short()'s baseline: a copy of the module's folder."""
+    shutil.copytree(short_updated, cl.path, dirs_exist_ok=True)
+    return cl
+
+
 @pytest.mark.parametrize("before, after, said", [
     ("Steps: 10", "Steps: 12", "the settings changed (Evaluation.Unroll.Steps 10 -> 12)"),
     ("Scenes: [0, 1]", "Scenes: [0, 2]", "the settings changed (Evaluation.Unroll.Scenes [0, 1] -> [0, 2])"),
 ])
-def test_a_baseline_made_with_other_settings_is_stale_not_compared_and_fails_only_when_strict(cl, before, after, said):
-    cl.makefile(".scenario.yaml", drive=short())
-    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=1)
+def test_a_baseline_made_with_other_settings_is_stale_not_compared_and_fails_only_when_strict(cl_updated, before, after,
+                                                                                            said):
+    cl = cl_updated
     path = cl.path / "drive.scenario.yaml"
     path.write_text(path.read_text().replace(before, after))
     result = run(cl)
@@ -174,9 +192,8 @@ def test_prune_removes_baselines_of_items_gone_and_keeps_those_not_selected(cl):
     assert "no longer exist" not in result.stdout.str()
 
 
-def test_an_item_that_cannot_run_keeps_its_baseline_through_an_update(cl):
-    cl.makefile(".scenario.yaml", drive=short())
-    run(cl, "--driveeval-baseline-update").assert_outcomes(passed=1)
+def test_an_item_that_cannot_run_keeps_its_baseline_through_an_update(cl_updated):
+    cl = cl_updated
     before = baseline_path(cl, DRIVE).read_text()
     shutil.rmtree(cl.path / "gen.zarr")
     result = run(cl, "--driveeval-baseline-update")

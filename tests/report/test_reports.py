@@ -6,12 +6,14 @@ import json
 import re
 import shutil
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import pytest
 
 pytest.importorskip("torch")
 
 from conftest import REPO_ROOT  # noqa: E402
+from module_pytester import module_pytester  # noqa: E402
 
 SCENARIO = """\
 ScenarioFormatVersion: 3.0.0
@@ -31,12 +33,37 @@ Evaluation:
 ARTEFACTS = {"result", "chart", "scene_0_gif"}
 
 
-@pytest.fixture
-def two(pytester):
+def with_two_scenarios(pytester) -> None:
     shutil.copytree(REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr", pytester.path / "gen.zarr")
     pytester.makefile(".scenario.yaml", a=SCENARIO.format(name="a", model="log_replay"),
                       b=SCENARIO.format(name="b", model="log_replay"))
+
+
+@pytest.fixture
+def two(pytester):
+    with_two_scenarios(pytester)
     return pytester
+
+
+REPORTS = ("--html=report.html", "--self-contained-html", "--alluredir=allure", "--junitxml=junit.xml")
+
+
+@pytest.fixture(scope="module")
+def reported(request, tmp_path_factory):
+    """The folder of one session of 'a' and 'b' with every report at once (serial or under ``-n 2``),
+    run once per module: each report's test only reads its own file."""
+    folders = {}
+
+    def run(workers: list[str]) -> Path:
+        key = tuple(workers)
+        if key not in folders:
+            with module_pytester(request, tmp_path_factory) as pytester:
+                with_two_scenarios(pytester)
+                pytester.runpytest("-q", *REPORTS, *workers).assert_outcomes(passed=2)
+                folders[key] = pytester.path
+        return folders[key]
+
+    return run
 
 
 def html_tests(path) -> dict:
@@ -45,9 +72,8 @@ def html_tests(path) -> dict:
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
-def test_pytest_html_extras_inline_images_once_per_item(two, workers):
-    two.runpytest("-q", "--html=report.html", "--self-contained-html", *workers).assert_outcomes(passed=2)
-    tests = html_tests(two.path / "report.html")
+def test_pytest_html_extras_inline_images_once_per_item(reported, workers):
+    tests = html_tests(reported(workers) / "report.html")
     assert len(tests) == 2
     for phases in tests.values():
         extras = [e for phase in phases for e in phase["extras"]]
@@ -65,9 +91,9 @@ def test_pytest_html_extras_inline_images_once_per_item(two, workers):
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
-def test_allure_results_have_typed_attachments_labels_and_figures(two, workers):
-    two.runpytest("-q", "--alluredir=allure", *workers).assert_outcomes(passed=2)
-    results = [json.loads(p.read_text()) for p in (two.path / "allure").glob("*-result.json")]
+def test_allure_results_have_typed_attachments_labels_and_figures(reported, workers):
+    allure = reported(workers) / "allure"
+    results = [json.loads(p.read_text()) for p in allure.glob("*-result.json")]
     assert sorted(r["name"] for r in results) == ["a [logs]", "b [logs]"]
     for r in results:
         types = sorted((a["name"], a["type"]) for a in r["attachments"])
@@ -79,15 +105,15 @@ def test_allure_results_have_typed_attachments_labels_and_figures(two, workers):
         assert params["dataset"] == "'logs'" and params["front"] == "0" and params["steps"] == "20"
         assert r["description"] == "replaying the log, for the reports"
         for attachment in r["attachments"]:
-            assert (two.path / "allure" / attachment["source"]).stat().st_size > 100
+            assert (allure / attachment["source"]).stat().st_size > 100
         (scores,) = [a for a in r["attachments"] if a["name"] == "nuPlan score per scene"]
-        assert "0 (gen.zarr)" in (two.path / "allure" / scores["source"]).read_text()  # the scene's zarr too
+        assert "0 (gen.zarr)" in (allure / scores["source"]).read_text()  # the scene's zarr too
 
 
 @pytest.mark.parametrize("workers", [[], ["-n", "2"]])
-def test_junit_properties_carry_key_figures(two, workers):
-    two.runpytest("-q", "--junitxml=junit.xml", *workers).assert_outcomes(passed=2)
-    cases = ET.parse(two.path / "junit.xml").getroot().iter("testcase")
+def test_junit_properties_carry_key_figures(reported, workers):
+    cases = list(ET.parse(reported(workers) / "junit.xml").getroot().iter("testcase"))
+    assert len(cases) == 2
     for case in cases:
         props = [(p.get("name"), p.get("value")) for p in case.iter("property")]
         names = [n for n, _ in props]
@@ -96,24 +122,38 @@ def test_junit_properties_carry_key_figures(two, workers):
         assert ("driveeval.use_case", "closed_loop") in props
 
 
-def test_markdown_summary_and_ci_step_summary(two, monkeypatch):
-    step = two.path / "step_summary.md"
-    step.write_text("earlier step\n")
-    monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(step))
-    two.makefile(".scenario.yaml", c=SCENARIO.format(name="c", model="constant_velocity").replace(
-        "Steps: 20", "Steps: 140").replace("Rear: 0}", "Rear: 0}\n    MaxResets: 0"))
-    two.runpytest("-q", "-n", "2")
-    markdown = (two.path / "driveeval-results" / "summary.md").read_text()
+@pytest.fixture(scope="module")
+def plain(request, tmp_path_factory):
+    """One ``-n 2`` session of 'a', 'b' and a failing 'c', without pytest-html and allure, in a CI
+    step whose summary file holds an earlier step's text: the markdown test and the test without the
+    report plugins read it (two inner ``-n 2`` sessions were the most of this module's time)."""
+    with module_pytester(request, tmp_path_factory) as pytester:
+        with_two_scenarios(pytester)
+        step = pytester.path / "step_summary.md"
+        step.write_text("earlier step\n")
+        pytester.makefile(".scenario.yaml", c=SCENARIO.format(name="c", model="constant_velocity").replace(
+            "Steps: 20", "Steps: 140").replace("Rear: 0}", "Rear: 0}\n    MaxResets: 0"))
+        with pytest.MonkeyPatch.context() as monkeypatch:
+            monkeypatch.setenv("GITHUB_STEP_SUMMARY", str(step))
+            result = pytester.runpytest("-q", "-p", "no:html", "-p", "no:allure_pytest", "-n", "2")
+        return pytester.path, result
+
+
+def test_markdown_summary_and_ci_step_summary(plain):
+    folder, _ = plain
+    markdown = (folder / "driveeval-results" / "summary.md").read_text()
     assert markdown.startswith("## pytest-driveeval: 1 failed, 2 passed (run `")
     assert "| ✅ passed | `a.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
     assert "| ❌ failed | `c.scenario.yaml::closed_loop[logs]` | closed_loop |" in markdown
-    assert step.read_text() == "earlier step\n" + markdown
+    assert (folder / "step_summary.md").read_text() == "earlier step\n" + markdown
 
 
-def test_without_the_report_plugins_nothing_breaks(two):
-    result = two.runpytest("-q", "-p", "no:html", "-p", "no:allure_pytest", "-n", "2")
-    result.assert_outcomes(passed=2)
-    assert (two.path / "driveeval-results" / "summary.json").exists()
+def test_without_the_report_plugins_nothing_breaks(plain):
+    folder, result = plain
+    result.assert_outcomes(passed=2, failed=1)  # 'c' fails by its own conditions (a collision), as it should
+    summary = json.loads((folder / "driveeval-results" / "summary.json").read_text())
+    assert {r["nodeid"].split(".")[0]: r["status"] for r in summary["results"]} == {
+        "a": "passed", "b": "passed", "c": "failed"}
 
 
 def test_markdown_compares_policies_on_the_same_data(two):
