@@ -62,6 +62,10 @@ if torch is not None:
     from pytest_driveeval.policies.pt2_archive import load_exported_program
 
     load_exported_program(REPO_ROOT / "fixtures" / "models" / "gnn_actor_merging.pt2").module()
+# pytester gives each inner run a fresh HOME, so each inner process (every -n 2 worker) built matplotlib's
+# font cache again: seconds, and past 5 s matplotlib logs a warning that allure attaches to the item. The
+# outer session's cache, fixed here before any pytester moves HOME, holds the same fonts.
+os.environ.setdefault("MPLCONFIGDIR", str(Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "matplotlib"))
 # For an inner pytest in a fresh process that runs no @given test: hypothesis's pytest plugin imports
 # all of hypothesis at every session's end to print its statistics, about as long as the rest of
 # pytest's start (2.5 s of CPU where no bytecode is cached).
