@@ -2,6 +2,11 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from functools import lru_cache
+from pathlib import Path
 
 import pytest
 
@@ -12,59 +17,157 @@ from conftest import REPO_ROOT  # noqa: E402
 DEMO = REPO_ROOT / "scenario_tests" / "robustness" / "real_scene_lateral.scenario.yaml"
 REAL = REPO_ROOT / "fixtures" / "l5kit" / "single_scene.zarr"
 MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"
+INI = "[pytest]\nmarkers =\n    demo\n    robustness\n"
+ANOTHER = "another.scenario.yaml"   # the demo under another ScenarioName, on the same data
+
+
+def demo_text(name: str = "real-scene-planning-model-lateral-offset") -> str:
+    """The demo scenario naming the repository's data and model (wherever it is copied to)."""
+    text = DEMO.read_text().replace("../../fixtures/l5kit/single_scene.zarr", str(REAL)).replace(
+        "../../fixtures/models/planning_model.pt2", str(MODEL))
+    assert str(REAL) in text and str(MODEL) in text
+    return text.replace("ScenarioName: real-scene-planning-model-lateral-offset", f"ScenarioName: {name}")
+
+
+def demo_project(folder: Path, another: bool = False) -> Path:
+    """The demo scenario in a project of its own; ``another``: with a second scenario on the same data."""
+    (folder / "scenarios").mkdir()
+    (folder / "scenarios" / DEMO.name).write_text(demo_text())
+    if another:
+        (folder / "scenarios" / ANOTHER).write_text(demo_text("another-search"))
+    (folder / "tox.ini").write_text(INI)   # what pytester.makeini writes
+    return folder
 
 
 @pytest.fixture
 def demo(pytester):
-    """The demo scenario in a project of its own, naming the repository's data and model."""
-    text = DEMO.read_text().replace("../../fixtures/l5kit/single_scene.zarr", str(REAL)).replace(
-        "../../fixtures/models/planning_model.pt2", str(MODEL))
-    assert str(REAL) in text and str(MODEL) in text
-    (pytester.path / "scenarios").mkdir()
-    (pytester.path / "scenarios" / DEMO.name).write_text(text)
-    pytester.makeini("[pytest]\nmarkers =\n    demo\n    robustness\n")
+    demo_project(pytester.path)
     return pytester
 
 
-def search_record(pytester, output="driveeval-results") -> dict:
-    data = json.loads((pytester.path / output / "summary.json").read_text())
+def session(folder: Path, *args: str) -> dict[str, int]:
+    """The outcome counts of pytest run in ``folder`` in a fresh process: the module fixtures' runs,
+    which several tests read (pytester's folder lives for one test only)."""
+    env = {**{k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"},
+           "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *args], cwd=folder, env=env,
+                          capture_output=True, text=True, timeout=3600)
+    print(done.stdout[-3000:], done.stderr[-3000:])   # shown when a test of the run fails
+    outcomes = pytest.RunResult.parse_summary_nouns(done.stdout.splitlines())
+    return {k: v for k, v in outcomes.items() if k not in ("warning", "warnings")}
+
+
+@pytest.fixture(scope="module")
+def ci_search(tmp_path_factory) -> Path:
+    """The demo's search under the ci profile, once for the tests that read it: its record, its
+    replay line, its HTML, Allure and markdown reports (report options do not change the search)."""
+    folder = demo_project(tmp_path_factory.mktemp("ci_search"))
+    assert session(folder, "--driveeval-search-profile=ci", "-p", "no:randomly", "--html=report.html",
+                   "--self-contained-html", "--alluredir=allure") == {"xfailed": 1}
+    return folder
+
+
+@pytest.fixture(scope="module")
+def default_searches(tmp_path_factory) -> dict[str, dict[str, dict]]:
+    """The default profile's search of the demo, serially and with two workers, then a serial run
+    again (on the first one's example database) with another scenario on the same data beside the
+    demo.  Session seed 7, which the replay lines repeat.  {run: {scenario file: its search}}."""
+    folder = demo_project(tmp_path_factory.mktemp("default_searches"), another=True)
+    runs = {}
+    for name, output, extra in (("serial", "serial", [f"scenarios/{DEMO.name}"]),
+                                ("xdist", "xdist", [f"scenarios/{DEMO.name}", "-n", "2"]),
+                                ("again", "serial", [])):
+        # The default profile, also under CI=true (whose default is the ci profile, without the database).
+        outcomes = session(folder, "--driveeval-output", output, "--driveeval-search-profile=default",
+                           "--driveeval-seed", "7", *extra)
+        assert outcomes == {"xfailed": 2 if name == "again" else 1}, name
+        results = json.loads((folder / output / "summary.json").read_text())["results"]
+        runs[name] = {r["nodeid"].split("::")[0].split("/")[-1]: r["details"]["search"] for r in results}
+    return runs
+
+
+def search_record(folder, output="driveeval-results") -> dict:
+    path = folder if isinstance(folder, Path) else folder.path
+    data = json.loads((path / output / "summary.json").read_text())
     (record,) = data["results"]
     return record
 
 
-def lateral_fails(lateral: float) -> bool:
-    """The demo's verdict on one lateral offset, from the Python API: an independent oracle."""
-    from pytest_driveeval.closed_loop import judge_scene, unroll_scenes
+@lru_cache(maxsize=1)
+def real_scene_and_model():
+    """The demo's dataset and model, opened once for all the oracle's unrolls."""
     from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
     from pytest_driveeval.policies.loading import load_model
+
+    return L5Dataset.open(REAL), load_model(str(MODEL))
+
+
+def laterals_fail(laterals: list[float]) -> list[bool]:
+    """The demo's verdict on each lateral offset, from the Python API: an independent oracle.  One
+    unroll of as many copies of the scene, each moved by its offset (as unroll_scenes stacks scenes)."""
+    from pytest_driveeval.closed_loop import judge_scene
+    from pytest_driveeval.sim.torch_threads import one_torch_thread
+    from pytest_driveeval.strategies import StartPerturbation
+    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
+    from pytest_driveeval.usecases.closed_loop.evaluate import stack_log, unroll_config, unroll_log
+    from pytest_driveeval.usecases.closed_loop.score import SceneMaps
+
+    dataset, model = real_scene_and_model()
+    conditions = ClosedLoopConditions.model_validate(
+        {"Collisions": {"Front": 0, "Side": 0, "Rear": 0, "AtFaultOnly": True},
+         "Displacement": {"Max": 4.0, "Duration": 1.0}})
+    config = unroll_config(start_frame=10, steps=100, drift_threshold=10.0, freeze_on_collision=True,
+                           kinematic=False, history_frames=10, future_frames=12, max_agents=30)
+    with one_torch_thread():
+        unroll = unroll_log(stack_log(dataset, [0] * len(laterals), 10), model, config,
+                            [StartPerturbation(lateral=float(x)) for x in laterals])
+    unroll.maps = SceneMaps(dataset)
+    return [not judge_scene(unroll, row, conditions).passed for row in range(len(laterals))]
+
+
+def lateral_fails(lateral: float) -> bool:
+    """The demo's verdict on one lateral offset, as unroll_scenes gives it for the scene alone."""
+    from pytest_driveeval.closed_loop import judge_scene, unroll_scenes
+    from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.strategies import StartPerturbation
     from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
 
-    from pytest_driveeval.sim.torch_threads import one_torch_thread
-
+    dataset, model = real_scene_and_model()
     conditions = ClosedLoopConditions.model_validate(
         {"Collisions": {"Front": 0, "Side": 0, "Rear": 0, "AtFaultOnly": True},
          "Displacement": {"Max": 4.0, "Duration": 1.0}})
     with one_torch_thread():
-        unroll = unroll_scenes(L5Dataset.open(REAL), load_model(str(MODEL)), [0], start_frame=10, steps=100,
-                               drift_threshold=10.0, perturbation=StartPerturbation(lateral=lateral))
+        unroll = unroll_scenes(dataset, model, [0], start_frame=10, steps=100, drift_threshold=10.0,
+                               perturbation=StartPerturbation(lateral=lateral))
     return not judge_scene(unroll, 0, conditions).passed
 
 
-def bisect_edge(passing: float, failing: float, tolerance: float = 0.01) -> float:
-    while abs(failing - passing) > tolerance:
-        middle = (passing + failing) / 2
-        passing, failing = (passing, middle) if lateral_fails(middle) else (middle, failing)
-    return failing
+def bisect_edges(ends: tuple[float, ...], parts: int = 16, tolerance: float = 0.01) -> list[float]:
+    """Per end of the range that fails: bisection from no change towards it, to a failing offset
+    within ``tolerance`` of a passing one.  Each round splits every bracket into ``parts`` and keeps
+    the part where failing starts, nearest no change; all brackets' points go through one unroll."""
+    brackets = {end: (0.0, end) for end, fails in zip(ends, laterals_fail(list(ends))) if fails}
+    while any(abs(failing - passing) > tolerance for passing, failing in brackets.values()):
+        points = {end: [passing + (failing - passing) * k / parts for k in range(1, parts)]
+                  for end, (passing, failing) in brackets.items() if abs(failing - passing) > tolerance}
+        verdicts = iter(laterals_fail([x for xs in points.values() for x in xs]))
+        for end, xs in points.items():
+            passing, failing = brackets[end]
+            for x, fails in [(x, next(verdicts)) for x in xs]:
+                if fails:
+                    failing = x
+                    break
+                passing = x
+            brackets[end] = passing, failing
+    return [failing for _, failing in brackets.values()]
 
 
-def test_the_demo_reports_the_nearest_edge_of_failure_that_bisection_finds(demo):
-    demo.runpytest("--driveeval-search-profile=ci", "-p", "no:randomly").assert_outcomes(xfailed=1)
-    record = search_record(demo)
+def test_the_demo_reports_the_nearest_edge_of_failure_that_bisection_finds(ci_search):
+    record = search_record(ci_search)
     search = record["details"]["search"]
     reported = search["minimal"]["perturbation"]["lateral"]
-    # Independent bisection from no change to each end of the range, one unroll at a time.
-    edges = [bisect_edge(0.0, end) for end in (-6.0, 6.0) if lateral_fails(end)]
+    # Independent bisection from no change to each end of the range.
+    edges = bisect_edges((-6.0, 6.0))
     nearest = min(edges, key=abs)
     assert abs(reported - nearest) <= 0.01 * 12.0, (reported, edges)  # Tolerance 1 % of the 12 m range
     assert lateral_fails(reported) and not lateral_fails(search["edge"]["lateral"])
@@ -74,9 +177,8 @@ def test_the_demo_reports_the_nearest_edge_of_failure_that_bisection_finds(demo)
     assert search["examples"] <= 200 + 64 and search["failures"] >= 1
 
 
-def test_the_replay_line_reproduces_the_failure_and_the_edge_next_to_it_passes(demo):
-    demo.runpytest("--driveeval-search-profile=ci")
-    search = search_record(demo)["details"]["search"]
+def test_the_replay_line_reproduces_the_failure_and_the_edge_next_to_it_passes(demo, ci_search):
+    search = search_record(ci_search)["details"]["search"]
     line = search["replay"]
     assert line.startswith("pytest ") and "--driveeval-replay" in line
     value = line.split("--driveeval-replay ", 1)[1]
@@ -93,33 +195,20 @@ def test_the_replay_line_reproduces_the_failure_and_the_edge_next_to_it_passes(d
     assert search_record(demo, "edge")["verdict"] == "passed"
 
 
-def test_serial_and_two_workers_give_the_same_search_and_a_stored_failure_comes_first(demo):
-    runs = {}
-    for name, extra in (("serial", []), ("xdist", ["-n", "2"])):
-        # The default profile, also under CI=true (whose default is the ci profile, without the database).
-        demo.runpytest_subprocess("--driveeval-output", name, "--driveeval-search-profile=default", *extra
-                                  ).assert_outcomes(xfailed=1)
-        runs[name] = search_record(demo, name)["details"]["search"]
+def test_serial_and_two_workers_give_the_same_search_and_a_stored_failure_comes_first(default_searches):
+    serial, xdist, again = (default_searches[name][DEMO.name] for name in ("serial", "xdist", "again"))
     keys = ("examples", "failures", "generations", "evaluations", "shrunk", "minimal", "edge", "where")
-    assert {k: runs["serial"][k] for k in keys} == {k: runs["xdist"][k] for k in keys}
-    assert runs["serial"]["replayed_from_database"] == 0
-    demo.runpytest_subprocess("--driveeval-output", "serial", "--driveeval-search-profile=default"
-                              ).assert_outcomes(xfailed=1)
-    again = search_record(demo, "serial")["details"]["search"]
+    assert {k: serial[k] for k in keys} == {k: xdist[k] for k in keys}
+    assert serial["replayed_from_database"] == 0
     assert again["replayed_from_database"] >= 1 and again["generations"] == 1
-    assert again["minimal"] == runs["serial"]["minimal"]
+    assert again["minimal"] == serial["minimal"]
 
 
-def test_two_scenarios_on_the_same_data_never_share_examples(demo):
-    other = (demo.path / "scenarios" / DEMO.name).read_text().replace(
-        "ScenarioName: real-scene-planning-model-lateral-offset", "ScenarioName: another-search")
-    (demo.path / "scenarios" / "another.scenario.yaml").write_text(other)
-    demo.runpytest("scenarios/" + DEMO.name, "--driveeval-search-profile=default")
-    assert search_record(demo)["details"]["search"]["replayed_from_database"] == 0
-    demo.runpytest("scenarios/" + DEMO.name, "--driveeval-search-profile=default")
-    assert search_record(demo)["details"]["search"]["replayed_from_database"] >= 1
-    demo.runpytest("scenarios/another.scenario.yaml", "--driveeval-output", "second", "--driveeval-search-profile=default")
-    assert search_record(demo, "second")["details"]["search"]["replayed_from_database"] == 0
+def test_two_scenarios_on_the_same_data_never_share_examples(default_searches):
+    assert default_searches["serial"][DEMO.name]["replayed_from_database"] == 0
+    assert default_searches["again"][DEMO.name]["replayed_from_database"] >= 1
+    # Searched beside it, on the database that holds the demo's stored failure: none of it replayed.
+    assert default_searches["again"][ANOTHER]["replayed_from_database"] == 0
 
 
 @pytest.mark.parametrize("perturbation, message", [
@@ -147,39 +236,37 @@ def test_a_replay_of_an_unknown_field_or_scene_says_what_is_known(demo):
     assert "scene 4 is not one of this item's (0)" in result.stdout.str()
 
 
-def test_an_expected_failure_still_shows_its_search_in_html_allure_and_markdown(demo):
+def test_an_expected_failure_still_shows_its_search_in_html_allure_and_markdown(ci_search):
     import html
 
-    demo.runpytest("--driveeval-search-profile=ci", "--html=report.html", "--self-contained-html",
-                   "--alluredir=allure").assert_outcomes(xfailed=1)
-    search = search_record(demo)["details"]["search"]
+    search = search_record(ci_search)["details"]["search"]
     minimal = search["minimal_text"]
     assert minimal.startswith("lateral=")
-    page = html.unescape(html.unescape((demo.path / "report.html").read_text()))  # extras are escaped twice
+    page = html.unescape(html.unescape((ci_search / "report.html").read_text()))  # extras are escaped twice
     assert f"smallest failing perturbation: {minimal}" in page and search["replay"] in page
     assert "data:image/gif;base64," in page  # the failing unroll's animation
-    (result,) = [json.loads(p.read_text()) for p in (demo.path / "allure").glob("*-result.json")]
+    (result,) = [json.loads(p.read_text()) for p in (ci_search / "allure").glob("*-result.json")]
     kinds = {a["name"]: a["type"] for a in result["attachments"]}
     assert kinds["robustness search"] == "text/plain" and kinds["scene_0_gif"] == "image/gif"
-    text = next((demo.path / "allure").glob(
+    text = next((ci_search / "allure").glob(
         next(a["source"] for a in result["attachments"] if a["name"] == "robustness search"))).read_text()
     assert minimal in text and search["replay"] in text and f"{search['examples']} examples" in text
-    markdown = (demo.path / "driveeval-results" / "summary.md").read_text()
+    markdown = (ci_search / "driveeval-results" / "summary.md").read_text()
     assert f"**{minimal}**" in markdown and "--driveeval-replay" in markdown
 
 
-def test_the_replay_line_repeats_a_session_seed_that_is_not_the_default(demo):
-    demo.runpytest("--driveeval-search-profile=ci", "--driveeval-seed", "7")
-    assert search_record(demo)["details"]["search"]["replay"].endswith(" --driveeval-seed 7")
+def test_the_replay_line_repeats_a_session_seed_that_is_not_the_default(default_searches):
+    for run in default_searches.values():
+        for search in run.values():
+            assert search["replay"].endswith(" --driveeval-seed 7")
 
 
-def test_a_search_in_local_chunks_finds_what_the_one_process_search_finds(demo):
+def test_a_search_in_local_chunks_finds_what_the_one_process_search_finds(demo, ci_search):
     """Executor Kind: local with a ChunkSize judges each generation in chunks, as a Ray run would
     (each chunk on its own stacking of the scene): the same search, and the report says where."""
-    demo.runpytest("-p", "no:randomly", "--driveeval-search-profile", "ci", "--driveeval-output", "plain")
     demo.runpytest("-p", "no:randomly", "--driveeval-search-profile", "ci", "--driveeval-output", "chunked",
                    "--driveeval-executor", "{Kind: local, ChunkSize: 16}")
-    plain, chunked = search_record(demo, "plain"), search_record(demo, "chunked")
+    plain, chunked = search_record(ci_search), search_record(demo, "chunked")
     assert chunked["details"]["search"]["minimal"] == plain["details"]["search"]["minimal"]
     assert chunked["details"]["search"]["examples"] == plain["details"]["search"]["examples"]
     assert "executor" not in plain["details"]

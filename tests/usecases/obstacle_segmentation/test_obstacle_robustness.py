@@ -251,15 +251,15 @@ def test_the_ci_profile_gives_the_same_search_twice(demo):
 
 def test_serial_and_two_workers_agree_and_a_stored_failure_comes_first(demo):
     runs = {}
-    for name, extra in (("serial", []), ("xdist", ["-n", "2"])):
+    # Serially in this process (the search's draws do not depend on what it imported before: the
+    # engine hides hypothesis's local constants), against two worker processes.
+    for name, run, extra in (("serial", demo.runpytest, []), ("xdist", demo.runpytest_subprocess, ["-n", "2"])):
         # The default profile, also under CI=true (whose default is the ci profile, without the database).
-        demo.runpytest_subprocess("--driveeval-output", name, "--driveeval-search-profile=default", *extra
-                                  ).assert_outcomes(xfailed=1)
+        run("--driveeval-output", name, "--driveeval-search-profile=default", *extra).assert_outcomes(xfailed=1)
         runs[name] = record_of(demo, name)["details"]["search"]
     keys = ("examples", "failures", "generations", "evaluations", "shrunk", "minimal", "edge", "where", "reason")
     assert {k: runs["serial"][k] for k in keys} == {k: runs["xdist"][k] for k in keys}
-    demo.runpytest_subprocess("--driveeval-output", "serial", "--driveeval-search-profile=default"
-                              ).assert_outcomes(xfailed=1)
+    demo.runpytest("--driveeval-output", "serial", "--driveeval-search-profile=default").assert_outcomes(xfailed=1)
     again = record_of(demo, "serial")["details"]["search"]
     assert again["replayed_from_database"] >= 1 and again["generations"] == 1
     assert again["minimal"] == runs["serial"]["minimal"]
