@@ -119,13 +119,13 @@ class ScenarioItem(pytest.Function):
         # that names other items' policies or places ("highway-gnn-vs-mlp" would give -k gnn the mlp).
         self.extra_keyword_matches.add(scenario.use_case)
 
-    def repr_failure(self, excinfo, style=None):
+    def repr_failure(self, excinfo):  # pytest.Function's own takes no style
         # Our errors are reported as the located Failure (results.annotate_report puts it in the
         # report in every phase); pytest's traceback of them, which reads and parses the source of
         # every frame, would be rendered only to be replaced.
         if isinstance(excinfo.value, DriveEvalError):
             return Failure.of(self, excinfo.value)
-        return super().repr_failure(excinfo, style=style)
+        return super().repr_failure(excinfo)
 
     def reportinfo(self):
         line = self.driveeval_scenario.line_of("Evaluation") or 1
