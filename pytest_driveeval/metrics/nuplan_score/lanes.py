@@ -241,7 +241,7 @@ class ScoreMap:
     #: the drivable area is partly a stand-in (lanes widened by an assumed width): a failure says so
     drivable_stand_in: bool = False
     #: (N,) each lane's roadblock (nuPlan's group of parallel lanes, which the progress term walks); None:
-    #: each lane its own (ScenarioNet's maps have no roadblocks)
+    #: each lane its own (a map without them; ScenarioNet's: io.scenarionet.scenarionet_lane_graph)
     roadblock: np.ndarray | None = None
 
     def __post_init__(self):

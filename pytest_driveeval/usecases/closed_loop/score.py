@@ -38,8 +38,9 @@ def score_map_of(source: Any, scenario_map: Any) -> ScoreMap:
     """A ScenarioNet scene's map (io.scenarionet_map.ScenarioMap of its ScenarioNetScene ``source``)
     as the score reads it.  Lanes, connectors, the lane graph and the roadblocks are those the file's
     converter wrote (io.scenarionet.scenarionet_lane_graph: a lane with its own outline is a lane, one
-    without a connector; nuScenes' lanes join where their centre lines meet).  The drivable area is the map's own (io.scenarionet.scenarionet_drivable: outlines,
-    road edges, driveways, the lanes' own surfaces), lanes widened by an assumed width only where the
+    without a connector; nuScenes' lanes join where their centre lines meet).  The drivable area is the
+    map's own (io.scenarionet.scenarionet_drivable: outlines, road edges, driveways, the lanes' own
+    surfaces), lanes widened by an assumed width only where the
     map gives no other."""
     semantic = scenario_map.semantic
     ids = [str(i) for i in semantic.lane_ids]
