@@ -51,6 +51,18 @@ def module_at(path: Path, name: str):
     spec.loader.exec_module(module)
     return module
 
+def fresh_pytest_run(folder: Path, *args: str, timeout: float):
+    """``pytest ARGS`` in ``folder`` in a fresh Python (a module fixture's session, which several tests read:
+    pytester's folder lives for one test only), as subprocess.run gives it back: this checkout's package
+    first on the path, no colours, and not the outer session's PYTEST_ADDOPTS (CI's --durations)."""
+    import subprocess
+    import sys
+
+    env = {**{k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"}, "PY_COLORS": "0",
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, "-m", "pytest", *args], cwd=folder, env=env, capture_output=True,
+                          text=True, timeout=timeout)
+
 try:
     import torch
 except ImportError:

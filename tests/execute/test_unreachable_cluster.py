@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from conftest import POLICY_BENCHMARK_HEAD
+from conftest import POLICY_BENCHMARK_HEAD, fresh_pytest_run
 
 pytest.importorskip("ray")
 pytest.importorskip("torch")
@@ -45,10 +45,6 @@ def bad_addresses(tmp_path_factory, module_silent_port):
     tests below read it; each such session starts a Python with torch).  In a subprocess with a
     timeout: the guard against the hang these tests are about (ray.init at a silent port waits for
     ever and ignores SIGTERM).  Returns (exit code, output, the items' records by scenario name)."""
-    import os
-    import subprocess
-    import sys
-
     folder = tmp_path_factory.mktemp("bad_addresses")
     texts = {"good": BENCH.format(name="good", executor=""),
              "gcs": BENCH.format(name="gcs", executor='  Executor: {Kind: ray, Address: "127.0.0.1:1"}\n'),
@@ -59,9 +55,7 @@ def bad_addresses(tmp_path_factory, module_silent_port):
                                                             f'"127.0.0.1:{module_silent_port}"}}\n')}
     for name, text in texts.items():
         (folder / f"{name}.scenario.yaml").write_text(text)
-    env = {**{k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"}, "PY_COLORS": "0"}
-    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider"],
-                          cwd=folder, env=env, capture_output=True, text=True, timeout=240)
+    done = fresh_pytest_run(folder, "-q", "-p", "no:randomly", "-p", "no:cacheprovider", timeout=240)
     records = json.loads((folder / "driveeval-results" / "summary.json").read_text())["results"]
     return done.returncode, done.stdout, {r["scenario"]: r for r in records}
 

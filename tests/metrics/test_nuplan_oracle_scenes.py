@@ -7,14 +7,12 @@ ego states from the raw file and the driven poses, and compares term by term.  S
 or the oracle's venv is absent (``python benchmarks/nuplan_oracle/oracle_venv.py`` builds the venv).
 """
 import json
-import os
 import re
 import subprocess
-import sys
 
 import pytest
 
-from conftest import REPO_ROOT, module_at
+from conftest import REPO_ROOT, module_at, fresh_pytest_run
 
 pytestmark = pytest.mark.slow  # two closed-loop items over six scenes, then nuplan-devkit: a few minutes
 
@@ -54,9 +52,8 @@ def oracle_run(shared_data, tmp_path_factory):
     folder = tmp_path_factory.mktemp("oracle_run")
     for policy in POLICIES:
         (folder / f"{policy}.scenario.yaml").write_text(SCENARIO.format(policy=policy, data=data))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:randomly",
-                          "-p", "no:xdist"], cwd=folder, env=env, capture_output=True, text=True, timeout=1800)
+    run = fresh_pytest_run(folder, "-q", "-p", "no:cacheprovider", "-p", "no:randomly", "-p", "no:xdist",
+                                  timeout=1800)
     summary = folder / "driveeval-results" / "summary.json"
     assert summary.is_file(), run.stdout[-3000:] + run.stderr[-3000:]
     oracle = subprocess.run([str(python), str(ORACLE / "oracle_scenes.py"),

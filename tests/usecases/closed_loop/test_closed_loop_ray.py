@@ -13,6 +13,7 @@ pytest.importorskip("ray")
 
 import ray_items  # noqa: E402  (tests/ray_items.py)
 from ray_items import assert_same_items, executor_section, results, worker_nodes  # noqa: E402
+from scenarionet_scenarios import FIXTURE_SCENES, scenario_text  # noqa: E402
 
 cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
 
@@ -20,8 +21,6 @@ pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
 GENERATED = REPO / "fixtures" / "l5kit" / "generated.zarr"
-#: three real nuScenes-mini scenes, all boston-seaport (fixtures/SOURCES.md): scene-0103, -0553, -0757
-FIXTURE_SCENES = REPO / "fixtures" / "scenarionet" / "nuscenes"
 PLANNING_MODEL = REPO / "fixtures" / "models" / "planning_model.pt2"
 
 SCENARIO = """\
@@ -120,26 +119,6 @@ def test_a_closed_loop_search_runs_its_generations_on_both_nodes(cluster, pytest
     assert len(where["chunks_per_node"]) == 2, "chunks of a generation in flight on both nodes"
 
 
-SCENARIONET = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: scenes
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Datasets:
-    - nuscenes_mini:
-        Path: {data}
-  Model: {model}
-  Unroll:
-    Agents: reactive
-    StartFrame: 10
-    Steps: 40
-  Conditions:
-    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
-    Displacement: {{Max: 30.0}}
-{executor}"""
-
-
 def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester):
     """The fixtures' folder in chunks on two worker nodes, reactive agents included: each worker
     opens the folder by its path and reads the format from its files.  The same chunks run here
@@ -147,8 +126,8 @@ def test_scenarionet_scenes_on_ray_give_the_local_runs_figures(cluster, pytester
     model's float32 sums round with the batch size (~1e-6 m), and agents that brake for the ego
     amplify that (scene-0103: 2e-4 m after 40 steps; with constant velocity, bit for bit)."""
     def run(output, executor):
-        pytester.makefile(".scenario.yaml", scenes=SCENARIONET.format(data=FIXTURE_SCENES, model=PLANNING_MODEL,
-                                                                      executor=executor))
+        pytester.makefile(".scenario.yaml", scenes=scenario_text("scenes", FIXTURE_SCENES, steps=40,
+                                                                 agents="reactive", tail=executor))
         return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
 
     here = run("local", executor_section(Kind="local", ChunkSize=2))

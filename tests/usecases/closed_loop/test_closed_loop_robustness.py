@@ -2,9 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from functools import lru_cache
 from pathlib import Path
 
@@ -12,7 +9,7 @@ import pytest
 
 pytest.importorskip("torch")
 
-from conftest import REPO_ROOT  # noqa: E402
+from conftest import REPO_ROOT, fresh_pytest_run  # noqa: E402
 
 DEMO = REPO_ROOT / "scenario_tests" / "robustness" / "real_scene_lateral.scenario.yaml"
 REAL = REPO_ROOT / "fixtures" / "l5kit" / "single_scene.zarr"
@@ -48,10 +45,7 @@ def demo(pytester):
 def session(folder: Path, *args: str) -> dict[str, int]:
     """The outcome counts of pytest run in ``folder`` in a fresh process: the module fixtures' runs,
     which several tests read (pytester's folder lives for one test only)."""
-    env = {**{k: v for k, v in os.environ.items() if k != "PYTEST_ADDOPTS"},
-           "PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *args], cwd=folder, env=env,
-                          capture_output=True, text=True, timeout=3600)
+    done = fresh_pytest_run(folder, "-p", "no:cacheprovider", *args, timeout=3600)
     print(done.stdout[-3000:], done.stderr[-3000:])   # shown when a test of the run fails
     outcomes = pytest.RunResult.parse_summary_nouns(done.stdout.splitlines())
     return {k: v for k, v in outcomes.items() if k not in ("warning", "warnings")}

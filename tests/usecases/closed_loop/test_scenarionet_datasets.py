@@ -11,37 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.usecases.closed_loop.datasets import format_of, open_dataset
-
-#: three real nuScenes-mini scenes, all boston-seaport (fixtures/SOURCES.md): scene-0103, -0553, -0757
-FIXTURE_SCENES = REPO_ROOT / "fixtures" / "scenarionet" / "nuscenes"
-
-SCENARIO = """\
-ScenarioFormatVersion: 3.0.0
-ScenarioName: {name}
-Evaluation:
-  UseCaseName: closed_loop
-  UseCaseFormatVersion: 0.1.0
-  Datasets:
-    - nuscenes_mini:
-        Path: {data}
-{format}  Model: {model}
-  Unroll:
-{unroll}    StartFrame: 10
-    Steps: {steps}
-  Conditions:
-    Collisions: {{Front: 0, Side: 0, Rear: 0, AtFaultOnly: true}}
-    Displacement: {displacement}
-{tail}"""
-
-
-def scenario_text(name, data, model="planning_model.pt2", declared=False, scenes=None, raster=False, steps=60,
-                  agents=None, displacement="{Max: 30.0}", tail=""):
-    unroll = (f"    Scenes: {scenes}\n" if scenes else "") + (
-        "    Inputs: {Kind: raster, MapType: py_semantic, RasterSize: [112, 112], PixelSize: [0.5, 0.5], "
-        "EgoCenter: [0.25, 0.5]}\n" if raster else "") + (f"    Agents: {agents}\n" if agents else "")
-    return SCENARIO.format(name=name, data=data, format="        Format: scenarionet\n" if declared else "",
-                           model=REPO_ROOT / "fixtures" / "models" / model, unroll=unroll, steps=steps,
-                           displacement=displacement, tail=tail)
+from scenarionet_scenarios import FIXTURE_SCENES, scenario_text  # tests/scenarionet_scenarios.py
 
 
 def summary(pytester, output="driveeval-results") -> dict:
