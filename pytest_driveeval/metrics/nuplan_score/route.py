@@ -175,18 +175,12 @@ def first_lanes(route: list[list[int]]) -> np.ndarray:
     return np.array([lanes[0] if lanes else -1 for lanes in route], dtype=np.int64)
 
 
-def corners_route(score_map: ScoreMap, here: list[list[int]]) -> list[tuple[tuple[int, ...], ...]]:
-    """Per frame, each corner's lanes (FL, RL, RR, FR: nuPlan's order), as nuPlan's ``extract_corners_route``
-    assigns them: a corner keeps the previous frame's lanes of any corner (or, one such lane, those it
-    leads into) that hold it, else looks again; on the second frame, what a corner finds by looking again
-    joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner,
-    frame by frame in the order FL, FR, RR, RL (the ego's corners)."""
-    return [corners for corners, _ in _corner_frames(score_map, here, connected=False)]
-
-
-def _corner_frames(score_map: ScoreMap, here: list, connected: bool) -> list[tuple]:
-    """Per frame, (its corners' lanes as :func:`corners_route` assigns them, and with ``connected`` whether
-    they are :func:`_common_or_connected`, else None)."""
+def _corners_connected(score_map: ScoreMap, here: list) -> list[bool]:
+    """Per frame, whether its corners' lanes are :func:`_common_or_connected`, the lanes (FL, RL, RR, FR:
+    nuPlan's order) as nuPlan's ``extract_corners_route`` assigns them: a corner keeps the previous
+    frame's lanes of any corner (or, one such lane, those it leads into) that hold it, else looks again;
+    on the second frame, what a corner finds by looking again joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner, frame by
+    frame in the order FL, FR, RR, RL (the ego's corners)."""
     out = []
     candidates: tuple[int, ...] = ()
     known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
@@ -196,9 +190,9 @@ def _corner_frames(score_map: ScoreMap, here: list, connected: bool) -> list[tup
         answer = known.get(key)
         if answer is None:
             corners, found = _corners_frame(score_map, key)
-            answer = known[key] = (corners, found, _common_or_connected(score_map, corners) if connected else None)
-        out.append((answer[0], answer[2]))
-        candidates = answer[1]
+            answer = known[key] = (found, _common_or_connected(score_map, corners))
+        candidates, connected = answer
+        out.append(connected)
     return out
 
 
@@ -245,7 +239,7 @@ def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.nd
     :func:`lanes_lists`, when the caller has it."""
     if here is None:
         here = lanes_lists(score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding)
-    return np.array([common for _, common in _corner_frames(score_map, here, connected=True)], dtype=bool)
+    return np.array(_corners_connected(score_map, here), dtype=bool)
 
 
 class InOneLane:
