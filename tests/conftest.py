@@ -14,6 +14,10 @@ from hypothesis import settings
 
 pytest_plugins = ["pytester"]
 
+# Under -n, a module's tests that share a module-scoped fixture run on one worker (tests/xdist_modules.py).
+from xdist_modules import (pytest_cmdline_main, pytest_collection_modifyitems,  # noqa: E402,F401
+                           pytest_configure_node)
+
 # CI runs the same examples every time (a red build must be reproducible); shared,
 # noisy machines make hypothesis's per-example deadline meaningless.
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)

@@ -21,6 +21,7 @@ The differences and why they arise: README.md, "Real scenes".
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import math
 import os
@@ -68,13 +69,20 @@ def nuscenes_folder(data: Path | None = None) -> Path:
 
 def policy(name: str):
     if name in MODELS:
-        from pytest_driveeval.policies.loading import load_model
-
-        return load_model(str(MODELS[name]))
+        return _model(name)
     from pytest_driveeval.usecases.closed_loop.baselines import baseline
     from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
 
     return baseline(name, ClosedLoopConfig(Model=name))
+
+
+@functools.cache
+def _model(name: str):
+    """A shipped model, loaded once per process (1-2 s each): the raster model drives each scene in an
+    unroll of its own, and the tests run both protocols; a loaded model keeps no state between calls."""
+    from pytest_driveeval.policies.loading import load_model
+
+    return load_model(str(MODELS[name]))
 
 
 def raster_options(name: str, dataset, scenes: list[int]) -> dict:
