@@ -15,8 +15,7 @@ from hypothesis import settings
 pytest_plugins = ["pytester"]
 
 # Under -n, a module's tests that share a module-scoped fixture run on one worker (tests/xdist_modules.py).
-from xdist_modules import (pytest_cmdline_main, pytest_collection_modifyitems,  # noqa: E402,F401
-                           pytest_configure_node)
+from xdist_modules import pytest_xdist_make_scheduler  # noqa: E402,F401
 
 # CI runs the same examples every time (a red build must be reproducible); shared,
 # noisy machines make hypothesis's per-example deadline meaningless.

@@ -1,64 +1,61 @@
-"""Under ``-n``, the tests that share a module-scoped fixture run on one worker.
+"""Under ``-n``, the tests of a module with module-scoped fixtures run on one worker.
 
 xdist's default distribution ('load') hands tests out one at a time, so the tests of one module
 alternate between the two workers and each worker builds the module's fixtures again: the nuPlan
 oracle's real scenes (two protocols, ~50 s each) were built four times, a robustness search or a
-Ray cluster twice.  Its 'loadgroup' mode keeps the tests that carry one ``xdist_group`` mark on one
-worker and hands out every other test as before; this marks each test that uses a module-, class- or
-package-scoped fixture with its module's name, and chooses 'loadgroup' when ``-n`` is given with no
-``--dist`` of the user's (an explicit one is left alone).
+Ray cluster twice.  Here the controller's scheduler keeps such a module's tests together as one unit
+of work and hands out every other test on its own, as 'load' does.
 
-The hooks are the root conftest's (tests/conftest.py imports them).
+xdist's own 'loadgroup' mode would do this from ``xdist_group`` marks, but it names a test's group by
+rewriting ``item._nodeid``, which pytest 9.2 no longer reads (node ids live in ``item._id``): the
+marks are then silently ignored.  The controller does not collect tests, so which modules to keep
+together is read from their source: a module that declares a module-, class- or package-scoped
+fixture or uses tests/module_pytester.py.
+
+Chosen only for a bare ``-n`` (an explicit ``--dist`` of the user's is left alone).  The hook is the
+root conftest's (tests/conftest.py imports it).
 """
 from __future__ import annotations
 
 import os
+import re
+from pathlib import Path
 
 import pytest
 
-SHARED_SCOPES = frozenset({"module", "class", "package"})
-WORKER_KEY = "driveeval_tests_loadgroup"
+TESTS = Path(__file__).resolve().parent
+SHARED_FIXTURE = re.compile(r"""scope\s*=\s*["'](module|class|package)["']|\bmodule_pytester\b""")
 
 
-def pytest_cmdline_main(config: pytest.Config) -> None:
-    # After xdist's own (tryfirst) hook, which turned a bare -n into --dist load.
-    if getattr(config.option, "dist", "no") != "load":
-        return
+def modules_with_shared_fixtures(tests: Path, rootdir: Path) -> frozenset[str]:
+    """The test modules under ``tests`` that share fixtures across tests, as node ids give their paths
+    (relative to ``rootdir``)."""
+    found = set()
+    for path in tests.rglob("test_*.py"):
+        if SHARED_FIXTURE.search(path.read_text(encoding="utf-8", errors="replace")):
+            found.add(path.relative_to(rootdir).as_posix())
+    return frozenset(found)
+
+
+def _dist_given(config: pytest.Config) -> bool:
     given = " ".join([*config.invocation_params.args, os.environ.get("PYTEST_ADDOPTS", ""),
                       *config.getini("addopts")])
-    if "--dist" not in given and "-d " not in f"{given} ":
-        config.option.dist = "loadgroup"
+    return "--dist" in given or "-d " in f"{given} "
 
 
 @pytest.hookimpl(optionalhook=True)
-def pytest_configure_node(node) -> None:
-    # A worker parses the command line again and would see plain 'load': it is told here.
-    if node.config.option.dist == "loadgroup":
-        node.workerinput[WORKER_KEY] = True
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    if config.getoption("dist") != "load" or _dist_given(config):
+        return None
+    from xdist.scheduler import LoadScopeScheduling
 
+    if not TESTS.is_relative_to(config.rootpath):
+        return None
+    shared = modules_with_shared_fixtures(TESTS, config.rootpath)
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    # tryfirst: on a worker, xdist's own modifyitems hook reads the marks (and config.option.loadgroup)
-    # to name each test's group in its node id, which is how the controller keeps a group together.
-    if getattr(config, "workerinput", {}).get(WORKER_KEY):
-        config.option.loadgroup = True
-    if not getattr(config.option, "loadgroup", False):
-        return
-    for item in items:
-        if uses_shared_fixture(item):
-            item.add_marker(pytest.mark.xdist_group(group_of(item)))
+    class ModuleFixtureScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in shared else nodeid
 
-
-def uses_shared_fixture(item: pytest.Item) -> bool:
-    info = getattr(item, "_fixtureinfo", None)
-    if info is None:
-        return False
-    return any(getattr(definition, "scope", None) in SHARED_SCOPES
-               for definitions in info.name2fixturedefs.values() for definition in definitions)
-
-
-def group_of(item: pytest.Item) -> str:
-    """The module's path below tests/, without .py: xdist appends it to the node id (``@metrics/test_x``)."""
-    module = item.nodeid.split("::", 1)[0]
-    return module.removeprefix("tests/").removesuffix(".py")
+    return ModuleFixtureScheduling(config, log)
