@@ -37,6 +37,12 @@ def modules_with_shared_fixtures(tests: Path, rootdir: Path) -> frozenset[str]:
     return frozenset(found)
 
 
+def unit_of(nodeid: str, shared: frozenset[str]) -> str:
+    """The unit of work a test belongs to: its module's path when the module shares fixtures, else itself."""
+    module = nodeid.split("::", 1)[0]
+    return module if module in shared else nodeid
+
+
 def _dist_given(config: pytest.Config) -> bool:
     given = " ".join([*config.invocation_params.args, os.environ.get("PYTEST_ADDOPTS", ""),
                       *config.getini("addopts")])
@@ -55,7 +61,6 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log):
 
     class ModuleFixtureScheduling(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            module = nodeid.split("::", 1)[0]
-            return module if module in shared else nodeid
+            return unit_of(nodeid, shared)
 
     return ModuleFixtureScheduling(config, log)
