@@ -9,9 +9,9 @@ Run with the project's venv (it calls the oracle's venv through oracle_venv.run_
 
 Each (policy, scene) is unrolled as the closed loop does (unroll_scenes' defaults: the ego is put back
 on the log when it asks for a pose more than 10 m off it, and holds its pose for a frame after it
-overlaps an agent), its exact score inputs are exported as a case (case_from_inputs, every lane a lane
-connector of its own roadblock: nuPlan asserts that no two LANE polygons hold one point, nuScenes lanes
-overlap at junctions) and both sides score that case.  Printed: per case, a markdown table of the eight
+overlaps an agent), its exact score inputs are exported as a case (case_from_inputs: the harness's map
+as it scores it, its lanes, connectors, lane graph and roadblocks, its drivable outlines and which lane
+surfaces count) and both sides score that case.  Printed: per case, a markdown table of the eight
 terms and the score (ours, nuPlan's, ``**differs**`` where they do), each frame's time to collision
 agreeing or not, and whether the harness's score of the exported case equals its score of the unrolled
 scene itself (it must: otherwise the case would not be what the harness scores); then one summary table.
@@ -128,7 +128,7 @@ def _cases_of(name: str, unroll) -> list[dict]:
     for row, scene in enumerate(unroll.result.scene_ids):
         inputs = score_inputs(unroll, row, unroll.maps.get(int(scene)))
         keep = unroll.result.valid[row]
-        case = case_from_inputs(inputs, f"{name}/scene{int(scene)}", lanes_as_connectors=True)
+        case = case_from_inputs(inputs, f"{name}/scene{int(scene)}")
         direct = score_scene(inputs)
         out.append({"name": case["name"], "case": case, "ours": answer(case),
                     "direct": {"score": direct.score, "metrics": {n: t.used for n, t in direct.terms.items()}},

@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from shapely.geometry import LineString, Point, Polygon, box  # noqa: E402
 from shapely.strtree import STRtree  # noqa: E402
+from shapely.ops import unary_union  # noqa: E402
 
 import nuplan  # noqa: E402
 from nuplan.common.actor_state.agent import Agent  # noqa: E402
@@ -262,7 +263,9 @@ class CaseMap(AbstractMap):
         self.layers: Dict[SemanticMapLayer, Dict[str, Any]] = {layer: {} for layer in self.get_available_map_objects()}
         for block in spec.get("roadblocks", []):
             layer = SemanticMapLayer.ROADBLOCK_CONNECTOR if block.get("connector") else SemanticMapLayer.ROADBLOCK
-            self.layers[layer][str(block["id"])] = Roadblock(str(block["id"]), polygon_of(block["polygon"]))
+            shape = (polygon_of(block["polygon"]) if "polygon" in block
+                     else unary_union([polygon_of(p) for p in block["polygons"]]))
+            self.layers[layer][str(block["id"])] = Roadblock(str(block["id"]), shape)
         lanes: Dict[str, Any] = {}
         for lane in spec.get("lanes", []):
             lane_id = str(lane["id"])
@@ -284,6 +287,14 @@ class CaseMap(AbstractMap):
             obj.outgoing = [lanes[str(i)] for i in lane.get("outgoing", [])]
         for i, outline in enumerate(spec.get("drivable_area", [])):
             self.layers[SemanticMapLayer.DRIVABLE_AREA][f"drivable_{i}"] = Area(f"drivable_{i}", polygon_of(outline))
+        rings = [polygon_of(r) for r in spec.get("drivable_outlines", [])]
+        if rings:  # one area read even-odd: the symmetric difference of its rings
+            area = rings[0] if rings[0].is_valid else rings[0].buffer(0)
+            for ring in rings[1:]:
+                area = area.symmetric_difference(ring if ring.is_valid else ring.buffer(0))
+            parts = list(area.geoms) if hasattr(area, "geoms") else [area]
+            for i, part in enumerate(p for p in parts if isinstance(p, Polygon) and not p.is_empty):
+                self.layers[SemanticMapLayer.DRIVABLE_AREA][f"outlined_{i}"] = Area(f"outlined_{i}", part)
         for i, outline in enumerate(spec.get("intersections", [])):
             self.layers[SemanticMapLayer.INTERSECTION][f"intersection_{i}"] = CaseIntersection(
                 f"intersection_{i}", polygon_of(outline))

@@ -74,10 +74,6 @@ def real_scenes(request, shared_data):
     return records, answers
 
 
-@pytest.mark.xfail(reason="the exported case (case.py) does not carry the map's own drivable area yet (outlines, "
-                          "road edges), so its drivable_area_compliance can differ from the harness's; "
-                          "benchmarks/nuplan_oracle/oracle_scenes.py checks the harness's own scores instead",
-                   strict=False)
 def test_on_real_scenes_the_case_is_what_the_harness_scores(real_scenes):
     records, _ = real_scenes
     assert len(records) == 24

@@ -8,6 +8,7 @@ import pytest
 from pytest_driveeval.metrics.nuplan_score import score_scene
 from pytest_driveeval.metrics.nuplan_score.case import case_from_inputs, inputs_from_case
 from pytest_driveeval.metrics.nuplan_score.comfort import ego_is_comfortable
+from pytest_driveeval.metrics.nuplan_score.lanes import ScoreMap
 from pytest_driveeval.metrics.nuplan_score.terms import driving_direction_compliance
 from pytest_driveeval.metrics.nuplan_score.route import centre_route
 
@@ -64,6 +65,35 @@ def test_a_lane_exported_as_a_connector_keeps_its_own_speed_limit():
     again = scored(exported)
     assert again.terms["speed_limit_compliance"].value == pytest.approx(0.8)
     assert again.score == pytest.approx(score_scene(inputs).score)
+
+
+def test_the_exported_map_is_the_map_the_harness_scores():
+    """Roadblocks of several lanes, a stand-in lane left out of the drivable area, drivable outlines and
+    road edges all survive the export: the case reads back as the same map."""
+    square = lambda x0, y0, w, h: np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h]], float)
+    lanes = [square(0, 0, 50, 3.5), square(0, 3.5, 50, 3.5), square(50, 0, 5, 3.5)]
+    score_map = ScoreMap(lane_ids=["a", "b", "c"], polygons=lanes,
+                         baselines=[np.array([[0, 1.75], [50, 1.75]]), np.array([[0, 5.25], [50, 5.25]]),
+                                    np.array([[50, 1.75], [55, 1.75]])],
+                         speed_limits=np.array([15.0, 15.0, np.nan]), connector=[False, False, True],
+                         outgoing=[[2], [], []], drivable=lanes + [square(20, -6, 5, 6)],
+                         roadblock=[0, 0, 1], drivable_outlines=[square(-1, -1, 52, 9), square(10, 2, 1, 1)],
+                         road_edges=[np.array([[0.0, -1.0], [50.0, -1.0]])], lane_drivable=[True, True, False])
+    inputs = inputs_from_case(case("cruising", cruising()))
+    inputs.map = score_map
+    exported = case_from_inputs(inputs, "mapped")
+    spec = exported["map"]
+    assert [lane["roadblock"] for lane in spec["lanes"]] == ["rb-a", "rb-a", "rb-c"]
+    assert [len(block["polygons"]) for block in spec["roadblocks"]] == [2, 1]
+    assert [lane["drivable"] for lane in spec["lanes"]] == [True, True, False]
+    back = inputs_from_case(exported).map
+    assert back.roadblock.tolist() == [0, 0, 1] and back.connector.tolist() == [False, False, True]
+    assert back.outgoing == [[2], [], []] and back.lane_drivable.tolist() == [True, True, False]
+    assert all(np.array_equal(p, q) for p, q in zip(back.drivable_outlines, score_map.drivable_outlines))
+    assert all(np.array_equal(p, q) for p, q in zip(back.road_edges, score_map.road_edges))
+    points = np.array([[25.0, 2.0], [52.0, 2.0], [22.0, -3.0], [10.5, 2.5], [25.0, -3.0], [25.0, 20.0]])
+    assert back.in_drivable(points).tolist() == score_map.in_drivable(points).tolist()
+    assert score_scene(inputs_from_case(exported)).score == score_scene(inputs).score
 
 
 def test_no_speed_limit_is_not_available_and_counts_one_as_nuplan_does():

@@ -30,6 +30,7 @@ def map_from_case(spec: dict | None) -> ScoreMap | None:
     blocks = {}
     for lane in lanes:  # lanes sharing a roadblock share its index; a lane without one has its own
         blocks.setdefault(lane.get("roadblock", ("lane", lane["id"])), len(blocks))
+    counted = [lane.get("drivable") for lane in lanes]
     return ScoreMap(lane_ids=[lane["id"] for lane in lanes],
                     polygons=[_array(lane["polygon"], 2) for lane in lanes],
                     baselines=[_array(lane["baseline"], 2) for lane in lanes],
@@ -37,7 +38,10 @@ def map_from_case(spec: dict | None) -> ScoreMap | None:
                     outgoing=[[index[o] for o in lane.get("outgoing", []) if o in index] for lane in lanes],
                     drivable=[_array(p, 2) for p in spec.get("drivable_area", [])],
                     intersections=[_array(p, 2) for p in spec.get("intersections", [])],
-                    roadblock=[blocks[lane.get("roadblock", ("lane", lane["id"]))] for lane in lanes])
+                    roadblock=[blocks[lane.get("roadblock", ("lane", lane["id"]))] for lane in lanes],
+                    drivable_outlines=[_array(p, 2) for p in spec.get("drivable_outlines", [])],
+                    road_edges=[_array(p, 2) for p in spec.get("road_edges", [])],
+                    lane_drivable=None if all(c is None or c for c in counted) else [c is not False for c in counted])
 
 
 def agents_from_case(specs: list[dict], frames: int) -> AgentCells:
@@ -111,9 +115,11 @@ TYPE_OF_GROUP = {0: "vehicle", 1: "pedestrian", 2: "generic_object"}
 
 
 def case_from_inputs(inputs: ScoreInputs, name: str, *, lanes_as_connectors: bool = False) -> dict:
-    """A scene's score inputs as a case, to feed nuplan-devkit the very numbers the harness scores.
-    Each lane becomes its own roadblock (ScenarioNet has none); ``lanes_as_connectors`` makes them lane
-    connectors, which nuPlan's map lets overlap (its lanes may not: ScenarioNet's nuScenes lanes do)."""
+    """A scene's score inputs as a case, to feed nuplan-devkit the very numbers the harness scores: the
+    map's lanes, connectors, lane graph and roadblocks (a roadblock's outline is the union of its lanes'
+    ``polygons``), its drivable outlines (even-odd rings) and road edges, and which lanes' surfaces are
+    part of the drivable area.  ``lanes_as_connectors`` makes every lane a lane connector in a roadblock of
+    its own (the hand-made cases' maps)."""
     ego, agents = inputs.ego, inputs.agents
     specs = []
     for token in np.unique(agents.token[agents.available]):
@@ -122,36 +128,45 @@ def case_from_inputs(inputs: ScoreInputs, name: str, *, lanes_as_connectors: boo
                       "length": float(agents.length[rows[0], cols[0]]), "width": float(agents.width[rows[0], cols[0]]),
                       "frames": rows.tolist(), "center": agents.center[rows, cols].tolist(),
                       "velocity": agents.velocity[rows, cols].tolist()})
-    score_map = inputs.map
-    spec_map = None
-    if score_map is not None:
-        incoming = [[] for _ in score_map.lane_ids]
-        for n, ahead in enumerate(score_map.outgoing):
-            for m in ahead:
-                incoming[m].append(score_map.lane_ids[n])
-        connector = [lanes_as_connectors or bool(c) for c in score_map.connector]
-        outgoing = [[score_map.lane_ids[m] for m in ahead] for ahead in score_map.outgoing]
-        for n, lane in enumerate(score_map.lane_ids):
-            if connector[n] and not incoming[n] and not outgoing[n]:
-                # nuPlan's speed limit on connectors is the max over their edges' limits, and max() of none
-                # raises; its maps have no connector without edges, ScenarioNet's nuScenes lanes have no edges
-                # at all.  Its own edge gives it its own limit, as a lane has, and changes no route: a lane
-                # the ego left is not among the lanes holding it now.
-                incoming[n], outgoing[n] = [lane], [lane]
-        spec_map = {"lanes": [{"id": lane, "polygon": score_map.polygons[n].tolist(),
-                               "baseline": score_map.baselines[n].tolist(),
-                               "speed_limit": None if not np.isfinite(score_map.speed_limits[n])
-                               else float(score_map.speed_limits[n]),
-                               "roadblock": f"rb-{lane}", "connector": connector[n], "incoming": incoming[n],
-                               "outgoing": outgoing[n]}
-                              for n, lane in enumerate(score_map.lane_ids)],
-                    "roadblocks": [{"id": f"rb-{lane}", "polygon": score_map.polygons[n].tolist(),
-                                    "connector": connector[n]} for n, lane in enumerate(score_map.lane_ids)],
-                    "drivable_area": [p.tolist() for p in score_map.drivable],
-                    "intersections": [p.tolist() for p in score_map.intersections]}
     return {"name": name, "timestamps": inputs.times.tolist(),
             "ego": {"length": ego.length, "width": ego.width, "rear_axle_to_center": ego.rear_axle_to_center,
                     "center": ego.center.tolist(), "velocity": ego.velocity.tolist(),
                     "acceleration": ego.acceleration.tolist(), "angular_velocity": ego.angular_velocity.tolist(),
                     "angular_acceleration": ego.angular_acceleration.tolist()},
-            "expert": {"center": inputs.expert.tolist()}, "agents": specs, "map": spec_map}
+            "expert": {"center": inputs.expert.tolist()}, "agents": specs,
+            "map": None if inputs.map is None else _map_spec(inputs.map, lanes_as_connectors)}
+
+
+def _map_spec(score_map: ScoreMap, lanes_as_connectors: bool) -> dict:
+    ids = score_map.lane_ids
+    incoming = [[ids[m] for m in before] for before in score_map.incoming]
+    outgoing = [[ids[m] for m in ahead] for ahead in score_map.outgoing]
+    connector = [lanes_as_connectors or bool(c) for c in score_map.connector]
+    block = np.arange(len(ids)) if lanes_as_connectors else score_map.roadblock
+    for n, lane in enumerate(ids):
+        if connector[n] and not incoming[n] and not outgoing[n]:
+            # nuPlan's speed limit on connectors is the max over their edges' limits, and max() of none
+            # raises; its maps have no connector without edges, ScenarioNet's nuScenes lanes have no edges
+            # at all.  Its own edge gives it its own limit, as a lane has, and changes no route: a lane
+            # the ego left is not among the lanes holding it now.
+            incoming[n], outgoing[n] = [lane], [lane]
+    counted = (np.ones(len(ids), dtype=bool) if score_map.lane_drivable is None else score_map.lane_drivable)
+    members: dict[int, list[int]] = {}
+    for n, b in enumerate(block):
+        members.setdefault(int(b), []).append(n)
+    surfaces = {(p.shape, p.tobytes()) for p in score_map.polygons}
+    return {"lanes": [{"id": lane, "polygon": score_map.polygons[n].tolist(),
+                       "baseline": score_map.baselines[n].tolist(),
+                       "speed_limit": None if not np.isfinite(score_map.speed_limits[n])
+                       else float(score_map.speed_limits[n]),
+                       "roadblock": f"rb-{ids[members[int(block[n])][0]]}", "connector": connector[n],
+                       "incoming": incoming[n], "outgoing": outgoing[n], "drivable": bool(counted[n])}
+                      for n, lane in enumerate(ids)],
+            "roadblocks": [{"id": f"rb-{ids[lanes[0]]}", "polygons": [score_map.polygons[n].tolist() for n in lanes],
+                            "connector": connector[lanes[0]]} for lanes in members.values()],
+            # the lanes' surfaces that count, and the map's other drivable polygons (driveways)
+            "drivable_area": [score_map.polygons[n].tolist() for n in np.flatnonzero(counted)]
+            + [p.tolist() for p in score_map.drivable if (p.shape, p.tobytes()) not in surfaces],
+            "drivable_outlines": [p.tolist() for p in score_map.drivable_outlines],
+            "road_edges": [p.tolist() for p in score_map.road_edges],
+            "intersections": [p.tolist() for p in score_map.intersections]}
