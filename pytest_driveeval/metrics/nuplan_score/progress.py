@@ -25,9 +25,14 @@ def simplified(route: list[list[int]]) -> list[list[int]]:
     """nuPlan's ``get_route_simplified``: from the first frame on a lane, each frame that is on a lane and
     shares none of its lanes with the last one kept."""
     out: list[list[int]] = []
+    last = None
     for lanes in route:
+        # a frame's lanes are often the very list of the frame before (centre_route keeps it): nothing to test
+        if lanes is last:
+            continue
         if lanes and (not out or not any(n in lanes for n in out[-1])):
             out.append(lanes)
+        last = lanes
     return out
 
 
