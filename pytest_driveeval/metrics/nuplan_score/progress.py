@@ -25,9 +25,14 @@ def simplified(route: list[list[int]]) -> list[list[int]]:
     """nuPlan's ``get_route_simplified``: from the first frame on a lane, each frame that is on a lane and
     shares none of its lanes with the last one kept."""
     out: list[list[int]] = []
+    last = None
     for lanes in route:
+        # a frame's lanes are often the very list of the frame before (centre_route keeps it): nothing to test
+        if lanes is last:
+            continue
         if lanes and (not out or not any(n in lanes for n in out[-1])):
             out.append(lanes)
+        last = lanes
     return out
 
 
@@ -49,24 +54,42 @@ class _Progress:
                  here: list[list[int]]):
         """``here``: per pose, the lanes holding it (route.lanes_lists)."""
         self.map, self.pairs = score_map, pairs
-        lanes = sorted({lane for _, lane in pairs})
-        # every pose projected on every baseline of the route at once (the loop below only looks them up)
-        along = score_map.along(np.repeat(points, len(lanes), axis=0), np.tile(lanes, len(points)))
-        # per baseline, its list of positions (the loop below reads one number at a time: lists are quicker)
-        self.along = {lane: column for lane, column in zip(lanes, along.reshape(len(points), len(lanes)).T.tolist())}
         self.frames = len(points)
-        # a roadblock holds a pose where one of its lanes does (a run's poses repeat a few sets of lanes)
+        # a roadblock holds a pose where one of its lanes does: a run's poses repeat a few sets of lanes, so
+        # each distinct set is looked at once and the (frames x roadblocks) table taken from those rows
+        blocks = sorted({block for block, _ in pairs})
+        column = {b: i for i, b in enumerate(blocks)}
         block_of = score_map.roadblock
-        blocks = {block for block, _ in pairs}
-        sets: dict = {}
-        self.inside = {b: [False] * len(points) for b in blocks}
-        for k, lanes_here in enumerate(here):
-            lanes_here = tuple(lanes_here)
-            found = sets.get(lanes_here)
-            if found is None:
-                found = sets[lanes_here] = [b for b in {int(block_of[n]) for n in lanes_here} if b in blocks]
-            for b in found:
-                self.inside[b][k] = True
+        index: dict = {}
+        rows = [index.setdefault(lanes, len(index)) for lanes in map(tuple, here)]
+        table = np.zeros((len(index), len(blocks)), dtype=bool)
+        for lanes, row in index.items():
+            for b in {int(block_of[n]) for n in lanes}:
+                if b in column:
+                    table[row, column[b]] = True
+        inside = table[np.asarray(rows, dtype=np.int64)].T if rows else np.zeros((len(blocks), 0), dtype=bool)
+        self.inside = {b: inside[column[b]] for b in blocks}
+        # per pair, its roadblock's frames; from pair j on, the frames some pair j.. holds (where the loop
+        # below can move on)
+        held = np.array([self.inside[b] for b, _ in pairs])
+        self.ahead = np.logical_or.accumulate(held[::-1], axis=0)[::-1]
+        # a baseline's positions are read only where its roadblock holds the pose (and at the first pose
+        # for the first pair): only those are projected, each as before, point by point
+        wanted: dict = {}
+        for b, lane in pairs:
+            wanted[lane] = wanted[lane] | self.inside[b] if lane in wanted else self.inside[b].copy()
+        wanted[pairs[0][1]][0] = True
+        lanes = list(wanted)
+        chosen = [np.flatnonzero(wanted[lane]) for lane in lanes]
+        flat = np.concatenate(chosen)
+        values = score_map.along(points[flat], np.repeat(lanes, [len(c) for c in chosen]))
+        self.along = {}
+        at = 0
+        for lane, frames in zip(lanes, chosen):
+            column_values = np.zeros(len(points))
+            column_values[frames] = values[at:at + len(frames)]
+            at += len(frames)
+            self.along[lane] = column_values
         self._projected: dict = {}
 
     def _project(self, lane: int, source: int, end: int) -> float:
@@ -78,38 +101,58 @@ class _Progress:
             self._projected[key] = float(project(point[None], self.map.baselines[lane], self.map.cumulative[lane])[0])
         return self._projected[key]
 
-    def __call__(self) -> list[float]:
-        pairs, along, inside = self.pairs, self.along, self.inside
+    def __call__(self) -> np.ndarray:
+        """Per frame, the progress made since the frame before (0 at the first)."""
+        pairs, along, inside, ahead = self.pairs, self.along, self.inside, self.ahead
+        frames = self.frames
         current = 0
         block, lane = pairs[0]
-        previous = along[lane][0]
-        progress = [0.0]
-        for k in range(1, self.frames):
-            if inside[block][k]:
-                s = along[lane][k]
-                progress.append(s - previous)
-                previous = s
+        previous = float(along[lane][0])
+        progress = np.zeros(frames)
+        k = 1
+        while k < frames:
+            held = inside[block]
+            if held[k]:
+                # a run of frames in the current roadblock: each the change of its position (as one by one)
+                stop = k + 1 + int(np.argmin(held[k + 1:])) if k + 1 < frames and not held[k + 1:].all() else frames
+                positions = along[lane][k:stop]
+                progress[k] = positions[0] - previous
+                progress[k + 1:stop] = positions[1:] - positions[:-1]
+                previous = float(positions[-1])
+                k = stop
                 continue
-            step, skipped_total, ahead, skipped = 0.0, 0.0, current + 1, None
-            while ahead < len(pairs):
-                if inside[pairs[ahead][0]][k]:
+            if current + 1 < len(pairs):
+                # frames no later roadblock of the route holds make no progress: skipped to the next one
+                movable = ahead[current + 1][k:]
+                if not movable[0]:
+                    nxt = np.flatnonzero(movable | held[k:])
+                    k = k + int(nxt[0]) if len(nxt) else frames
+                    continue
+            else:
+                nxt = np.flatnonzero(held[k:])
+                k = k + int(nxt[0]) if len(nxt) else frames
+                continue
+            step, skipped_total, later, skipped = 0.0, 0.0, current + 1, None
+            while later < len(pairs):
+                if inside[pairs[later][0]][k]:
                     rest = float(self.map.cumulative[lane][-1]) - previous
                     last_of = lane
-                    current = ahead
-                    block, lane = pairs[ahead]
-                    s = along[lane][k]
+                    current = later
+                    block, lane = pairs[later]
+                    s = float(along[lane][k])
                     step = rest + (s - self._project(lane, last_of, -1)) + skipped_total
                     previous = s
                     break
-                if ahead == len(pairs) - 1:
+                if later == len(pairs) - 1:
                     break
                 last_of = pairs[current if skipped is None else skipped][1]
-                skipped = ahead
-                ahead += 1
+                skipped = later
+                later += 1
                 skipped_lane = pairs[skipped][1]
-                skipped_total += (self._project(skipped_lane, pairs[ahead][1], 0)
+                skipped_total += (self._project(skipped_lane, pairs[later][1], 0)
                                   - self._project(skipped_lane, last_of, -1))
-            progress.append(step)
+            progress[k] = step
+            k += 1
         return progress
 
 

@@ -42,7 +42,7 @@ def lanes_lists(holding: np.ndarray, touched: np.ndarray | None = None) -> list[
         distinct, inverse = np.unique(codes, return_inverse=True)
         bits = ((distinct[:, None] >> np.arange(len(columns), dtype=np.int64)) & 1).astype(bool)
         made = [tuple(columns[row].tolist()) for row in bits]
-        return [made[i] for i in inverse.tolist()]
+        return list(map(made.__getitem__, inverse.tolist()))
     rows, cols = np.nonzero(holding[:, columns])
     here: list[tuple[int, ...]] = [()] * len(holding)
     starts = np.searchsorted(rows, np.arange(len(holding) + 1)).tolist()
@@ -96,7 +96,9 @@ def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray |
     current: list[int] = []
     for k, lanes in enumerate(here):
         if current:
-            current = _with_candidates(score_map, lanes, current)
+            # the steady case, one lane still holding the point, without a call (most frames of most runs)
+            if len(current) != 1 or current[0] not in lanes:
+                current = _with_candidates(score_map, lanes, current)
         if not current:
             current = _look_up(score_map, lanes, points[k], None if headings is None else headings[k])
             previous = route[-1] if route else []
