@@ -16,6 +16,9 @@ from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, planning_
 from pytest_driveeval.io.commonroad.commonroad_geometry import goal_reached, in_shape, on_road
 from pytest_driveeval.io.commonroad.commonroad_types import Circle, GoalState, Interval, PlanningProblem, Polygon, Rectangle, State
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 TUTORIAL = REPO_ROOT / "fixtures" / "commonroad" / "ZAM_Tutorial-1_2_T-1.xml"
 
 

@@ -25,6 +25,9 @@ from pytest_driveeval.io.l5.l5kit_zarr import (
 
 from l5kit_rows import random_rows  # tests/l5kit_rows.py
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 
 @pytest.fixture(scope="module")
 def sample(shared_data: Path) -> Path:

@@ -36,6 +36,9 @@ from pytest_driveeval.io.ros.rosbag import (
     tf_message,
 )
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 T0 = 1_700_000_000_000_000_000
 STORAGES = ["sqlite3", "mcap"]
 

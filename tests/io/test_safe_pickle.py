@@ -10,6 +10,9 @@ import pytest
 from pytest_driveeval.core.errors import DataError
 from pytest_driveeval.io.scenarionet.safe_pickle import UnsafePickleError, load_data_pickle
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 
 class Boom:
     def __reduce__(self):

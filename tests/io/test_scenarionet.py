@@ -11,6 +11,9 @@ from pytest_driveeval.io.scenarionet.scenarionet import (ScenarioNetError, featu
 
 from scenarionet_made import SPLICE, deep_list, scenario, write, write_crafted
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 
 @pytest.fixture
 def nuscenes(shared_data):

@@ -11,6 +11,9 @@ import pytest
 from pytest_driveeval.geometry import yaw_from_quat_wxyz
 from pytest_driveeval.io.t4.t4dataset import T4Dataset, T4DatasetError
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 TS = 1532402927647951
 
 

@@ -26,6 +26,9 @@ from pytest_driveeval.metrics.drift import (
 
 from conftest import REPO_ROOT
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 EGO = np.array([4.0, 2.0])
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pytest_driveeval.metrics.episode_outcomes import (
     COLLISION,
@@ -17,6 +18,9 @@ from pytest_driveeval.metrics.episode_outcomes import (
     step_reward,
     traffic_overlaps,
 )
+
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
 
 SIZE = np.array([4.5, 1.8])
 

@@ -14,6 +14,9 @@ from pytest_driveeval.metrics.nuplan_score.route import centre_route
 
 from nuplan_cases import DT, FRAMES, agent, case, cruising
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 T = np.arange(FRAMES) * DT
 
 

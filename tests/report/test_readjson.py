@@ -11,6 +11,9 @@ import pytest
 from pytest_driveeval.core.atomic import (MAX_DEPTH, JSONFileError, finite_json, loads_bounded, nesting_depth,
                                               read_json)
 
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
+
 BOMB = "[" * 100_000 + "]" * 100_000
 
 

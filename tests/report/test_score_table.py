@@ -1,6 +1,11 @@
 """The nuPlan score table of the reports: one row per scene, each term's value with the first frame it
 failed at, "n/a" with its reason below."""
+import pytest
+
 from pytest_driveeval.report.score_table import score_html, score_markdown, score_rows, score_text
+
+# a fast reader / score / report check: CI runs these at the lowest declared versions (-m smoke)
+pytestmark = pytest.mark.smoke
 
 TERMS = {"no_ego_at_fault_collisions": {"value": 0.5, "used": 0.5, "frames": [41, 42]},
          "drivable_area_compliance": {"value": 1.0, "used": 1.0},

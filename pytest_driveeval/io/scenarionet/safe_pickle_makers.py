@@ -13,6 +13,7 @@ every size it builds is one the file's own bytes hold.
 from __future__ import annotations
 
 import collections
+import importlib
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -44,9 +45,19 @@ class Maker:
         return self.name
 
 
-def _core() -> Any:
-    # numpy 2 moved the module; pickles written by numpy 1 name the old one.
-    return getattr(np, "_core", None) or np.core
+#: numpy's major version: 2 moved ``numpy.core`` to ``numpy._core``
+NUMPY_MAJOR = int(np.__version__.split(".")[0])
+#: the installed numpy's own module path for its pickle reconstructors.  Pickles name either path
+#: (numpy 1 writes ``numpy.core``, numpy 2 ``numpy._core``); both are served by the installed one, so
+#: neither numpy 2's deprecated ``numpy.core`` alias (it warns) nor numpy 1.26's ``numpy._core``
+#: stub (whose submodules ``import numpy`` does not load) is touched.
+NUMPY_CORE = "numpy._core" if NUMPY_MAJOR >= 2 else "numpy.core"
+#: both spellings a pickle may use for the modules below
+NUMPY_CORE_NAMES = ("numpy.core", "numpy._core")
+
+
+def _multiarray() -> Any:
+    return importlib.import_module(f"{NUMPY_CORE}.multiarray")
 
 
 SCALARS = (type(None), bool, int, float, complex, str, bytes, np.generic)
@@ -152,7 +163,7 @@ def _reconstruct(subtype: Any, shape: Any, dtype: Any) -> np.ndarray:
     if subtype is not MAKERS[("numpy", "ndarray")] or _size(shape, "_reconstruct") != 0:
         raise Refused(f"numpy _reconstruct({subtype!r}, {shape!r}, ...): numpy writes an empty ndarray here "
                       "and its data after (BUILD)")
-    return _core().multiarray._reconstruct(np.ndarray, (0,), b"b")
+    return _multiarray()._reconstruct(np.ndarray, (0,), b"b")
 
 
 def _scalar(dtype: Any, data: Any = None) -> Any:
@@ -162,7 +173,7 @@ def _scalar(dtype: Any, data: Any = None) -> Any:
             raise Refused("numpy object scalar: holds a plain value only")
     elif not isinstance(data, bytes) or len(data) != dtype.itemsize:
         raise Refused(f"numpy scalar of {dtype.str}: needs its {dtype.itemsize} bytes")
-    return _core().multiarray.scalar(dtype, data)
+    return _multiarray().scalar(dtype, data)
 
 
 def _frombuffer(buffer: Any, dtype: Any, shape: Any, order: Any = "C") -> np.ndarray:
@@ -204,7 +215,7 @@ MAKERS: dict[tuple[str, str], Maker] = {
        for t in (np.float64, np.float32, np.float16, np.int64, np.int32, np.int16, np.int8,
                  np.uint64, np.uint32, np.uint16, np.uint8, np.bool_, np.str_, np.bytes_)},
 }
-for _module in ("numpy.core", "numpy._core"):
+for _module in NUMPY_CORE_NAMES:
     MAKERS[(f"{_module}.multiarray", "_reconstruct")] = Maker("numpy _reconstruct", None, _reconstruct)
     MAKERS[(f"{_module}.multiarray", "scalar")] = Maker("numpy scalar", None, _scalar)
     MAKERS[(f"{_module}.numeric", "_frombuffer")] = Maker("numpy _frombuffer", None, _frombuffer)

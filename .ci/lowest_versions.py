@@ -1,0 +1,123 @@
+#!/usr/bin/env python3
+"""CI's second run: the declared lowest versions of every dependency, on CI's Python.
+
+Builds a venv in FOLDER with uv (pip's local indexes and constraints passed on, as
+``.ci/fast_install.py`` does): ``torch==2.13.0`` first (the local CPU wheel; any other torch pulls
+a multi-GB CUDA build), then the package with its test extras, each direct requirement at the
+lowest version ``pyproject.toml`` allows (``--resolution lowest-direct``).  Runs the demo
+(``pytest scenario_tests -n 2``) and ``pytest tests -m smoke -n 2`` in it; pytest's exit 5 (nothing
+ran) is a failure.  Prints the versions it ran and writes them, beside the newest run's (``--newest
+PYTHON``: the CI venv's python), as a markdown table into ``--table FILE`` between the markers
+``<!-- versions:start -->`` and ``<!-- versions:end -->`` (docs/supported-versions.md).
+
+Usage: ``python .ci/lowest_versions.py .ci-venv-lowest [--newest .ci-venv/bin/python]
+[--table docs/supported-versions.md]``
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+from fast_install import pip_sources  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+#: what the table lists: distribution name -> row label
+PACKAGES = ["numpy", "torch", "pytest", "pydantic", "hypothesis", "pytest-xdist", "numba", "scipy", "rosbags", "ray",
+            "pytest-html", "allure-pytest"]
+START, END = "<!-- versions:start -->", "<!-- versions:end -->"
+VERSIONS = """
+import importlib.metadata as m, json, platform
+names = {names!r}
+found = {{}}
+for name in names:
+    try:
+        found[name] = m.version(name)
+    except m.PackageNotFoundError:
+        found[name] = "not installed"
+found["Python"] = platform.python_version()
+print(json.dumps(found))
+"""
+
+
+def run(command: list[str], **kwargs) -> int:
+    print("+", " ".join(command), flush=True)
+    return subprocess.run(command, cwd=ROOT, **kwargs).returncode
+
+
+def build(folder: Path) -> int:
+    python = folder / "bin" / "python"
+    if run([sys.executable, "-m", "venv", str(folder)]) or run([str(python), "-m", "pip", "install", "--quiet", "uv"]):
+        return 1
+    sources, env = pip_sources()
+    uv = [str(python), "-m", "uv", "pip", "install", "--quiet", "--python", str(python),
+          "--index-strategy", "unsafe-best-match", *sources]
+    environment = {**os.environ, **env}
+    # torch first, alone: resolved with the rest, a lowest resolution would look for torch 2.1
+    if run([*uv, "torch==2.13.0"], env=environment):
+        return 1
+    return run([*uv, "--resolution", "lowest-direct", "torch==2.13.0", "-e", ".[test]"], env=environment)
+
+
+def pytest(python: Path, *args: str) -> int:
+    code = run([str(python), "-m", "pytest", *args, "-n", "2"])
+    if code == 5:
+        print(f"lowest_versions: pytest {' '.join(args)} collected nothing; that is a failure", file=sys.stderr)
+        return 1
+    return code
+
+
+def versions(python: Path) -> dict[str, str]:
+    done = subprocess.run([str(python), "-c", VERSIONS.format(names=PACKAGES)], capture_output=True, text=True,
+                          check=True)
+    return json.loads(done.stdout)
+
+
+def table(lowest: dict[str, str], newest: dict[str, str] | None) -> str:
+    head = "| package | lowest (declared floors) |" + (" newest |" if newest else "")
+    rule = "|---|---|" + ("---|" if newest else "")
+    rows = [f"| {name} | {lowest[name]} |" + (f" {newest.get(name, '?')} |" if newest else "")
+            for name in ["Python", *PACKAGES]]
+    return "\n".join([head, rule, *rows])
+
+
+def write_table(path: Path, text: str) -> None:
+    page = path.read_text()
+    before, rest = page.split(START, 1)
+    _, after = rest.split(END, 1)
+    path.write_text(f"{before}{START}\n{text}\n{END}{after}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", type=Path, help="where the lowest-versions venv is built")
+    parser.add_argument("--newest", type=Path, help="the newest-versions run's python (CI's venv)")
+    parser.add_argument("--table", type=Path, help="a page whose versions table is rewritten")
+    options = parser.parse_args()
+    folder = options.folder.resolve()
+    python = folder / "bin" / "python"
+    started = time.monotonic()
+    status = build(folder)
+    print(f"lowest_versions: installed in {time.monotonic() - started:.0f} s", flush=True)
+    if status:
+        print("lowest_versions: the lowest versions could not be installed", file=sys.stderr)
+        return 1
+    demo = pytest(python, "scenario_tests")
+    smoke = pytest(python, "tests", "-m", "smoke")
+    lowest = versions(python)
+    newest = versions(options.newest) if options.newest else None
+    print("lowest versions run:", ", ".join(f"{k} {v}" for k, v in lowest.items()))
+    print(table(lowest, newest))
+    if options.table:
+        write_table(options.table, table(lowest, newest))
+    print(f"lowest_versions: demo exit {demo}, smoke exit {smoke}, {time.monotonic() - started:.0f} s in all")
+    return 1 if demo or smoke else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
