@@ -52,12 +52,18 @@ def _listed(args: list[str], flag: str, item: str) -> bool:
     return any(args[i] == flag and args[i + 1] == item for i in range(0, len(args) - 1, 2))
 
 
+def uv_install(python: str) -> tuple[list[str], dict[str, str]]:
+    """uv's install command into ``python``'s environment (uv run by that Python, which has it), with
+    pip's sources and pip's index strategy, and the environment to run it in."""
+    sources, env = pip_sources()
+    return ([python, "-m", "uv", "pip", "install", "--python", python, "--index-strategy", "unsafe-best-match",
+             *sources], {**os.environ, **env})
+
+
 def main(requirements: list[str]) -> int:
     if pip("install", "--quiet", "uv").returncode == 0:
-        sources, env = pip_sources()
-        command = [sys.executable, "-m", "uv", "pip", "install", "--python", sys.executable,
-                   "--index-strategy", "unsafe-best-match", *sources, *requirements]
-        if subprocess.run(command, env={**os.environ, **env}).returncode == 0:
+        command, env = uv_install(sys.executable)
+        if subprocess.run([*command, *requirements], env=env).returncode == 0:
             return 0
         print("fast_install: uv failed; pip installs instead", file=sys.stderr)
     else:

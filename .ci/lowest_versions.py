@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from fast_install import pip_sources  # noqa: E402
+from fast_install import uv_install  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: what the table lists: distribution name -> row label
@@ -54,10 +53,8 @@ def build(folder: Path) -> int:
     python = folder / "bin" / "python"
     if run([sys.executable, "-m", "venv", str(folder)]) or run([str(python), "-m", "pip", "install", "--quiet", "uv"]):
         return 1
-    sources, env = pip_sources()
-    uv = [str(python), "-m", "uv", "pip", "install", "--quiet", "--python", str(python),
-          "--index-strategy", "unsafe-best-match", *sources]
-    environment = {**os.environ, **env}
+    uv, environment = uv_install(str(python))
+    uv.append("--quiet")
     # torch first, alone: resolved with the rest, a lowest resolution would look for torch 2.1
     if run([*uv, "torch==2.13.0"], env=environment):
         return 1

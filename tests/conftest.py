@@ -54,6 +54,7 @@ def module_at(path: Path, name: str):
     spec.loader.exec_module(module)
     return module
 
+
 def fresh_pytest_run(folder: Path, *args: str, timeout: float):
     """``pytest ARGS`` in ``folder`` in a fresh Python (a module fixture's session, which several tests read:
     pytester's folder lives for one test only), as subprocess.run gives it back: this checkout's package

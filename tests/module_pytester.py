@@ -8,10 +8,8 @@ back, and the folder with the sessions' outputs stays for the tests to read
 (``from module_pytester import module_pytester``)."""
 from __future__ import annotations
 
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 import pytest
 
@@ -30,21 +28,11 @@ class _ModuleRequest:
         self.finalizers.append(finalizer)
 
 
-def _matplotlib_cache() -> str:
-    """Where matplotlib keeps its font cache (its own rule), found without importing matplotlib: a
-    matplotlib imported here, outside the inner runs, would outlive them while the submodules they
-    import are dropped, and the next run's pyplot would then mix two generations of its classes."""
-    cache = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return os.environ.get("MPLCONFIGDIR") or str(Path(cache) / "matplotlib")
-
-
 @contextmanager
 def module_pytester(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[pytest.Pytester]:
+    # matplotlib's font cache stays the outer session's (MPLCONFIGDIR, fixed by tests/conftest.py) though
+    # pytester moves HOME
     with pytest.MonkeyPatch.context() as monkeypatch:
-        # pytester's HOME is its fresh folder, so every inner -n 2 worker built matplotlib's font cache
-        # anew (seconds; past 5 s matplotlib logs a warning that allure then attaches as a "log"). The
-        # outer session's cache (asked before pytester moves HOME) holds the same fonts.
-        monkeypatch.setenv("MPLCONFIGDIR", _matplotlib_cache())
         proxy = _ModuleRequest(request)
         pytester = pytest.Pytester(proxy, tmp_path_factory, monkeypatch, _ispytest=True)
         try:

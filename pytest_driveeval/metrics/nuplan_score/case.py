@@ -154,7 +154,6 @@ def _map_spec(score_map: ScoreMap, lanes_as_connectors: bool) -> dict:
     members: dict[int, list[int]] = {}
     for n, b in enumerate(block):
         members.setdefault(int(b), []).append(n)
-    surfaces = {(p.shape, p.tobytes()) for p in score_map.polygons}
     return {"lanes": [{"id": lane, "polygon": score_map.polygons[n].tolist(),
                        "baseline": score_map.baselines[n].tolist(),
                        "speed_limit": None if not np.isfinite(score_map.speed_limits[n])
@@ -166,7 +165,7 @@ def _map_spec(score_map: ScoreMap, lanes_as_connectors: bool) -> dict:
                             "connector": connector[lanes[0]]} for lanes in members.values()],
             # the lanes' surfaces that count, and the map's other drivable polygons (driveways)
             "drivable_area": [score_map.polygons[n].tolist() for n in np.flatnonzero(counted)]
-            + [p.tolist() for p in score_map.drivable if (p.shape, p.tobytes()) not in surfaces],
+            + [p.tolist() for p in score_map.drivable_beyond_lanes],
             "drivable_outlines": [p.tolist() for p in score_map.drivable_outlines],
             "road_edges": [p.tolist() for p in score_map.road_edges],
             "intersections": [p.tolist() for p in score_map.intersections]}

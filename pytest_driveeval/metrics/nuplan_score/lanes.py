@@ -259,6 +259,8 @@ class ScoreMap:
         # found twice is found once as well.  Half the polygons tested, the same answers.
         surfaces = {(p.shape, p.tobytes()) for p in self.polygons}
         extra = [p for p in self.drivable if (p.shape, p.tobytes()) not in surfaces]
+        #: the drivable polygons that are not lane surfaces (driveways, car parks)
+        self.drivable_beyond_lanes = list(extra)
         self.drivable_outlines = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.drivable_outlines]
         self.outline_set = PolygonSet(self.drivable_outlines, most_bands=OUTLINE_BANDS)
         self.edges = RoadEdges(self.road_edges)

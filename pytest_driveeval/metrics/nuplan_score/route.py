@@ -181,8 +181,9 @@ def _corners_connected(score_map: ScoreMap, here: list) -> list[bool]:
     """Per frame, whether its corners' lanes are :func:`_common_or_connected`, the lanes (FL, RL, RR, FR:
     nuPlan's order) as nuPlan's ``extract_corners_route`` assigns them: a corner keeps the previous
     frame's lanes of any corner (or, one such lane, those it leads into) that hold it, else looks again;
-    on the second frame, what a corner finds by looking again joins the candidates of the corners after it.  ``here`` (4T lists): the lanes holding each corner, frame by
-    frame in the order FL, FR, RR, RL (the ego's corners)."""
+    on the second frame, what a corner finds by looking again joins the candidates of the corners after
+    it.  ``here`` (4T lists): the lanes holding each corner, frame by frame in the order FL, FR, RR, RL
+    (the ego's corners)."""
     out = []
     candidates: tuple[int, ...] = ()
     known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it

@@ -96,20 +96,26 @@ def real_scene_and_model():
     return L5Dataset.open(REAL), load_model(str(MODEL))
 
 
+def demo_conditions():
+    """The demo scenario's Conditions, as the oracle judges each unroll by them."""
+    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
+
+    return ClosedLoopConditions.model_validate(
+        {"Collisions": {"Front": 0, "Side": 0, "Rear": 0, "AtFaultOnly": True},
+         "Displacement": {"Max": 4.0, "Duration": 1.0}})
+
+
 def laterals_fail(laterals: list[float]) -> list[bool]:
     """The demo's verdict on each lateral offset, from the Python API: an independent oracle.  One
     unroll of as many copies of the scene, each moved by its offset (as unroll_scenes stacks scenes)."""
     from pytest_driveeval.closed_loop import judge_scene
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.strategies import StartPerturbation
-    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
     from pytest_driveeval.usecases.closed_loop.evaluate import stack_log, unroll_config, unroll_log
     from pytest_driveeval.usecases.closed_loop.score import SceneMaps
 
     dataset, model = real_scene_and_model()
-    conditions = ClosedLoopConditions.model_validate(
-        {"Collisions": {"Front": 0, "Side": 0, "Rear": 0, "AtFaultOnly": True},
-         "Displacement": {"Max": 4.0, "Duration": 1.0}})
+    conditions = demo_conditions()
     config = unroll_config(start_frame=10, steps=100, drift_threshold=10.0, freeze_on_collision=True,
                            kinematic=False, history_frames=10, future_frames=12, max_agents=30)
     with one_torch_thread():
@@ -124,12 +130,9 @@ def lateral_fails(lateral: float) -> bool:
     from pytest_driveeval.closed_loop import judge_scene, unroll_scenes
     from pytest_driveeval.sim.torch_threads import one_torch_thread
     from pytest_driveeval.strategies import StartPerturbation
-    from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConditions
 
     dataset, model = real_scene_and_model()
-    conditions = ClosedLoopConditions.model_validate(
-        {"Collisions": {"Front": 0, "Side": 0, "Rear": 0, "AtFaultOnly": True},
-         "Displacement": {"Max": 4.0, "Duration": 1.0}})
+    conditions = demo_conditions()
     with one_torch_thread():
         unroll = unroll_scenes(dataset, model, [0], start_frame=10, steps=100, drift_threshold=10.0,
                                perturbation=StartPerturbation(lateral=lateral))
