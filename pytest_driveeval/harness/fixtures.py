@@ -28,6 +28,7 @@ from ..report.attachments import allure_wanted, attach_to_allure, junit_properti
 from .results import item_trend
 from ..scenario import Scenario, load_scenario
 from ..search.spec import SearchOptions, parse_replay
+from ..sim.torch_threads import one_torch_thread
 from .runs import start_run
 from .settings import TIME_LIMIT_KEYS, Settings, get_settings, item_seed
 from ..core.usecase import MODEL_OPTION_NOTE, Case, RunContext, usecase_of
@@ -224,7 +225,8 @@ def driveeval_run(request: pytest.FixtureRequest, driveeval_context: RunContext)
                 for name in usecase.fixtures:
                     ctx.fixtures[name] = overrides[name] if name in overrides else request.getfixturevalue(name)
                 origin = model_origin(request, ctx, overrides)
-                outcome = usecase.run(ctx.scenario.config, ctx)
+                with one_torch_thread(if_imported=True):
+                    outcome = usecase.run(ctx.scenario.config, ctx)
         except DriveEvalError as exc:
             if isinstance(exc.outcome, Outcome):
                 _keep(request, ctx, exc.outcome, origin)
