@@ -9,6 +9,13 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+# One intra-op thread for torch (and OpenMP) in this process and every process it starts (inner
+# sessions, their xdist workers, scripts, Ray workers): the suite runs on two xdist workers on two
+# cores, and more threads than free cores wait on each other at every operator (the demo's 16
+# generated scenes: 90 s on two threads beside another job, 12 s on one).  Set before numpy and
+# torch start their thread pools; a value the caller set is kept.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import pytest
 from hypothesis import settings
 
@@ -37,7 +44,10 @@ if numba is not None:
 try:
     # The same trap for torch: an in-process pytester run that first imports it drops it
     # afterwards, and torch imported a second time in one process crashes it.
-    import torch  # noqa: F401
+    import torch
+
+    if os.environ["OMP_NUM_THREADS"].isdigit() and int(os.environ["OMP_NUM_THREADS"]) > 0:
+        torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))  # in case torch started before this file
 except ImportError:
     pass
 
