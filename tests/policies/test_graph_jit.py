@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
+torch = pytest.importorskip("torch")  # a Python without torch skips the file
 
-from pytest_driveeval.policies import graph_jit
-from pytest_driveeval.policies.graph import GraphObservationError, ObservationRanges, encode, graph_observation
-from pytest_driveeval.sim import episodes_jit
-from pytest_driveeval.sim.blueprints import make_blueprint
-from pytest_driveeval.sim.episodes import reset
+from pytest_driveeval.policies import graph_jit  # noqa: E402
+from pytest_driveeval.policies.graph import GraphObservationError, ObservationRanges, encode, graph_observation  # noqa: E402
+from pytest_driveeval.sim import episodes_jit  # noqa: E402
+from pytest_driveeval.sim.blueprints import make_blueprint  # noqa: E402
+from pytest_driveeval.sim.episodes import reset  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not episodes_jit.AVAILABLE, reason="numba is not installed: only torch runs")
 

@@ -5,15 +5,15 @@ import importlib.util
 
 import numpy as np
 import pytest
-import torch
+torch = pytest.importorskip("torch")  # a Python without torch skips the file
 
-from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.policies.loading import ExportedModel, load_model
-from pytest_driveeval.policies.planning_model import PlanningModel
-from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll
-from pytest_driveeval.synth.scenegen import generate_scenes
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy  # noqa: E402
+from pytest_driveeval.policies.loading import ExportedModel, load_model  # noqa: E402
+from pytest_driveeval.policies.planning_model import PlanningModel  # noqa: E402
+from pytest_driveeval.sim.logreplay import UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll  # noqa: E402
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT  # noqa: E402
 
 MODEL = REPO_ROOT / "fixtures" / "models" / "planning_model.pt2"
 TRAIN_SCRIPT = REPO_ROOT / "examples" / "train_planning_model.py"

@@ -4,10 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.raster import (ActiveFaces, RasterParams, Rasterizer, active_faces, agent_keep,
+pytest.importorskip("torch")  # a Python without torch skips the file
+
+from pytest_driveeval.raster import (ActiveFaces, RasterParams, Rasterizer, active_faces, agent_keep,  # noqa: E402
                                      raster_from_local, raster_from_world, rasterize)
-from pytest_driveeval.raster.boxes import box_corners
-from raster_helpers import make_log, make_map
+from pytest_driveeval.raster.boxes import box_corners  # noqa: E402
+from raster_helpers import make_log, make_map  # noqa: E402
 
 # 16 x 16 pixels of 0.5 m with the ego in the middle: raster = (8 + 2 x, 8 - 2 y) for a local (x, y).
 SMALL = dict(raster_size=(16, 16), pixel_size=(0.5, 0.5), ego_center=(0.5, 0.5))

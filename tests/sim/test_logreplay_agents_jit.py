@@ -9,13 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
+torch = pytest.importorskip("torch")  # a Python without torch skips the file
 
-from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.sim.logreplay import (UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll,
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy  # noqa: E402
+from pytest_driveeval.sim.logreplay import (UnrollConfig, build_batch, scenes_from_arrays, stack_scenes, unroll,  # noqa: E402
                                             window_columns)
-from pytest_driveeval.sim.logreplay import jit
-from pytest_driveeval.synth.scenegen import generate_scenes
+from pytest_driveeval.sim.logreplay import jit  # noqa: E402
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not jit.AVAILABLE, reason="numba is not installed: only the numpy path runs")
 

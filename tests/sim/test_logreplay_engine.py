@@ -5,15 +5,15 @@ import io
 
 import numpy as np
 import pytest
-import torch
-from shapely.geometry import Polygon
+torch = pytest.importorskip("torch")  # a Python without torch skips the file
+from shapely.geometry import Polygon  # noqa: E402
 
-from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
-from pytest_driveeval.metrics.collisions import FRONT
-from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy
-from pytest_driveeval.sim.logreplay import (EGO_EXTENT, UnrollConfig, build_batch, scenes_from_arrays, stack_scenes,
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset  # noqa: E402
+from pytest_driveeval.metrics.collisions import FRONT  # noqa: E402
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy, ReplayLogPolicy  # noqa: E402
+from pytest_driveeval.sim.logreplay import (EGO_EXTENT, UnrollConfig, build_batch, scenes_from_arrays, stack_scenes,  # noqa: E402
                                             unroll)
-from pytest_driveeval.synth.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
 STOP_SCENE = 2  # of red_light_log(): CV runs into a car stopped at the red light
 

@@ -4,9 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
-from pytest_driveeval.sim.logreplay import build_batch, collate_training_samples, scenes_from_arrays, stack_scenes
-from pytest_driveeval.synth.scenegen import generate_scenes
+pytest.importorskip("torch")  # a Python without torch skips the file
+
+from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset  # noqa: E402
+from pytest_driveeval.sim.logreplay import build_batch, collate_training_samples, scenes_from_arrays, stack_scenes  # noqa: E402
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
 H, F, N = 10, 12, 30
 SHAPES = {

@@ -5,16 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.io.l5.l5kit_zarr import (
+pytest.importorskip("torch")  # a Python without torch skips the file
+
+from pytest_driveeval.io.l5.l5kit_zarr import (  # noqa: E402
     AGENT_DTYPE,
     FRAME_DTYPE,
     TL_FACE_DTYPE,
     L5Scene,
     label_index,
 )
-from pytest_driveeval.metrics.collisions import FRONT, REAR
-from pytest_driveeval.policies.baselines import ReplayLogPolicy
-from pytest_driveeval.sim.logreplay import (
+from pytest_driveeval.metrics.collisions import FRONT, REAR  # noqa: E402
+from pytest_driveeval.policies.baselines import ReplayLogPolicy  # noqa: E402
+from pytest_driveeval.sim.logreplay import (  # noqa: E402
     ReplayedAgents,
     UnrollConfig,
     keep_agents,

@@ -4,10 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pytest_driveeval.policies.baselines import ConstantVelocityPolicy
-from pytest_driveeval.sim.logreplay import (UnrollConfig, perturb_history, scale_agent_time, scenes_from_arrays,
+pytest.importorskip("torch")  # a Python without torch skips the file
+
+from pytest_driveeval.policies.baselines import ConstantVelocityPolicy  # noqa: E402
+from pytest_driveeval.sim.logreplay import (UnrollConfig, perturb_history, scale_agent_time, scenes_from_arrays,  # noqa: E402
                                             stack_scenes, unroll)
-from pytest_driveeval.synth.scenegen import generate_scenes
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
 NO_CHANGE = [0.0, 0.0, 0.0, 1.0]
 

@@ -3,15 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
+torch = pytest.importorskip("torch")  # a Python without torch skips the file
 
-from pytest_driveeval.io.l5.l5kit_zarr import label_index
-from pytest_driveeval.metrics.collisions import REAR
-from pytest_driveeval.policies.baselines import ReplayLogPolicy
-from pytest_driveeval.sim.agents import TrafficModel
-from pytest_driveeval.sim.logreplay import EGO_EXTENT, LogArrays, UnrollConfig, scenes_from_arrays, stack_scenes, unroll
-from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents
-from pytest_driveeval.synth.scenegen import generate_scenes
+from pytest_driveeval.io.l5.l5kit_zarr import label_index  # noqa: E402
+from pytest_driveeval.metrics.collisions import REAR  # noqa: E402
+from pytest_driveeval.policies.baselines import ReplayLogPolicy  # noqa: E402
+from pytest_driveeval.sim.agents import TrafficModel  # noqa: E402
+from pytest_driveeval.sim.logreplay import EGO_EXTENT, LogArrays, UnrollConfig, scenes_from_arrays, stack_scenes, unroll  # noqa: E402
+from pytest_driveeval.sim.logreplay.reactive import ReactiveAgents  # noqa: E402
+from pytest_driveeval.synth.scenegen import generate_scenes  # noqa: E402
 
 T, DT, SPEED = 100, 0.1, 10.0
 CAR_LENGTH = 4.5

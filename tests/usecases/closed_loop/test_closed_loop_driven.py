@@ -6,13 +6,15 @@ import json
 import numpy as np
 import pytest
 
-from conftest import REPO_ROOT
-from pytest_driveeval.closed_loop import unroll_scenes
-from pytest_driveeval.sim.logreplay import EGO_EXTENT
-from pytest_driveeval.usecases.closed_loop.baselines import baseline
-from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
-from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
-from pytest_driveeval.usecases.closed_loop.evaluate import driven_json
+pytest.importorskip("torch")  # a Python without torch skips the file
+
+from conftest import REPO_ROOT  # noqa: E402
+from pytest_driveeval.closed_loop import unroll_scenes  # noqa: E402
+from pytest_driveeval.sim.logreplay import EGO_EXTENT  # noqa: E402
+from pytest_driveeval.usecases.closed_loop.baselines import baseline  # noqa: E402
+from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig  # noqa: E402
+from pytest_driveeval.usecases.closed_loop.datasets import open_dataset  # noqa: E402
+from pytest_driveeval.usecases.closed_loop.evaluate import driven_json  # noqa: E402
 
 SCENES = REPO_ROOT / "fixtures" / "scenarionet" / "nuscenes"
 
