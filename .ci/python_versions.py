@@ -5,13 +5,14 @@ The CPU build of torch 2.13.0 that these machines hold is for Python 3.11 only; 
 the registries offer torch 2.13.0 only with CUDA (several GB).  So on each of these Pythons a venv
 gets the package with every extra that needs no torch (``obstacle,plots,reports,benchmark``, xdist,
 zarr, shapely) and runs the smoke subset (``pytest tests -m smoke -n 2``); the tests that need torch
-skip, each saying so.  pytest's exit 5 (nothing ran) is a failure.
+skip, each saying so.  pytest's exit 5 (nothing ran) is a failure.  With ``--table FILE`` the run
+phase writes what ran, per Python, between ``<!-- pythons:start -->`` and ``<!-- pythons:end -->``.
 
 Phases, so that CI can build while its main run goes on: ``build`` makes the venvs, ``run`` runs the
 smoke subset in them, ``all`` (the default) does both.  A Python that is not on this machine is
 reported and not run: it is not a failure of the package.
 
-Usage: ``python .ci/python_versions.py [build|run|all] [--folder .ci-venv-python]``
+Usage: ``python .ci/python_versions.py [build|run|all] [--folder .ci-venv-python] [--table FILE]``
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import tomllib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from demo import streamed  # noqa: E402
 from fast_install import uv_install  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -80,28 +82,47 @@ def build(folder: Path, version: str, base: str) -> int:
     return run([*uv, "--quiet", "-e", *EXTRAS], env=environment)
 
 
-def smoke(folder: Path, version: str) -> int:
+def smoke(folder: Path, version: str) -> tuple[int, str]:
+    """The smoke subset's exit code (5, nothing ran, made a failure) and pytest's last line."""
     python = venv_python(folder, version)
-    code = run([str(python), "-m", "pytest", "tests", "-m", "smoke", "-n", "2", "-q", "-p", "no:cacheprovider"])
+    code, last = streamed([str(python), "-m", "pytest", "tests", "-m", "smoke", "-n", "2", "-q",
+                           "-p", "no:cacheprovider"])
     if code == 5:
         print(f"python_versions: Python {version}: the smoke subset collected nothing; that is a failure",
               file=sys.stderr)
-        return 1
-    return code
+        return 1, last
+    return code, last
+
+
+def full_version(folder: Path, version: str) -> str:
+    done = subprocess.run([str(venv_python(folder, version)), "-c", "import platform; print(platform.python_version())"],
+                          capture_output=True, text=True)
+    return done.stdout.strip() or version
+
+
+def write_table(path: Path, rows: list[str]) -> None:
+    start, end = "<!-- pythons:start -->", "<!-- pythons:end -->"
+    page = path.read_text()
+    before, rest = page.split(start, 1)
+    _, after = rest.split(end, 1)
+    head = "| Python | what runs | outcome |\n|---|---|---|"
+    path.write_text(f"{before}{start}\n{head}\n" + "\n".join(rows) + f"\n{end}{after}")
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("phase", nargs="?", choices=("build", "run", "all"), default="all")
     parser.add_argument("--folder", type=Path, default=ROOT / ".ci-venv-python", help="where the venvs are built")
+    parser.add_argument("--table", type=Path, help="a page whose Python table the run phase rewrites")
     options = parser.parse_args()
     folder = options.folder.resolve()
-    failed = []
+    failed, rows = [], []
     for version in claimed():
         started = time.monotonic()
         base = interpreter(version)
         if base is None:
             print(f"python_versions: no Python {version} on this machine; not run", file=sys.stderr)
+            rows.append(f"| {version} | not on the machine that ran this | not run |")
             continue
         if options.phase in ("build", "all") and build(folder, version, base):
             print(f"python_versions: Python {version}: the install failed", file=sys.stderr)
@@ -111,9 +132,15 @@ def main() -> int:
             if not venv_python(folder, version).exists():
                 print(f"python_versions: Python {version}: no venv in {folder} (run the build phase)", file=sys.stderr)
                 failed.append(version)
-            elif smoke(folder, version):
-                failed.append(version)
+            else:
+                code, last = smoke(folder, version)
+                outcome = last.strip("= ").split(" in ")[0]   # "242 passed, 52 skipped", without the seconds
+                rows.append(f"| {full_version(folder, version)} | the smoke subset, without torch | {outcome} |")
+                if code:
+                    failed.append(version)
         print(f"python_versions: Python {version} {options.phase}: {time.monotonic() - started:.0f} s", flush=True)
+    if options.table and options.phase != "build":
+        write_table(options.table, rows)
     if failed:
         print(f"python_versions: failed on Python {', '.join(failed)}", file=sys.stderr)
     return 1 if failed else 0
