@@ -176,7 +176,13 @@ class ExportedModel:
     :func:`~.fx_forward.fast_forward` generates it, bit for bit the module's);
     anything else (a new shape, keyword or non-tensor arguments) goes through
     the hooks as before.  Everything else is the module's (``training``,
-    ``state_dict`` ...)."""
+    ``state_dict`` ...).
+
+    A dict of tensors (the planning model's input) is checked once per key
+    order and shapes too: the hooks' check of it (pytree paths compared as
+    sympy expressions) was half of a closed-loop unroll's time.  Such a call
+    goes to the module's own generated forward, which flattens the dict by the
+    program's input spec as the module does, without the hooks."""
 
     def __init__(self, module: Any):
         self.module = module
@@ -186,6 +192,8 @@ class ExportedModel:
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
         shapes = _shapes(args) if not kwargs else None
         if shapes is not None and shapes in self._passed:
+            if any(type(a) is dict for a in args):
+                return self.module.forward(*args)
             if self._forward is None:
                 # The module's generated forward, with a quarter less Python per call (see .fx_forward).
                 self._forward = fast_forward(self.module) or self.module.forward
@@ -202,11 +210,22 @@ class ExportedModel:
 
 
 def _shapes(args: tuple) -> tuple | None:
+    """What the module's hooks check of ``args``, for tensors and dicts of tensors keyed by strings
+    (a dict's keys in order: its pytree structure); None for anything else."""
     import torch
 
-    if not all(type(a) is torch.Tensor for a in args):
-        return None
-    return tuple((tuple(a.shape), a.dtype, a.device) for a in args)
+    def tensor(a: Any) -> tuple:
+        return tuple(a.shape), a.dtype, a.device
+
+    out = []
+    for a in args:
+        if type(a) is torch.Tensor:
+            out.append(tensor(a))
+        elif type(a) is dict and all(type(k) is str and type(v) is torch.Tensor for k, v in a.items()):
+            out.append(("dict", tuple((k, tensor(v)) for k, v in a.items())))
+        else:
+            return None
+    return tuple(out)
 
 
 def model_files(spec: str, base: Path | None = None) -> tuple[Path, ...]:
