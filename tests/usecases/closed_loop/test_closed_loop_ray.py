@@ -14,8 +14,17 @@ pytest.importorskip("ray")
 import ray_items  # noqa: E402  (tests/ray_items.py)
 from ray_items import assert_same_items, executor_section, results, worker_nodes  # noqa: E402
 from scenarionet_scenarios import FIXTURE_SCENES, scenario_text  # noqa: E402
+from conftest import NO_HYPOTHESIS_PLUGIN  # noqa: E402
 
-cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A head and two worker nodes for all of the module's tests (tests/ray_items.py).  Declared here: a
+    module that declares a module-scoped fixture stays on one xdist worker, so one cluster starts, not one
+    on each worker, and the tests after the first find the workers of this driver's job started."""
+    with ray_items.local_cluster() as running:
+        yield running
+
 
 pytestmark = pytest.mark.ray
 
@@ -48,17 +57,19 @@ def test_a_baseline_on_both_nodes_gives_the_one_batch_runs_outcome_and_gifs(clus
     # The engine keeps scenes apart, so a batch-invariant policy gives the one-batch run bit for bit.
     pytester.makefile(".scenario.yaml", scenes=scenario("constant_velocity", animations="all"))
     # Here, in this process; the Ray run in a separate one that connects to the cluster by its address.
+    # Each chunk takes a whole two-CPU node (NumCpus: 2), so two in flight need both nodes, and only two
+    # workers of the new process's job import torch and the package (each worker of a new job does).
     local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local")
-    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 2, MaxInFlight: 4}}"
-    remote = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "remote",
-                                           "--driveeval-executor", option)
+    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 2, MaxInFlight: 2, NumCpus: 2}}"
+    remote = pytester.runpytest_subprocess("-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, "--driveeval-output",
+                                           "remote", "--driveeval-executor", option)
     assert local.ret == remote.ret
     records = assert_same_items(pytester.path / "local", pytester.path / "remote")
     record, = records.values()
     where = record["details"]["executor"]
     assert [c["work"] for c in where["chunks"]] == [f"scenes {a}..{b} of generated.zarr"
                                                     for a, b in ((0, 1), (2, 3), (5, 8), (11, 13))]
-    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "four chunks in flight need both nodes"
+    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "two two-CPU chunks in flight need both nodes"
     gifs = [name for name in record["artefacts"] if name.endswith("_gif")]
     assert len(gifs) == 8, "every scene's GIF, drawn on a worker, written here"
 
