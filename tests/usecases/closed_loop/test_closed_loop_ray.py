@@ -76,9 +76,12 @@ def test_a_baseline_on_both_nodes_gives_the_one_batch_runs_outcome_and_gifs(clus
 
 def test_the_planning_model_on_ray_is_the_local_run_of_the_same_chunks(cluster, pytester):
     # The model's float32 sums round differently with the batch size (~1e-6 m): a Ray run is
-    # reproduced exactly by the same chunks run here, and its verdicts are the one batch's.
+    # reproduced exactly by the same chunks run here, and its verdicts are the one batch's.  30 steps, not
+    # the other runs' 40 (the model's unroll is most of this test's three runs): scene 0 already drifts
+    # past the 3 m bound (3.18 m after 28 steps) and the others stay within, so the verdicts compared
+    # are a mix (asserted below).
     def run(output: str, executor: str):
-        pytester.makefile(".scenario.yaml", scenes=scenario(PLANNING_MODEL, executor=executor))
+        pytester.makefile(".scenario.yaml", scenes=scenario(PLANNING_MODEL, executor=executor, steps=30))
         return pytester.runpytest("-p", "no:randomly", "--driveeval-output", output)
 
     here = run("local", executor_section(Kind="local", ChunkSize=3))
@@ -91,6 +94,7 @@ def test_the_planning_model_on_ray_is_the_local_run_of_the_same_chunks(cluster, 
     one_batch, = results(pytester.path / "batch").values()
     assert [(s["scene"], s["passed"]) for s in record["details"]["scenes"]] == \
         [(s["scene"], s["passed"]) for s in one_batch["details"]["scenes"]]
+    assert {s["passed"] for s in one_batch["details"]["scenes"]} == {True, False}, "a mix of verdicts to compare"
     for chunked, whole in zip(record["details"]["scenes"], one_batch["details"]["scenes"]):
         assert chunked["max_displacement"] == pytest.approx(whole["max_displacement"], abs=1e-4)
 
