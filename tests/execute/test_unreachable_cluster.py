@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from conftest import POLICY_BENCHMARK_HEAD, fresh_pytest_run
+from conftest import NO_HYPOTHESIS_PLUGIN, POLICY_BENCHMARK_HEAD, fresh_pytest_run
 
 pytest.importorskip("ray")
 pytest.importorskip("torch")
@@ -55,7 +55,8 @@ def bad_addresses(tmp_path_factory, module_silent_port):
                                                             f'"127.0.0.1:{module_silent_port}"}}\n')}
     for name, text in texts.items():
         (folder / f"{name}.scenario.yaml").write_text(text)
-    done = fresh_pytest_run(folder, "-q", "-p", "no:randomly", "-p", "no:cacheprovider", timeout=240)
+    done = fresh_pytest_run(folder, "-q", "-p", "no:randomly", "-p", "no:cacheprovider", *NO_HYPOTHESIS_PLUGIN,
+                            timeout=240)
     records = json.loads((folder / "driveeval-results" / "summary.json").read_text())["results"]
     return done.returncode, done.stdout, {r["scenario"]: r for r in records}
 
@@ -77,7 +78,7 @@ def test_a_dead_address_fails_each_item_that_needs_it_with_its_line_and_the_good
 def test_the_session_option_address_is_probed_once_and_named_for_every_item(pytester):
     for name in ("a", "b", "c"):
         pytester.makefile(".scenario.yaml", **{name: BENCH.format(name=name, executor="")})
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", "-n", "2",
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, "-n", "2",
                                            "--driveeval-executor", "{Kind: ray, Address: 127.0.0.1:1}", timeout=240)
     result.assert_outcomes(failed=3)
     message = ("UnreachableCluster: --driveeval-executor / driveeval_executor: Address: "

@@ -7,7 +7,8 @@ import json
 import shutil
 
 import pytest
-from conftest import REPO_ROOT
+from conftest import NO_HYPOTHESIS_PLUGIN, REPO_ROOT
+from module_pytester import module_pytester
 
 pytest.importorskip("torch")
 pytest.importorskip("scipy")
@@ -65,7 +66,7 @@ def test_one_item_per_policy_and_planning_problem_results_the_same_with_two_work
     gifs = list((pytester.path / "driveeval-results").rglob(
         "*mine-problem100*/episode_seed_0_ZAM_Tutorial-1_1_T-1_problem100.gif"))
     assert len(gifs) == 1 and gifs[0].stat().st_size > 1000
-    pytester.runpytest("-q", "-n", "2")
+    pytester.runpytest("-q", "-n", "2", *NO_HYPOTHESIS_PLUGIN)
     assert {k: (r["status"], r["figures"], r["details"]["intervals"]) for k, r in records(pytester).items()} == serial
 
 
@@ -100,7 +101,7 @@ NOT_COMMONROAD = "<?xml version='1.0'?>\n<scenario id='1'/>\n"
 FUTURE = TUTORIAL.read_text().replace('commonRoadVersion="2020a"', 'commonRoadVersion="2031x"')
 
 
-@pytest.mark.parametrize("files, extra, expected", [
+BAD_FILES = [
     ({}, "", r"*bad.scenario.yaml:7: Evaluation.Blueprint.CommonRoad: CommonRoad scenario *absent.xml cannot be "
              r"read: No such file*"),
     ({"absent.xml": NOT_COMMONROAD}, "",
@@ -110,18 +111,36 @@ FUTURE = TUTORIAL.read_text().replace('commonRoadVersion="2020a"', 'commonRoadVe
     ({"absent.xml": TUTORIAL.read_text()}, "\n    PlanningProblem: 7",
      "*bad.scenario.yaml:8: Evaluation.Blueprint.PlanningProblem: *absent.xml: no planning problem with id 7 "
      "(the file has: 100)*"),
-])
-def test_bad_files_and_problems_are_item_errors_naming_the_yaml_line_and_the_element(pytester, files, extra,
-                                                                                      expected):
-    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
-    for name, text in files.items():
-        (pytester.path / name).write_text(text)
-    pytester.makefile(".scenario.yaml", bad=scenario(name="bad", path="absent.xml", extra=extra),
-                      good=scenario(name="good"))
-    result = pytester.runpytest("-q", "-p", "no:randomly")
-    result.assert_outcomes(passed=2, failed=2)
-    result.stdout.fnmatch_lines([expected])
-    assert all(r["status"] == "passed" for k, r in records(pytester).items() if k.startswith("good"))
+]
+
+
+@pytest.fixture(scope="module")
+def bad_files_session(request, tmp_path_factory):
+    """One session for the cases below (each was a session of its own, the good scenario's episodes run
+    again in each): each case's bad scenario and files in a folder of its own (case0, case1, ...), the
+    good scenario and zam.xml beside them.  Returns the session's result and its records."""
+    with module_pytester(request, tmp_path_factory) as pytester:
+        shutil.copy(TUTORIAL, pytester.path / "zam.xml")
+        pytester.makefile(".scenario.yaml", good=scenario(name="good"))
+        for case, (files, extra, _) in enumerate(BAD_FILES):
+            folder = pytester.mkdir(f"case{case}")
+            for name, text in files.items():
+                (folder / name).write_text(text)
+            (folder / "bad.scenario.yaml").write_text(scenario(name="bad", path="absent.xml", extra=extra))
+        result = pytester.runpytest("-q", "-p", "no:randomly")
+        return result, records(pytester)
+
+
+@pytest.mark.parametrize("case", range(len(BAD_FILES)))
+def test_bad_files_and_problems_are_item_errors_naming_the_yaml_line_and_the_element(bad_files_session, case):
+    result, found = bad_files_session
+    expected = BAD_FILES[case][2]
+    # both policies' items of each case fail; the good scenario's two pass
+    result.assert_outcomes(passed=2, failed=2 * len(BAD_FILES))
+    result.stdout.fnmatch_lines([f"*case{case}/{expected.lstrip('*')}"])
+    assert [r["status"] for k, r in found.items() if k.startswith(f"case{case}/")] == ["failed"] * 2
+    goods = [r["status"] for k, r in found.items() if k.startswith("good")]
+    assert goods == ["passed"] * 2
 
 
 @pytest.mark.parametrize("change, expected", [
@@ -229,8 +248,8 @@ def test_bad_numbers_special_files_and_sizes_fail_their_own_item_at_their_line(p
                       many=scenario(name="many", extra="\n    Params: {max_steps: 1000000}"))
     # 0.2 GiB: 10^6 steps of no obstacle fit when the scenario loads, of the file's 3 obstacles not.
     # In a subprocess with a timeout: a FIFO would block a reader that waits for its writer for ever.
-    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", "--driveeval-memory-limit", "0.2",
-                                           timeout=300)
+    result = pytester.runpytest_subprocess("-q", "-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN,
+                                           "--driveeval-memory-limit", "0.2", timeout=300)
     assert all(r["status"] == "passed" for k, r in records(pytester).items() if k.startswith("good"))
     out = " ".join(result.stdout.str().split())  # the table wraps its lines
     for expected in [

@@ -17,9 +17,19 @@ pytest.importorskip("scipy")
 ray = pytest.importorskip("ray")
 
 import ray_items  # noqa: E402  (tests/ray_items.py)
+from conftest import NO_HYPOTHESIS_PLUGIN  # noqa: E402
 from ray_items import WORKER_CPUS, assert_same_items, executor_section, worker_nodes  # noqa: E402
 
-cluster = ray_items.cluster  # the module's fixture: a head and two worker nodes
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """A head and two worker nodes for all of the module's tests (tests/ray_items.py).  Declared here: a
+    module that declares a module-scoped fixture stays on one xdist worker, so one cluster starts, not one
+    on each worker, and the tests after the first find the workers of this driver's job started."""
+    with ray_items.local_cluster() as running:
+        yield running
+
 pytestmark = pytest.mark.ray
 
 REPO = Path(__file__).resolve().parents[3]
@@ -68,22 +78,24 @@ Evaluation:
 
 def test_the_session_option_runs_the_chunks_on_both_nodes_with_the_local_outcome(cluster, pytester):
     # The Ray run in a separate process, as a CI job would be: it connects to the cluster by its
-    # address.  The local run needs no fresh process (nor its second torch import).
+    # address.  The local run needs no fresh process (nor its second torch import).  Each chunk takes
+    # a whole two-CPU node (NumCpus: 2), so two in flight need both nodes, and only two workers of the
+    # new process's job import torch and load the model (each worker of a new job does, ~5 s).
     pytester.makefile(".scenario.yaml", bench=BENCHMARK.format(episodes=6, gnn=GNN, executor=""))
     local = pytester.runpytest("-p", "no:randomly", "--driveeval-output", "local")
-    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 3, MaxInFlight: 4}}"
-    remote = pytester.runpytest_subprocess("-p", "no:randomly", "--driveeval-output", "remote",
-                                           "--driveeval-executor", option)
+    option = f"{{Kind: ray, Address: '{cluster.address}', ChunkSize: 3, MaxInFlight: 2, NumCpus: 2}}"
+    remote = pytester.runpytest_subprocess("-p", "no:randomly", *NO_HYPOTHESIS_PLUGIN, "--driveeval-output",
+                                           "remote", "--driveeval-executor", option)
     local.assert_outcomes(passed=3)
     remote.assert_outcomes(passed=3)
     records = assert_same_items(pytester.path / "local", pytester.path / "remote")
     judged = records["bench.scenario.yaml::policy_benchmark[gnn]"]
     where = judged["details"]["executor"]
     # 6 episodes in chunks of 3 for the judged policy and each of the two baselines it beats: six
-    # chunks, four of them in flight at once, more than one two-CPU node can run
+    # chunks, two of them in flight at once, each of two CPUs: more than one two-CPU node can run
     assert len(where["chunks"]) == 3 * 2 and [c["chunk"] for c in where["chunks"]] == list(range(6))
     assert where["chunks"][0]["work"] == "gnn seeds 0..2" and where["chunks"][-1]["work"] == "constant seeds 3..5"
-    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "four chunks in flight need both nodes"
+    assert {c["node"] for c in where["chunks"]} == worker_nodes(), "two two-CPU chunks in flight need both nodes"
     assert "6 chunks on ray" in where["summary"] and "2 node(s)" in where["summary"]
     assert any(name.endswith("_gif") for name in judged["artefacts"]), "the episode GIF is drawn on the driver"
     # the Ray connection the session opened is closed with it; the cluster stays up

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from conftest import NO_HYPOTHESIS_PLUGIN
 
 pytest.importorskip("torch")
 pytest.importorskip("scipy")
@@ -69,7 +70,7 @@ def test_results_are_the_same_serially_and_with_two_workers(pytester):
 
     pytester.runpytest("-q", "-p", "no:randomly")
     serial = outcome()
-    pytester.runpytest("-q", "-n", "2")
+    pytester.runpytest("-q", "-n", "2", *NO_HYPOTHESIS_PLUGIN)
     assert outcome() == serial
 
 
