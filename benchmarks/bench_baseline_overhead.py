@@ -47,18 +47,21 @@ Evaluation:
   Episodes: {episodes}
   FirstSeed: {first_seed}
   Policies:
-{policies}"""
+{policies}{artefacts}"""
 #: in-process repetitions of each item's payload and comparison, for a time above the clock's grain
 REPEATS = 20
+#: a smoke run's scenarios: no GIF, no plot (seconds of rendering per session, three sessions, and not the
+#: script's own code); a measured run keeps the default artefacts a user's session writes
+NO_ARTEFACTS = "  Artefacts: {Animations: none, ComparisonPlot: false}\n"
 
 
-def write_scenarios(folder: Path, items: int, episodes: int) -> None:
+def write_scenarios(folder: Path, items: int, episodes: int, artefacts: str = "") -> None:
     files = -(-items // len(POLICIES))
     for index in range(files):
         names = POLICIES[:min(len(POLICIES), items - index * len(POLICIES))]
         text = SCENARIO.format(index=index, blueprint=BLUEPRINTS[index % len(BLUEPRINTS)], episodes=episodes,
                                first_seed=index * episodes,
-                               policies="".join(f"    {name}: {name}\n" for name in names))
+                               policies="".join(f"    {name}: {name}\n" for name in names), artefacts=artefacts)
         (folder / f"overhead_{index:02d}.scenario.yaml").write_text(text)
     (folder / "pytest.ini").write_text("[pytest]\n")
 
@@ -136,16 +139,17 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=64)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--smoke", action="store_true",
-                        help="2 items of 2 episodes, one round, one repeat in-process: checks the script runs")
+                        help="2 items of 2 episodes, no GIF or plot, one round, one repeat in-process: checks the script runs")
     args = parser.parse_args()
     if args.smoke:
         # Two items (one file, both policies): the sessions still compare more than one item each.
         args.items, args.episodes, args.rounds = 2, 2, 1
-        print("smoke run: 2 items of 2 episodes, one round, one repeat in-process; the figures mean nothing")
+        print("smoke run: 2 items of 2 episodes, no GIF or plot, one round, one repeat in-process; the figures "
+              "mean nothing")
     times: dict[str, dict[str, list[float]]] = {"without": {}, "with": {}}
     with tempfile.TemporaryDirectory(prefix="driveeval-bench-baseline-") as tmp:
         folder = Path(tmp)
-        write_scenarios(folder, args.items, args.episodes)
+        write_scenarios(folder, args.items, args.episodes, NO_ARTEFACTS if args.smoke else "")
         baselines = folder / "baselines"
         session(folder, "out-update", "--driveeval-baseline", str(baselines), "--driveeval-baseline-update")
         print(f"{args.items} items in {len(list(folder.glob('*.scenario.yaml')))} files, {args.episodes} episodes "

@@ -2,6 +2,7 @@
 with the plugin's own rules, without rerunning them; it names what it cannot read."""
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -13,6 +14,8 @@ import pytest
 
 from conftest import POLICY_BENCHMARK_HEAD, REPO_ROOT
 from module_pytester import module_pytester
+
+from pytest_driveeval.__main__ import main as compare_main
 
 pytest.importorskip("torch")
 
@@ -27,7 +30,39 @@ ITEM = "{}.scenario.yaml::policy_benchmark[mine]"
 A_ITEM, SAME, GONE, NEW = (ITEM.format(n) for n in ("a", "same", "gone", "new"))
 
 
-def cli(cwd: Path, *args: str, columns: int = 200) -> subprocess.CompletedProcess:
+class Done:
+    """What the tests read of a finished command: as subprocess.CompletedProcess."""
+
+    def __init__(self, returncode: int, stdout: str, stderr: str):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def cli(cwd: Path, *args: str, columns: int = 200) -> Done:
+    """``python -m pytest_driveeval compare ARGS`` run in this process: the same ``main`` the module's
+    ``__main__`` calls, in ``cwd``, with COLUMNS as the terminal's width and utf-8 out, as the fresh
+    process of ``cli_process`` has them; without paying the package's import (~1.5 s) per call.
+    ``test_python_m_runs_the_same_command_in_a_process_of_its_own`` holds the two equal."""
+    out, err = (io.TextIOWrapper(io.BytesIO(), encoding="utf-8", write_through=True) for _ in range(2))
+    saved = os.getcwd(), os.environ.get("COLUMNS"), sys.stdout, sys.stderr
+    os.chdir(cwd)
+    os.environ["COLUMNS"] = str(columns)
+    sys.stdout, sys.stderr = out, err
+    try:
+        code = compare_main(["compare", *args])
+    except SystemExit as exc:  # argparse's usage errors exit with 2, as in a process of its own
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:
+        os.chdir(saved[0])
+        if saved[1] is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = saved[1]
+        sys.stdout, sys.stderr = saved[2], saved[3]
+    return Done(code, out.buffer.getvalue().decode("utf-8"), err.buffer.getvalue().decode("utf-8"))
+
+
+def cli_process(cwd: Path, *args: str, columns: int = 200) -> subprocess.CompletedProcess:
+    """``python -m pytest_driveeval compare ARGS`` in a process of its own, as a user runs it."""
     env = {**os.environ, "PYTHONPATH": str(REPO_ROOT), "COLUMNS": str(columns), "PYTHONIOENCODING": "utf-8"}
     return subprocess.run([sys.executable, "-m", "pytest_driveeval", "compare", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=120)
@@ -66,7 +101,7 @@ def copy_of(two_runs, folder: Path) -> tuple[str, str]:
     return first, second
 
 
-def rows(result: subprocess.CompletedProcess) -> dict[str, dict]:
+def rows(result: Done) -> dict[str, dict]:
     return {row["nodeid"]: row for row in json.loads(result.stdout)["rows"]}
 
 
@@ -159,6 +194,16 @@ def test_every_way_of_naming_a_run_gives_the_same_rows(pytester, two_runs):
     assert result.returncode == 0, result.stderr
     assert rows(result)[SAME]["status"] == "not compared"
     assert rows(result)[SAME]["details"] == ["B: error: kept no comparable record"]
+
+
+def test_python_m_runs_the_same_command_in_a_process_of_its_own(pytester, two_runs):
+    """The other tests call ``cli`` in this process; ``python -m pytest_driveeval`` in a fresh one
+    prints the same, byte for byte, and exits with the same status: a regression (1), a usage error (2)."""
+    copy_of(two_runs, pytester.path)
+    for args in (("last~1", "last"), ("last", "last", "--format", "yaml")):
+        fresh, here = cli_process(pytester.path, *args), cli(pytester.path, *args)
+        assert (fresh.returncode, fresh.stdout, fresh.stderr) == (here.returncode, here.stdout, here.stderr), args
+    assert fresh.returncode == 2 and "invalid choice: 'yaml'" in fresh.stderr
 
 
 def test_what_cannot_be_read_is_named_with_exit_status_2(tmp_path):

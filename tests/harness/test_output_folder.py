@@ -8,7 +8,8 @@ import os
 from pathlib import Path
 
 import pytest
-from conftest import speed_scenario
+from conftest import EXAMPLE_USECASE, speed_scenario, write_trajectory
+from module_pytester import module_pytester
 
 GOOD = speed_scenario("good")
 INI = "[pytest]\nmarkers =\n    smoke: quick scenarios\ndriveeval_keep_runs = 1\n"
@@ -120,22 +121,44 @@ def test_the_writability_check_leaves_no_folder_behind(project):
     assert not (project.path / "new").exists()
 
 
-@pytest.mark.parametrize("files", [None, "run.json", [1], ["../../../victim.txt"], ["/etc/hostname"], [""]],
-                         ids=["null", "string", "number", "dotdot", "absolute", "empty"])
-def test_an_old_run_with_a_broken_manifest_is_kept_with_a_warning(project, files):
-    project.makefile(".scenario.yaml", good=GOOD)
-    project.makeini(INI)
-    (project.path / "victim.txt").write_text("mine")
-    project.runpytest("-q").assert_outcomes(passed=1)
-    old = project.path / "driveeval-results" / "runs" / summary(project)["run"]["id"]
-    marker = json.loads((old / "run.json").read_text())
-    (old / "run.json").write_text(json.dumps({**marker, "files": files}))
-    before = snapshot(old)
-    result = project.runpytest("-q", "-n", "2")
+BROKEN_MANIFESTS = {"null": None, "string": "run.json", "number": [1], "dotdot": ["../../../victim.txt"],
+                    "absolute": ["/etc/hostname"], "empty": [""]}
+
+
+@pytest.fixture(scope="module")
+def broken_old_runs(request, tmp_path_factory):
+    """One old run per kind of broken manifest (each run's ``files`` replaced right after it ran), then
+    one ``-n 2`` session, which must keep them all: its folder, each old run's id and snapshot, and the
+    session's result. One xdist session for the six kinds, not six: each test reads its own kind's part."""
+    with module_pytester(request, tmp_path_factory) as project:
+        project.path.joinpath("speed_limit.py").write_text(EXAMPLE_USECASE.read_text())
+        project.makeconftest("import speed_limit\n")
+        write_trajectory(project.path / "slow.csv", 10.0)
+        write_trajectory(project.path / "fast.csv", 20.0)
+        project.makefile(".scenario.yaml", good=GOOD)
+        project.makeini(INI)
+        (project.path / "victim.txt").write_text("mine")
+        olds, before = {}, {}
+        for kind, files in BROKEN_MANIFESTS.items():
+            project.runpytest("-q").assert_outcomes(passed=1)
+            old = project.path / "driveeval-results" / "runs" / summary(project)["run"]["id"]
+            marker = json.loads((old / "run.json").read_text())
+            (old / "run.json").write_text(json.dumps({**marker, "files": files}))
+            olds[kind] = old
+        for kind, old in olds.items():
+            before[kind] = snapshot(old)
+        result = project.runpytest("-q", "-n", "2")
+        return project, olds, before, result
+
+
+@pytest.mark.parametrize("kind", list(BROKEN_MANIFESTS))
+def test_an_old_run_with_a_broken_manifest_is_kept_with_a_warning(broken_old_runs, kind):
+    project, olds, before, result = broken_old_runs
+    old = olds[kind]
     result.assert_outcomes(passed=1)
     result.stdout.fnmatch_lines([f"driveeval warning: */runs/{old.name}/run.json: 'files' is not a list of paths "
                                  "inside the run's folder; that run is kept, delete it by hand"])
-    assert snapshot(old) == before
+    assert snapshot(old) == before[kind]
     assert (project.path / "victim.txt").read_text() == "mine"
     # Everything else written: the new run is the summary, finished, in the history.
     new = summary(project)["run"]["id"]
@@ -143,7 +166,7 @@ def test_an_old_run_with_a_broken_manifest_is_kept_with_a_warning(project, files
     new_marker = json.loads((project.path / "driveeval-results" / "runs" / new / "run.json").read_text())
     assert new_marker["state"] == "finished"
     history = (project.path / "driveeval-results" / "history.jsonl").read_text().splitlines()
-    assert [json.loads(line)["run"]["id"] for line in history] == [old.name, new]
+    assert [json.loads(line)["run"]["id"] for line in history] == [o.name for o in olds.values()] + [new]
 
 
 @pytest.mark.parametrize("damage, warning", [
