@@ -102,15 +102,17 @@ def raster_options(name: str, dataset, scenes: list[int]) -> dict:
             "history_frames": spec["history_num_frames"]}
 
 
-def scene_cases(folder: Path, policies=POLICIES, scenes=range(6), start_frame: int = 10, steps: int | None = 80
-                ) -> list[dict]:
+def scene_cases(folder: Path, policies=POLICIES, scenes=range(6), start_frame: int = 10, steps: int | None = 80,
+                dataset=None) -> list[dict]:
     """Per (policy, scene): ``case`` (CASE_FORMAT), ``ours`` (the harness's answer on the case),
     ``direct`` (its score of the unrolled scene, not through the case), the rows of ``resets`` (the ego
-    put back on the log) and ``frozen`` (held after an overlap), and ``collisions`` (row, at fault)."""
+    put back on the log) and ``frozen`` (held after an overlap), and ``collisions`` (row, at fault).
+    ``dataset``: the folder's dataset already opened (open_dataset), so that a caller scoring it under two
+    protocols reads each scenario and builds each scene's score map once (the dataset keeps them)."""
     from pytest_driveeval.closed_loop import unroll_scenes
     from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
 
-    dataset = open_dataset(folder, None)
+    dataset = dataset if dataset is not None else open_dataset(folder, None)
     out = []
     for name in policies:
         # a raster draws one map: the raster model drives each scene in an unroll of its own

@@ -32,6 +32,7 @@ sys.path.insert(0, str(HERE))
 
 import nuplan_metrics  # noqa: E402  (the devkit's metrics; its sensor stubs come first)
 from scenario_case import case_from_scenario  # noqa: E402
+from scenario_map import scenario_map  # noqa: E402
 from scenario_pickle import load_scenario  # noqa: E402
 
 SHORT = {"no_ego_at_fault_collisions": "collisions", "drivable_area_compliance": "drivable area",
@@ -125,6 +126,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     disagreements: List[str] = []
     failures: List[str] = []
     cases = []
+    # each file read and its map built once, however many items drove its scene (neither is changed by a case)
+    read: Dict[Path, Tuple[Dict[str, Any], Dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         aggregator = nuplan_metrics.build_aggregator(Path(tmp) / "aggregator")
         for record, closed_loop in closed_loop_items(args.summary):
@@ -142,7 +145,10 @@ def main(argv: Optional[List[str]] = None) -> int:
                     continue
                 try:
                     size = (driven["length"], driven["width"]) if args.ego_size == "driven" else None
-                    case, notes = case_from_scenario(load_scenario(path), driven, name, size)
+                    if path not in read:
+                        scenario = load_scenario(path)
+                        read[path] = scenario, scenario_map(scenario)
+                    case, notes = case_from_scenario(read[path][0], driven, name, size, read[path][1])
                     notes.insert(0, f"file {path}")
                     cases.append(case)
                     theirs = nuplan_metrics.evaluate(case, configs, aggregator, Path(tmp) / "metrics")

@@ -113,9 +113,11 @@ def agents(scenario: Dict[str, Any], frames: List[int], notes: List[str]) -> Lis
 
 
 def case_from_scenario(scenario: Dict[str, Any], driven: Dict[str, Any], name: str,
-                       ego_size: Optional[Tuple[float, float]] = None) -> Tuple[Dict[str, Any], List[str]]:
+                       ego_size: Optional[Tuple[float, float]] = None,
+                       map_spec: Optional[Dict[str, Any]] = None) -> Tuple[Dict[str, Any], List[str]]:
     """(the case, notes) of one driven scene: ``driven`` as closed_loop.json's ``driven`` holds it
-    (frames, center); ``ego_size`` (length, width) instead of the file's."""
+    (frames, center); ``ego_size`` (length, width) instead of the file's; ``map_spec``: scenario_map(scenario)
+    already made (a caller driving one scene several times builds its map once; it is not changed here)."""
     notes: List[str] = []
     frames = [int(f) for f in driven["frames"]]
     steps = int(scenario.get("length") or len(np.asarray(scenario["metadata"].get("ts", []))))
@@ -131,7 +133,7 @@ def case_from_scenario(scenario: Dict[str, Any], driven: Dict[str, Any], name: s
     if start_gap > 1e-3:
         notes.append(f"the drive starts {start_gap:.3f} m from the file's ego at frame {frames[0]} (a perturbed start, "
                      "or not this scene's file)")
-    map_spec = scenario_map(scenario)
+    map_spec = dict(map_spec if map_spec is not None else scenario_map(scenario))
     notes.extend(map_spec.pop("notes"))
     case = {"name": name, "timestamps": times.tolist(), "ego": ego_dynamics(center, times, length, width),
             "expert": {"center": expert.tolist()}, "agents": agents(scenario, frames, notes), "map": map_spec}

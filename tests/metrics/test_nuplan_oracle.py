@@ -1,6 +1,7 @@
 """The harness's nuPlan score against the hand-checkable cases' expected values (always), and against
 nuplan-devkit's own metric code where its venv exists (benchmarks/nuplan_oracle/oracle_venv.py builds
 it): every term, each frame's time to collision, the comfort signals' ranges and the score."""
+import functools
 import importlib.util
 import math
 
@@ -22,8 +23,14 @@ def _load(name):
 cases = _load("cases")
 
 
+@functools.cache
+def hand_answers() -> dict:
+    """The harness's answer to each hand-checkable case, by name: scored once for the two tests that read them."""
+    return {case["name"]: answer(case) for case in cases.all_cases()}
+
+
 def test_every_hand_checkable_case_has_its_expected_values():
-    rows, mismatches = cases.compare([answer(case) for case in cases.all_cases()])
+    rows, mismatches = cases.compare(list(hand_answers().values()))
     assert mismatches == 0, "\n".join(r for r in rows if "DIFFERS" in r)
     assert len(rows) - 2 >= 60  # the table's rows: every expected value was looked at
 
@@ -39,7 +46,7 @@ def test_the_harness_agrees_with_nuplan_devkit_on_every_term():
     oracle = {r["name"]: r for r in _load("oracle_venv").run_metrics(cases.all_cases(), python)}
     differences = []
     for case in cases.all_cases():
-        ours, theirs = answer(case), oracle[case["name"]]
+        ours, theirs = hand_answers()[case["name"]], oracle[case["name"]]
         assert "error" not in theirs, theirs
         for name, value in theirs["metrics"].items():
             if name in ours["metrics"] and not same(ours["metrics"][name], value):
@@ -62,14 +69,29 @@ EXACT = 1e-6
 PROTOCOLS = {"80 steps": 80, "whole scenes": None}
 
 
-@pytest.fixture(scope="module", params=list(PROTOCOLS))
-def real_scenes(request, shared_data):
+@pytest.fixture(scope="module")
+def real_runs(shared_data):
+    """Both protocols' (records, nuplan-devkit's answers), by protocol.  One dataset serves both (each
+    scenario read and each scene's score map built once, not once per protocol) and one oracle call
+    answers all their cases (its two processes start once: each imports the devkit, pandas and geopandas)."""
     python = _load("oracle_venv").existing_python()
     if python is None:
         pytest.skip("nuplan-devkit oracle venv absent (python benchmarks/nuplan_oracle/oracle_venv.py builds it)")
+    from pytest_driveeval.usecases.closed_loop.datasets import open_dataset
+
     compare = _load("compare_scenes")
-    records = compare.scene_cases(shared_data / "scenarionet" / "nuscenes", steps=PROTOCOLS[request.param])
-    answers = compare.run_oracle([r["case"] for r in records], python)
+    folder = shared_data / "scenarionet" / "nuscenes"
+    dataset = open_dataset(folder, None)
+    records = {name: compare.scene_cases(folder, steps=steps, dataset=dataset) for name, steps in PROTOCOLS.items()}
+    # the oracle answers by case name, which both protocols share: each case goes in under its protocol's
+    every = [{**r["case"], "name": f"{name}: {r['name']}"} for name in PROTOCOLS for r in records[name]]
+    answers = iter(compare.run_oracle(every, python))
+    return {name: (records[name], [next(answers) for _ in records[name]]) for name in PROTOCOLS}
+
+
+@pytest.fixture(params=list(PROTOCOLS))
+def real_scenes(request, real_runs):
+    records, answers = real_runs[request.param]
     assert [a.get("error") for a in answers] == [None] * len(records)
     return records, answers
 

@@ -12,7 +12,7 @@ import subprocess
 
 import pytest
 
-from conftest import REPO_ROOT, fresh_pytest_run, module_at
+from conftest import NO_HYPOTHESIS_PLUGIN, REPO_ROOT, fresh_pytest_run, module_at
 
 pytestmark = pytest.mark.slow  # two closed-loop items over six scenes, then nuplan-devkit: a few minutes
 
@@ -53,7 +53,7 @@ def oracle_run(shared_data, tmp_path_factory):
     for policy in POLICIES:
         (folder / f"{policy}.scenario.yaml").write_text(SCENARIO.format(policy=policy, data=data))
     run = fresh_pytest_run(folder, "-q", "-p", "no:cacheprovider", "-p", "no:randomly", "-p", "no:xdist",
-                           timeout=1800)
+                           *NO_HYPOTHESIS_PLUGIN, timeout=1800)  # scenario items only: no @given test
     summary = folder / "driveeval-results" / "summary.json"
     assert summary.is_file(), run.stdout[-3000:] + run.stderr[-3000:]
     oracle = subprocess.run([str(python), str(ORACLE / "oracle_scenes.py"),
