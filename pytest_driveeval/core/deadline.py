@@ -165,6 +165,11 @@ def time_limit(seconds: float | None, label: str, source: str = "") -> Iterator[
     previous = previous_hook = None
     if use_alarm:
         def on_alarm(signum, frame):
+            if limit.in_call:
+                # The main thread only waits for the helper thread, and that wait ends on time by its
+                # own timeout.  Raised inside the wait's locking (queue.put, Event.wait), the error
+                # could leave a lock released twice ("release unlocked lock", 2 blocks in 300).
+                return
             raise limit.error()
 
         def on_unraisable(unraisable):

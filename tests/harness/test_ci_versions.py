@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import re
 import sys
-import tomllib
 
 import pytest
-from packaging.requirements import Requirement
-from packaging.version import Version
 
-from conftest import REPO_ROOT, module_at
+tomllib = pytest.importorskip("tomllib")   # Python 3.11+: the CI scripts run on CI's 3.11
+from packaging.requirements import Requirement  # noqa: E402
+from packaging.version import Version  # noqa: E402
+
+from conftest import REPO_ROOT, module_at  # noqa: E402
 
 PAGE = REPO_ROOT / "docs" / "supported-versions.md"
 sys.path.append(str(REPO_ROOT / ".ci"))   # the scripts import each other by name, as CI runs them

@@ -21,7 +21,6 @@ from conftest import NO_HYPOTHESIS_PLUGIN  # noqa: E402
 from ray_items import WORKER_CPUS, assert_same_items, executor_section, worker_nodes  # noqa: E402
 
 
-
 @pytest.fixture(scope="module")
 def cluster():
     """A head and two worker nodes for all of the module's tests (tests/ray_items.py).  Declared here: a
