@@ -7,8 +7,9 @@ a multi-GB CUDA build), then the package with its test extras, each direct requi
 lowest version ``pyproject.toml`` allows (``--resolution lowest-direct``).  Runs the demo
 (``.ci/demo.py``: it must end as the README says) and ``pytest tests -m smoke -n 2`` in it; pytest's
 exit 5 (nothing ran) is a failure.  Phases, so that CI can build while its main run goes on:
-``--phase build`` makes the venv, ``--phase run`` runs in it, ``all`` (the default) does both.  Prints the versions it ran and writes them, beside the newest run's (``--newest
-PYTHON``: the CI venv's python), as a markdown table into ``--table FILE`` between the markers
+``--phase build`` makes the venv, ``--phase run`` runs in it, ``all`` (the default) does both.
+Prints the versions it ran and writes them, beside the newest run's (``--newest PYTHON``: the CI
+venv's python), as a markdown table into ``--table FILE`` between the markers
 ``<!-- versions:start -->`` and ``<!-- versions:end -->`` (docs/supported-versions.md).
 
 Usage: ``python .ci/lowest_versions.py .ci-venv-lowest [--phase build|run|all]

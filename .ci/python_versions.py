@@ -95,8 +95,8 @@ def smoke(folder: Path, version: str) -> tuple[int, str]:
 
 
 def full_version(folder: Path, version: str) -> str:
-    done = subprocess.run([str(venv_python(folder, version)), "-c", "import platform; print(platform.python_version())"],
-                          capture_output=True, text=True)
+    done = subprocess.run([str(venv_python(folder, version)), "-c",
+                           "import platform; print(platform.python_version())"], capture_output=True, text=True)
     return done.stdout.strip() or version
 
 
