@@ -1,9 +1,8 @@
 """What the use cases' Ray tests share: a real local cluster (a head and two worker nodes on
 this machine), and the comparison of a run on it with a local run.  A test module imports
-the helpers by name (tests/ is on the path, as for ``from conftest import REPO_ROOT``) and
-declares its own module-scoped ``cluster`` fixture around :func:`local_cluster`: under ``-n``,
-tests/xdist_modules.py keeps a module on one worker only when its own source declares such a
-fixture, so an imported one let its tests spread over both workers, each starting a cluster.
+the ``cluster`` fixture and the helpers by name (``cluster = ray_items.cluster``; tests/ is
+on the path, as for ``from conftest import REPO_ROOT``).  Under ``-n``, tests/xdist_modules.py
+keeps a module that imports this one on one worker, so one cluster starts per module.
 
 The head has no CPUs, so every chunk runs on a worker node; four chunks in flight need both
 two-CPU nodes.  The cluster is torn down by ``Cluster.shutdown()``, never ``ray stop`` (which
@@ -46,6 +45,13 @@ def local_cluster():
         ray.shutdown()       # the driver first: the head cannot be removed under it
         cluster.shutdown()
         builtins.print = own_print
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    pytest.importorskip("ray")
+    with local_cluster() as running:
+        yield running
 
 
 def worker_nodes() -> set[str]:

@@ -10,7 +10,8 @@ xdist's own 'loadgroup' mode would do this from ``xdist_group`` marks, but it na
 rewriting ``item._nodeid``, which pytest 9.2 no longer reads (node ids live in ``item._id``): the
 marks are then silently ignored.  The controller does not collect tests, so which modules to keep
 together is read from their source: a module that declares a module-, class- or package-scoped
-fixture or uses tests/module_pytester.py.
+fixture or uses tests/module_pytester.py, or imports a helper module of the suite that declares one
+(``cluster = ray_items.cluster``: tests/ray_items.py's Ray cluster).
 
 Chosen only for a bare ``-n`` (an explicit ``--dist`` of the user's is left alone).  The hook is the
 root conftest's (tests/conftest.py imports it).
@@ -27,12 +28,21 @@ TESTS = Path(__file__).resolve().parent
 SHARED_FIXTURE = re.compile(r"""scope\s*=\s*["'](module|class|package)["']|\bmodule_pytester\b""")
 
 
+#: ``import name`` / ``from name import ...`` at the start of a line: the suite's helpers are imported by name
+IMPORTED = re.compile(r"^\s*(?:from|import)\s+(\w+)", re.MULTILINE)
+
+
 def modules_with_shared_fixtures(tests: Path, rootdir: Path) -> frozenset[str]:
     """The test modules under ``tests`` that share fixtures across tests, as node ids give their paths
-    (relative to ``rootdir``)."""
+    (relative to ``rootdir``): their own, or a helper module's they import (not conftest.py's, which
+    every module may import names from)."""
+    sources = {path: path.read_text(encoding="utf-8", errors="replace") for path in tests.rglob("*.py")}
+    helpers = {path.stem for path, text in sources.items()
+               if not path.name.startswith("test_") and path.name != "conftest.py" and SHARED_FIXTURE.search(text)}
     found = set()
-    for path in tests.rglob("test_*.py"):
-        if SHARED_FIXTURE.search(path.read_text(encoding="utf-8", errors="replace")):
+    for path, text in sources.items():
+        if path.name.startswith("test_") and (SHARED_FIXTURE.search(text)
+                                              or helpers.intersection(IMPORTED.findall(text))):
             found.add(path.relative_to(rootdir).as_posix())
     return frozenset(found)
 

@@ -25,10 +25,24 @@ def test_modules_that_share_fixtures_are_found_from_their_source(tmp_path):
                                                              "tests/test_class.py"}
 
 
+def test_a_module_that_imports_a_helpers_shared_fixture_is_found_and_one_of_conftest_is_not(tmp_path):
+    tests = tmp_path / "tests"
+    (tests / "sub").mkdir(parents=True)
+    (tests / "cluster_items.py").write_text('@pytest.fixture(scope="module")\ndef cluster(): ...\n')
+    (tests / "sub" / "test_on_cluster.py").write_text("import cluster_items\n\ncluster = cluster_items.cluster\n")
+    (tests / "test_from_helper.py").write_text("from cluster_items import cluster\n")
+    (tests / "conftest.py").write_text('@pytest.fixture(scope="module")\ndef everywhere(): ...\n')
+    (tests / "test_plain.py").write_text("from conftest import REPO_ROOT\nimport os\n")
+    assert modules_with_shared_fixtures(tests, tmp_path) == {"tests/sub/test_on_cluster.py",
+                                                             "tests/test_from_helper.py"}
+
+
 def test_the_suites_heavy_modules_are_among_them():
     shared = modules_with_shared_fixtures(TESTS, REPO_ROOT)
     assert {"tests/metrics/test_nuplan_oracle.py", "tests/execute/test_ray_cluster.py",
-            "tests/usecases/closed_loop/test_closed_loop_robustness.py"} <= shared
+            "tests/usecases/closed_loop/test_closed_loop_robustness.py",
+            "tests/usecases/closed_loop/test_closed_loop_ray.py",
+            "tests/usecases/policy_benchmark/test_policy_benchmark_ray.py"} <= shared
     assert "tests/harness/test_assertions.py" not in shared
 
 

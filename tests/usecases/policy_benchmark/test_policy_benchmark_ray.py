@@ -20,14 +20,9 @@ import ray_items  # noqa: E402  (tests/ray_items.py)
 from conftest import NO_HYPOTHESIS_PLUGIN  # noqa: E402
 from ray_items import WORKER_CPUS, assert_same_items, executor_section, worker_nodes  # noqa: E402
 
-
-@pytest.fixture(scope="module")
-def cluster():
-    """A head and two worker nodes for all of the module's tests (tests/ray_items.py).  Declared here: a
-    module that declares a module-scoped fixture stays on one xdist worker, so one cluster starts, not one
-    on each worker, and the tests after the first find the workers of this driver's job started."""
-    with ray_items.local_cluster() as running:
-        yield running
+# the module's fixture: a head and two worker nodes, one cluster for all of the module's tests (the
+# scheduler keeps a module that imports ray_items on one xdist worker)
+cluster = ray_items.cluster
 
 pytestmark = pytest.mark.ray
 
