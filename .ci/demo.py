@@ -10,11 +10,12 @@ Usage: ``python .ci/demo.py PYTHON OUTPUT``
 from __future__ import annotations
 
 import re
-import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).parent))
+from ci_steps import ROOT, streamed  # noqa: E402
+
 #: pytest's last line: "33 passed, 13 xfailed in 139.83s (0:02:19)"
 COUNT = re.compile(r"(\d+) (passed|failed|xfailed|xpassed|skipped|errors?|deselected)\b")
 
@@ -29,18 +30,6 @@ def promised() -> dict[str, int]:
 
 def counts(line: str) -> dict[str, int]:
     return {kind: int(n) for n, kind in COUNT.findall(line)}
-
-
-def streamed(command: list[str]) -> tuple[int, str]:
-    """Run ``command`` in the clone, echoing its output; its exit code and last non-blank line."""
-    print("+", " ".join(command), flush=True)
-    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    last = ""
-    for line in process.stdout:
-        print(line, end="", flush=True)
-        if line.strip():
-            last = line.strip()
-    return process.wait(), last
 
 
 def run_demo(python: str, output: Path) -> int:

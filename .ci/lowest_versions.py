@@ -25,10 +25,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+from ci_steps import new_venv, replace_between, run, smoke_subset  # noqa: E402
 from demo import run_demo  # noqa: E402
-from fast_install import uv_install  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 #: what the table lists: distribution name -> row label
 PACKAGES = ["numpy", "torch", "pytest", "pydantic", "hypothesis", "pytest-xdist", "numba", "scipy", "rosbags", "ray",
             "pytest-html", "allure-pytest"]
@@ -47,29 +46,15 @@ print(json.dumps(found))
 """
 
 
-def run(command: list[str], **kwargs) -> int:
-    print("+", " ".join(command), flush=True)
-    return subprocess.run(command, cwd=ROOT, **kwargs).returncode
-
-
 def build(folder: Path) -> int:
-    python = folder / "bin" / "python"
-    if run([sys.executable, "-m", "venv", str(folder)]) or run([str(python), "-m", "pip", "install", "--quiet", "uv"]):
+    venv = new_venv(sys.executable, folder)
+    if venv is None:
         return 1
-    uv, environment = uv_install(str(python))
-    uv.append("--quiet")
+    uv, environment = venv
     # torch first, alone: resolved with the rest, a lowest resolution would look for torch 2.1
     if run([*uv, "torch==2.13.0"], env=environment):
         return 1
     return run([*uv, "--resolution", "lowest-direct", "torch==2.13.0", "-e", ".[test]"], env=environment)
-
-
-def pytest(python: Path, *args: str) -> int:
-    code = run([str(python), "-m", "pytest", *args, "-n", "2"])
-    if code == 5:
-        print(f"lowest_versions: pytest {' '.join(args)} collected nothing; that is a failure", file=sys.stderr)
-        return 1
-    return code
 
 
 def versions(python: Path) -> dict[str, str]:
@@ -84,13 +69,6 @@ def table(lowest: dict[str, str], newest: dict[str, str] | None) -> str:
     rows = [f"| {name} | {lowest[name]} |" + (f" {newest.get(name, '?')} |" if newest else "")
             for name in ["Python", *PACKAGES]]
     return "\n".join([head, rule, *rows])
-
-
-def write_table(path: Path, text: str) -> None:
-    page = path.read_text()
-    before, rest = page.split(START, 1)
-    _, after = rest.split(END, 1)
-    path.write_text(f"{before}{START}\n{text}\n{END}{after}")
 
 
 def main() -> int:
@@ -115,13 +93,13 @@ def main() -> int:
         print(f"lowest_versions: no venv in {folder} (run --phase build)", file=sys.stderr)
         return 1
     demo = run_demo(str(python), folder / "demo-results")
-    smoke = pytest(python, "tests", "-m", "smoke")
+    smoke, _ = smoke_subset(python, "lowest_versions")
     lowest = versions(python)
     newest = versions(options.newest) if options.newest else None
     print("lowest versions run:", ", ".join(f"{k} {v}" for k, v in lowest.items()))
     print(table(lowest, newest))
     if options.table:
-        write_table(options.table, table(lowest, newest))
+        replace_between(options.table, START, END, table(lowest, newest))
     print(f"lowest_versions: demo {'passed' if demo == 0 else 'FAILED'}, smoke exit {smoke}, "
           f"{time.monotonic() - started:.0f} s", flush=True)
     return 1 if demo or smoke else 0

@@ -12,7 +12,7 @@ Phases, so that CI can build while its main run goes on: ``build`` makes the ven
 smoke subset in them, ``all`` (the default) does both.  A Python that is not on this machine is
 reported and not run: it is not a failure of the package.
 
-Usage: ``python .ci/python_versions.py [build|run|all] [--folder .ci-venv-python] [--table FILE]``
+Usage: ``python .ci/python_versions.py [build|run|all] [--folder .ci-venv/pythons] [--table FILE]``
 """
 from __future__ import annotations
 
@@ -27,15 +27,14 @@ import tomllib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from demo import streamed  # noqa: E402
-from fast_install import uv_install  # noqa: E402
+from ci_steps import ROOT, new_venv, replace_between, run, smoke_subset  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 #: the newest Python this project tests; requires-python's upper bound is the next one
 NEWEST = "3.13"
 #: what the smoke subset needs beside the package, none of which pulls torch
 EXTRAS = [".[obstacle,plots,reports,benchmark]", "pytest-xdist>=3.5", "zarr>=2.18,<3", "numcodecs>=0.12",
           "shapely>=2.0"]
+START, END = "<!-- pythons:start -->", "<!-- pythons:end -->"
 
 
 def claimed() -> tuple[str, str]:
@@ -64,34 +63,16 @@ def interpreter(version: str) -> str | None:
     return None
 
 
-def run(command: list[str], **kwargs) -> int:
-    print("+", " ".join(command), flush=True)
-    return subprocess.run(command, cwd=ROOT, **kwargs).returncode
-
-
 def venv_python(folder: Path, version: str) -> Path:
     return folder / version / "bin" / "python"
 
 
 def build(folder: Path, version: str, base: str) -> int:
-    python = venv_python(folder, version)
-    if run([base, "-m", "venv", str(python.parent.parent)]) or \
-            run([str(python), "-m", "pip", "install", "--quiet", "uv"]):
+    venv = new_venv(base, folder / version)
+    if venv is None:
         return 1
-    uv, environment = uv_install(str(python))
-    return run([*uv, "--quiet", "-e", *EXTRAS], env=environment)
-
-
-def smoke(folder: Path, version: str) -> tuple[int, str]:
-    """The smoke subset's exit code (5, nothing ran, made a failure) and pytest's last line."""
-    python = venv_python(folder, version)
-    code, last = streamed([str(python), "-m", "pytest", "tests", "-m", "smoke", "-n", "2", "-q",
-                           "-p", "no:cacheprovider"])
-    if code == 5:
-        print(f"python_versions: Python {version}: the smoke subset collected nothing; that is a failure",
-              file=sys.stderr)
-        return 1, last
-    return code, last
+    uv, environment = venv
+    return run([*uv, "-e", *EXTRAS], env=environment)
 
 
 def full_version(folder: Path, version: str) -> str:
@@ -100,19 +81,10 @@ def full_version(folder: Path, version: str) -> str:
     return done.stdout.strip() or version
 
 
-def write_table(path: Path, rows: list[str]) -> None:
-    start, end = "<!-- pythons:start -->", "<!-- pythons:end -->"
-    page = path.read_text()
-    before, rest = page.split(start, 1)
-    _, after = rest.split(end, 1)
-    head = "| Python | what runs | outcome |\n|---|---|---|"
-    path.write_text(f"{before}{start}\n{head}\n" + "\n".join(rows) + f"\n{end}{after}")
-
-
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("phase", nargs="?", choices=("build", "run", "all"), default="all")
-    parser.add_argument("--folder", type=Path, default=ROOT / ".ci-venv-python", help="where the venvs are built")
+    parser.add_argument("--folder", type=Path, default=ROOT / ".ci-venv" / "pythons", help="where the venvs are built")
     parser.add_argument("--table", type=Path, help="a page whose Python table the run phase rewrites")
     options = parser.parse_args()
     folder = options.folder.resolve()
@@ -133,14 +105,15 @@ def main() -> int:
                 print(f"python_versions: Python {version}: no venv in {folder} (run the build phase)", file=sys.stderr)
                 failed.append(version)
             else:
-                code, last = smoke(folder, version)
+                code, last = smoke_subset(venv_python(folder, version), f"python_versions: Python {version}")
                 outcome = last.strip("= ").split(" in ")[0]   # "242 passed, 52 skipped", without the seconds
                 rows.append(f"| {full_version(folder, version)} | the smoke subset, without torch | {outcome} |")
                 if code:
                     failed.append(version)
         print(f"python_versions: Python {version} {options.phase}: {time.monotonic() - started:.0f} s", flush=True)
     if options.table and options.phase != "build":
-        write_table(options.table, rows)
+        head = "| Python | what runs | outcome |\n|---|---|---|"
+        replace_between(options.table, START, END, "\n".join([head, *rows]))
     if failed:
         print(f"python_versions: failed on Python {', '.join(failed)}", file=sys.stderr)
     return 1 if failed else 0

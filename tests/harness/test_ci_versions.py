@@ -16,6 +16,7 @@ from conftest import REPO_ROOT, module_at  # noqa: E402
 
 PAGE = REPO_ROOT / "docs" / "supported-versions.md"
 sys.path.append(str(REPO_ROOT / ".ci"))   # the scripts import each other by name, as CI runs them
+ci_steps = module_at(REPO_ROOT / ".ci" / "ci_steps.py", "ci_steps_module")
 demo = module_at(REPO_ROOT / ".ci" / "demo.py", "ci_demo")
 python_versions = module_at(REPO_ROOT / ".ci" / "python_versions.py", "ci_python_versions")
 lowest_versions = module_at(REPO_ROOT / ".ci" / "lowest_versions.py", "ci_lowest_versions")
@@ -34,7 +35,7 @@ def floors() -> dict[str, Version]:
 
 
 def table_rows(start: str, end: str) -> list[list[str]]:
-    text = PAGE.read_text().split(start, 1)[1].split(end, 1)[0]
+    text = ci_steps.between(PAGE.read_text(), start, end)
     return [[cell.strip() for cell in line.strip("|").split("|")] for line in text.strip().splitlines()[2:]]
 
 
@@ -56,7 +57,7 @@ def test_the_pythons_are_the_ends_of_requires_python():
     oldest, newest = python_versions.claimed()
     spec = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
     assert f">={oldest}" in spec and Version(newest) < Version(re.search(r"<\s*([\d.]+)", spec).group(1))
-    listed = [row[0] for row in table_rows("<!-- pythons:start -->", "<!-- pythons:end -->")]
+    listed = [row[0] for row in table_rows(python_versions.START, python_versions.END)]
     assert [".".join(v.split(".")[:2]) for v in listed] == [oldest, newest]
 
 
