@@ -141,9 +141,8 @@ def write_trajectory(path: Path, speed: float, frames: int = 30) -> None:
     path.write_text("t,x,y\n" + "".join(f"{ti},{speed * ti},0\n" for ti in t))
 
 
-@pytest.fixture
-def project(pytester):
-    """A pytester folder where the example speed_limit use case is registered
+def speed_project(pytester):
+    """``pytester``'s folder made a project where the example speed_limit use case is registered
     and two trajectories exist: slow.csv (10 m/s) and fast.csv (20 m/s)."""
     pytester.path.joinpath("speed_limit.py").write_text(EXAMPLE_USECASE.read_text())
     pytester.makeconftest("import speed_limit\n")
@@ -151,6 +150,12 @@ def project(pytester):
     write_trajectory(pytester.path / "slow.csv", 10.0)
     write_trajectory(pytester.path / "fast.csv", 20.0)
     return pytester
+
+
+@pytest.fixture
+def project(pytester):
+    """A pytester folder made a speed_limit project (:func:`speed_project`)."""
+    return speed_project(pytester)
 
 
 GAIN_USECASE = '''

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 import pytest
-from conftest import EXAMPLE_USECASE, speed_scenario, write_trajectory
+from conftest import speed_project, speed_scenario
 from module_pytester import module_pytester
 
 GOOD = speed_scenario("good")
@@ -131,10 +131,7 @@ def broken_old_runs(request, tmp_path_factory):
     one ``-n 2`` session, which must keep them all: its folder, each old run's id and snapshot, and the
     session's result. One xdist session for the six kinds, not six: each test reads its own kind's part."""
     with module_pytester(request, tmp_path_factory) as project:
-        project.path.joinpath("speed_limit.py").write_text(EXAMPLE_USECASE.read_text())
-        project.makeconftest("import speed_limit\n")
-        write_trajectory(project.path / "slow.csv", 10.0)
-        write_trajectory(project.path / "fast.csv", 20.0)
+        speed_project(project)
         project.makefile(".scenario.yaml", good=GOOD)
         project.makeini(INI)
         (project.path / "victim.txt").write_text("mine")

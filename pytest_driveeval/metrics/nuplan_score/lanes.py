@@ -258,9 +258,9 @@ class ScoreMap:
         # area) is left out of the drivable queries: they ask of points off every lane, and a nearest outline
         # found twice is found once as well.  Half the polygons tested, the same answers.
         surfaces = {(p.shape, p.tobytes()) for p in self.polygons}
-        extra = [p for p in self.drivable if (p.shape, p.tobytes()) not in surfaces]
         #: the drivable polygons that are not lane surfaces (driveways, car parks)
-        self.drivable_beyond_lanes = list(extra)
+        self.drivable_beyond_lanes = [p for p in self.drivable if (p.shape, p.tobytes()) not in surfaces]
+        extra = self.drivable_beyond_lanes   # rebound below, never changed in place
         self.drivable_outlines = [np.asarray(p, dtype=np.float64)[:, :2] for p in self.drivable_outlines]
         self.outline_set = PolygonSet(self.drivable_outlines, most_bands=OUTLINE_BANDS)
         self.edges = RoadEdges(self.road_edges)

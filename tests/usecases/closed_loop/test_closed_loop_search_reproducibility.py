@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("torch")
 
-from test_closed_loop_robustness import ANOTHER, DEMO, demo_project, demo_text, search_record, session  # noqa: E402
+from robustness_demo import ANOTHER, DEMO, demo_project, demo_text, search_record, session  # noqa: E402
 
 
 # The demo's search made smaller, for the claims that do not depend on its size (the same search
