@@ -2,6 +2,7 @@
 the generated parts of a docs page (between two markers)."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -56,8 +57,11 @@ def between(page: str, start: str, end: str) -> str:
 
 
 def replace_between(path: Path, start: str, end: str, text: str) -> None:
-    """Write ``text`` into the page at ``path`` between the markers ``start`` and ``end``."""
+    """Write ``text`` into the page at ``path`` between the markers ``start`` and ``end``.  The page is
+    replaced whole (a new file renamed over it): CI writes it while the suite's tests read it."""
     page = path.read_text()
     before, rest = page.split(start, 1)
     _, after = rest.split(end, 1)
-    path.write_text(f"{before}{start}\n{text}\n{end}{after}")
+    written = path.with_name(f".{path.name}.writing")
+    written.write_text(f"{before}{start}\n{text}\n{end}{after}")
+    os.replace(written, path)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import time
@@ -92,6 +93,10 @@ def main() -> int:
     if not python.exists():
         print(f"lowest_versions: no venv in {folder} (run --phase build)", file=sys.stderr)
         return 1
+    # numba's cache in this venv's own folder: its files are named by function and Python version
+    # alone, so numba 0.61 here and the newest numba of CI's main run, beside it, would each find the
+    # other's index and compile everything again
+    os.environ["NUMBA_CACHE_DIR"] = str(folder / "numba-cache")
     demo = run_demo(str(python), folder / "demo-results")
     smoke, _ = smoke_subset(python, "lowest_versions")
     lowest = versions(python)
