@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from .cloud_jit_grid import AVAILABLE, CX, CY, CZ, HX, HY, HZ, COS, SIN, LOW
-from .cloud_jit_grid import MAX_CELLS, build, cell_of, clear, compiled, in_polygon
+from .cloud_jit_grid import FIRST, MAX_CELLS, build, cell_of, clear, compiled, in_polygon
 from .cloud_types import Area, BoxSet, CloudCounts, xyz_columns
 
 if AVAILABLE:
@@ -33,7 +33,7 @@ CHUNK = 2048  # points per step (32 KB of XYZIRC records, in L1); 1024 was 5 % s
 @compiled
 def _on_road(px, py, edges, ends, clip_boxes):
     """In the area polygon and, when there are lanelet clips, in one of them."""
-    if not in_polygon(px, py, edges, 0, ends[0]):
+    if not in_polygon(px, py, edges, FIRST, ends[0]):
         return False
     if len(clip_boxes) == 0:
         return True
@@ -140,6 +140,9 @@ def _frame(rec, x0, y0, inv, xmax, ymax, gx, table, next_node, node_box, box, z_
 
 _scratch = threading.local()  # per thread (the kernels release the GIL): the grid's table, all zeros
 _NO_AREA_BOX, _NO_POLYGON = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0]), np.zeros((0, 2))
+# Read-only as Area.aabb() is: numba types an array by its flags too, and a writable one here
+# compiled the frame kernels (tens of seconds on a cold start) a second time for frames without an area.
+_NO_AREA_BOX.setflags(write=False)
 _NO_EDGES = np.zeros((0, 4)), np.zeros(1, np.int64), np.zeros((0, 4))
 
 

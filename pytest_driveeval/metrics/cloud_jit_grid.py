@@ -29,6 +29,8 @@ LOW = AREA_BIT - 1
 CX, CY, CZ, HX, HY, HZ, COS, SIN = range(8)  # columns of the box table
 SIDE = 250  # cells along the grid's longer side
 MAX_CELLS = (SIDE + 4) ** 2  # a table this long serves every grid
+# in_polygon's first edge as an int64 value: a literal 0 would compile it a second time
+FIRST = np.int64(0)
 
 
 def compiled(fn):
@@ -160,7 +162,7 @@ def build(box, area_box, poly, edges, clipped, table):
             xa, ya = x0 + i * cell - m, y0 + j * cell - m
             xb, yb = xa + cell + 2 * m, ya + cell + 2 * m
             decided = not clipped and _clear_of_edges(poly, xa, ya, xb, yb)
-            if decided and in_polygon(0.5 * (xa + xb), 0.5 * (ya + yb), edges, 0, len(poly)):
+            if decided and in_polygon(0.5 * (xa + xb), 0.5 * (ya + yb), edges, FIRST, len(poly)):
                 entry |= AREA_IN
         table[k] = entry if decided else (head + 1) | (AREA_BIT if in_area else 0)
     xmax, ymax = np.float32(gx - 1), np.float32(gy - 1)

@@ -35,6 +35,9 @@ __all__ = ["EGO_BOX", "BoxTable", "agent_keep", "box_corners", "draw_box_channel
 
 EGO_BOX = np.array([4.87, 1.85], np.float32)  # l5kit's rasterizer ego (length, width)
 KEEP_LABELS = np.arange(3, 16)  # PERCEPTION_LABEL_CAR .. PERCEPTION_LABEL_ANIMAL
+# Box channels are white.  A global, so that compiled code sees it as a read-only constant like
+# semantic.py's COLOURS rows: fill_polygons and line_aa are then compiled once for both callers.
+_WHITE = np.full(1, 255, np.int64)
 _FAR = 1e9  # metres: a box there is off every raster (and its pixel coordinates still fit an int64)
 _UNIT_CORNERS = np.asarray([[-1, -1], [-1, 1], [1, 1], [1, -1]]) * 0.5
 _EGO_LOCAL = _UNIT_CORNERS * EGO_BOX  # what box_corners makes of the ego's extent, once
@@ -186,7 +189,8 @@ def draw_box_channels(out, lut, matrices, rows, history, offsets, n_frames, corn
     most = rects.shape[2]
     verts = np.empty((4 * most, 2), np.int64)
     starts = np.zeros(most + 1, np.int64)
-    colour = np.full(1, 255, np.int64)
+    # the ego's one box, as int64 values: literal 0 and 1 would compile _channel a second time
+    zero, one = np.int64(0), np.int64(1)
     for b in range(rows.size):
         for ch in range(2 * n_hist):
             _clear(out[b, ch], rects[b, ch], n_rects[b, ch])
@@ -197,8 +201,8 @@ def draw_box_channels(out, lut, matrices, rows, history, offsets, n_frames, corn
                 continue
             cell = rows[b] * n_frames + frame
             n_rects[b, i] = _channel(out[b, i], lut, scratch, matrices[b], corners, offsets[cell], offsets[cell + 1],
-                                     colour, verts, starts, rects[b, i])
+                                     _WHITE, verts, starts, rects[b, i])
             if ego_history or i == 0:
                 n_rects[b, n_hist + i] = _channel(out[b, n_hist + i], lut, scratch, matrices[b],
-                                                  ego_corners[b, i:i + 1], 0, 1, colour, verts, starts,
+                                                  ego_corners[b, i:i + 1], zero, one, _WHITE, verts, starts,
                                                   rects[b, n_hist + i])

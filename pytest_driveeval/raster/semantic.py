@@ -49,6 +49,9 @@ INTERPOLATION_POINTS = 20
 # Rows: lane without light, red, yellow, green (the map's face colour codes 1..3), road, crosswalk.
 COLOURS = np.array([(255, 217, 82), (255, 0, 0), (255, 255, 0), (0, 255, 0), (17, 17, 31), (255, 117, 69)], np.int64)
 ROAD, CROSSWALK = 4, 5
+# polylines' ``closed`` as booleans, not the literals True and False, which numba would compile it for
+# twice (its most costly step on a cold start, as each frame kernel is)
+OPEN, CLOSED = np.bool_(False), np.bool_(True)
 _RANK = np.array([0, 3, 2, 1], np.int64)  # unknown, red, yellow, green: which colour wins
 
 
@@ -181,7 +184,7 @@ def draw_semantic(out, lut, img, matrix, cx, cy, half, lanes, lane_bounds, lane_
                 starts[m + 1] = (m + 1) * half_pts
                 starts[m + 2] = (m + 2) * half_pts
                 m += 2
-        polylines(img, line_verts[:m * half_pts], starts[:m + 1], False, COLOURS[colour])
+        polylines(img, line_verts[:m * half_pts], starts[:m + 1], OPEN, COLOURS[colour])
     m = 0
     total = 0
     for k in range(crosswalks.size):
@@ -196,7 +199,7 @@ def draw_semantic(out, lut, img, matrix, cx, cy, half, lanes, lane_bounds, lane_
             _to_raster(cw_points[a:b], matrix, cw_verts, cw_starts[m])
             cw_starts[m + 1] = cw_starts[m] + (b - a)
             m += 1
-    polylines(img, cw_verts, cw_starts[:m + 1], True, COLOURS[CROSSWALK])
+    polylines(img, cw_verts, cw_starts[:m + 1], CLOSED, COLOURS[CROSSWALK])
     for y in range(img.shape[0]):
         for x in range(img.shape[1]):
             for c in range(3):
