@@ -149,3 +149,21 @@ def test_ties_for_the_nearest_point_go_to_the_first_in_cloud_order(edge_first):
     got = evaluate_cloud(cloud, boxes, kernel="numba")
     assert got.counts.tolist() == [22, 0]
     assert got.nearest[0].tolist() == tied[0]
+
+
+def test_frames_with_and_without_an_area_share_one_compiled_kernel():
+    """numba compiles a kernel for every distinct set of argument types, array flags included: a cold
+    start pays tens of seconds per extra specialisation of the frame kernels.  The area's box and its
+    stand-in when no area is checked must be one type (both read-only), so only the cloud's record
+    type makes a new one."""
+    from pytest_driveeval.metrics import cloud_jit_grid
+
+    cloud = np.array([[1.0, 0.5, 0.3], [8.0, -1.0, 0.4], [30.0, 9.0, 0.2]] * 11, np.float32)
+    boxes = BoxSet(np.array([[1.0, 0.0, 0.5]]), np.array([[1.0, 1.0, 1.0]]), np.zeros(1))
+    for area in (AREAS["polygon"](), None, AREAS["clipped"]()):
+        evaluate_cloud(cloud, boxes, area, kernel="numba")
+    by_record_type = {}
+    for signature in cloud_jit._evaluate.signatures:
+        by_record_type.setdefault(signature[0], []).append(signature)
+    assert all(len(signatures) == 1 for signatures in by_record_type.values()), by_record_type
+    assert len(cloud_jit_grid.build.signatures) == 1, cloud_jit_grid.build.signatures

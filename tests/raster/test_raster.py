@@ -269,3 +269,21 @@ def test_without_numba_the_rasters_are_the_same(tmp_path):
     assert plain["boxes"][:3].any() and (plain["semantic"] != 255).any()
     np.testing.assert_array_equal(semantic(1), plain["semantic"])
     np.testing.assert_array_equal(moving_boxes(), plain["boxes"])
+
+
+def test_each_drawing_kernel_is_compiled_for_values_not_for_literals():
+    """numba compiles a kernel again for literal arguments (``0``, ``True``) where another caller passes
+    values of the same type; each such copy costs a cold start seconds.  The box channels and the
+    semantic map reach their kernels with values only."""
+    from pytest_driveeval.raster import boxes as box_kernels, draw as draw_kernels
+
+    if not draw_kernels.AVAILABLE:
+        pytest.skip("numba is not installed: the kernels run as Python")
+    from numba import types
+
+    draw(boxes(history=1), make_log(2, [dict(frames=[0, 1], xy=(2.0, 0.0), extent=(2.0, 1.0))]), frame=1)
+    semantic()
+    assert len(box_kernels._channel.signatures) == 1, box_kernels._channel.signatures
+    for kernel in (box_kernels._channel, draw_kernels.polylines, draw_kernels.fill_polygons, draw_kernels.line_aa):
+        for signature in kernel.signatures:
+            assert not any(isinstance(t, types.Literal) for t in signature), (kernel, signature)
