@@ -1,5 +1,5 @@
 """``idm_expert`` on every planning problem of the shared CommonRoad files and the demo's fixtures: goal
-rate, at-fault collisions (nuPlan's blame, metrics.commonroad_fault), all collisions, off-road and
+rate, at-fault collisions (nuPlan's blame, sim.commonroad_fault), all collisions, off-road and
 step-limit rates over seeds 0-63, the recorded obstacles replayed and, on a second line per problem,
 reacting (``Traffic: reactive``).  The reference, in the same run on the same seeds: the ``constant``
 baseline (keep speed and heading), which was the only competent CommonRoad policy before.
@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from pytest_driveeval.io.commonroad.commonroad import CommonRoadError  # noqa: E402
-from pytest_driveeval.metrics.commonroad_fault import FaultRecorder  # noqa: E402
+from pytest_driveeval.sim.commonroad_fault import FaultRecorder  # noqa: E402
 from pytest_driveeval.metrics.episode_outcomes import COLLISION, GOAL, OFF_ROAD, STEP_LIMIT  # noqa: E402
 from pytest_driveeval.policies.control_baselines import ConstantAction  # noqa: E402
 from pytest_driveeval.policies.idm_expert import IDMExpert  # noqa: E402

@@ -19,8 +19,8 @@ state alone (so of its seed).
   box overlaps the followed lane ahead, or the lane being left; and two standing walls: the far end
   of the goal's stretch while the time window has not opened (the goal is judged on the centre, so
   the ego waits inside it), and the goal's middle when the goal asks for (almost) standstill.
-* **Steering:** pure pursuit from the rear axle to the corridor's centre ``lookahead_time`` s ahead
-  (at least ``min_lookahead`` m), as the blueprints' expert steers.
+* **Steering:** Stanley's law from the front axle onto the followed corridor's centre line (see
+  :meth:`CommonRoadExpert._steer` for why not the blueprints' pure pursuit).
 """
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ class CorridorPlan:
     offset: np.ndarray  # (C,) route position (m) where each corridor's centre line starts
     change_from: np.ndarray  # (C,) corridor-local start of the lanelet each corridor leaves sideways (inf: none)
     change_end: np.ndarray  # (C,) ... and its end
-    limits: tuple[np.ndarray, np.ndarray]  # per corridor: arclength where each of its lanelets starts, its limit
+    limit_from: np.ndarray  # (C, K): arclength where each of a corridor's lanelets starts (inf: padding)
+    limit: np.ndarray  # (C, K): that lanelet's speed limit, m/s (inf: none given)
     goal_span: tuple[float, float]  # route positions between which the goal lies
     goal_steps: tuple[float, float]  # the goal's time window, in steps after the initial state
     goal_speed: tuple[float, float]  # its velocity interval
@@ -105,8 +106,11 @@ def corridor_plan(scene: Any, cruise_factor: float = 1.2, min_cruise: float = 8.
     speed = ((min(v.start for v in speeds), max(v.end for v in speeds)) if len(speeds) == len(problem.goals)
              else (0.0, math.inf))
     cruise = cruise_factor * max(problem.initial.velocity, min_cruise)
+    k = max(len(v) for v in limit_v)
+    limit_from = np.array([np.pad(a, (0, k - len(a)), constant_values=np.inf) for a in limit_s])
+    limit = np.array([np.pad(a, (0, k - len(a)), constant_values=np.inf) for a in limit_v])
     return CorridorPlan(route, paths, np.array(offset), np.array(change_from), np.array(change_end),
-                        (limit_s, limit_v), span, steps, speed, cruise)
+                        limit_from, limit, span, steps, speed, cruise)
 
 
 def _goal_span(scene: Any, route: Route, corridors: list[list[int]], paths: Road, offset: np.ndarray,
@@ -218,9 +222,8 @@ class CommonRoadExpert:
     def _desired_speed(self, episodes: Any, plan: CorridorPlan, current: np.ndarray, s_cur: np.ndarray) -> np.ndarray:
         """Timed to reach the goal's middle at its window's middle; within the goal's velocity interval
         and the lanelet's speed limit (else the cruise speed)."""
-        limit_s, limit_v = plan.limits
-        cap = np.array([limit_v[c][max(np.searchsorted(limit_s[c], s, side="right") - 1, 0)]
-                        for c, s in zip(current.tolist(), s_cur.tolist())])
+        lanelet = np.maximum(np.count_nonzero(s_cur[:, None] >= plan.limit_from[current], axis=1) - 1, 0)
+        cap = plan.limit[current, lanelet]
         cap = np.where(np.isfinite(cap), cap, plan.cruise)
         pos = plan.offset[current] + s_cur
         g_lo, g_hi = plan.goal_span

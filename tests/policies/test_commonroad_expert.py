@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from pytest_driveeval.io.commonroad.commonroad_geometry import lanelets_at, shape_outline
-from pytest_driveeval.metrics.commonroad_fault import FaultRecorder
 from pytest_driveeval.metrics.episode_outcomes import GOAL
 from pytest_driveeval.policies.idm_expert import IDMExpert
+from pytest_driveeval.sim.commonroad_fault import FaultRecorder
 from pytest_driveeval.sim.commonroad_route import RouteError, plan_route
 from pytest_driveeval.sim.commonroad_scene import commonroad_scene, read_cached
 

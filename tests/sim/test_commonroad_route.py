@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from commonroad_network import LANE_WIDTH, write_network
 
-from pytest_driveeval.metrics.commonroad_fault import FaultRecorder
 from pytest_driveeval.metrics.episode_outcomes import GOAL
 from pytest_driveeval.policies.idm_expert import IDMExpert
+from pytest_driveeval.sim.commonroad_fault import FaultRecorder
 from pytest_driveeval.sim.commonroad_route import RouteError, plan_route
 from pytest_driveeval.sim.commonroad_scene import commonroad_scene
 
