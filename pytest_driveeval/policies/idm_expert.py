@@ -233,6 +233,14 @@ class IDMExpert:
         self.stop_margin = stop_margin
         self.pass_margin = pass_margin
         self._plans: weakref.WeakKeyDictionary[Any, _Plan] = weakref.WeakKeyDictionary()
+        self._on_commonroad: Any = None
+
+    def _commonroad(self) -> Any:
+        if self._on_commonroad is None:
+            from pytest_driveeval.policies.commonroad_expert import CommonRoadExpert
+
+            self._on_commonroad = CommonRoadExpert()
+        return self._on_commonroad
 
     def plan(self, blueprint: Any) -> _Plan:
         """The paths and conflict zones of ``blueprint``, worked out on first use."""
@@ -242,6 +250,8 @@ class IDMExpert:
         return plan
 
     def act_on_episodes(self, episodes: Any) -> np.ndarray:
+        if getattr(episodes.blueprint, "scenario", None) is not None:  # a CommonRoad scene: its own expert
+            return self._commonroad().act_on_episodes(episodes)
         plan = self.plan(episodes.blueprint)
         model: TrafficModel = episodes.traffic_model
         view = self._view(episodes, plan)

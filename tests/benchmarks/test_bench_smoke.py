@@ -27,6 +27,7 @@ SMOKED = {
     "bench_baseline_overhead.py": (rf"^comparison's own cost: {NUMBER} % of the session", ("torch",)),
     "bench_birdseye_map.py": (rf"^map / no map: {NUMBER}x", ()),
     "bench_closed_loop_search.py": (rf"^ratio: {NUMBER}x \(target", ("torch", "hypothesis")),
+    "bench_commonroad_expert.py": (rf"^expert: lowest goal rate {NUMBER} % over \d+ reachable problem", ("torch",)),
     "bench_commonroad_step.py": (rf"^commonroad: {NUMBER} live agent-steps/s per core", ("torch",)),
     "bench_gnn.py": (rf"^ours, eager: {NUMBER}x the reference;", ("torch",)),
     "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),

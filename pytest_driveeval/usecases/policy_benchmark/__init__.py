@@ -99,7 +99,10 @@ class PolicyBenchmark(UseCase):
         else:
             from pytest_driveeval.usecases.policy_benchmark.commonroad import scene_for
 
+            from pytest_driveeval.usecases.policy_benchmark.commonroad import check_expert_routes
+
             blueprint = scene_for(config, ctx, params)
+            check_expert_routes(config, ctx, blueprint, [policy])
         identity = scene_identity(blueprint)
         seeds, strata = seeds_for(config.FirstSeed, config.Episodes, config.Strata)
         model = ctx.fixtures["driveeval_model"]
@@ -131,6 +134,10 @@ class PolicyBenchmark(UseCase):
         compared = [name for name in config.Compare if name != policy] if judged else []
         baselines = list(dict.fromkeys([spec.Baseline for spec in conditions.Beats if spec.Baseline != policy]
                                        + compared))
+        if config.Blueprint.CommonRoad is not None:
+            from pytest_driveeval.usecases.policy_benchmark.commonroad import check_expert_routes
+
+            check_expert_routes(config, ctx, blueprint, baselines)
         where: dict | None = stays_local or None
         replay = recorder = None
         if executor is None:

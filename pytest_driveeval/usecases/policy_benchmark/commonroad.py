@@ -8,7 +8,9 @@ the scenario file and the line of the key at fault (``CommonRoad``, or ``Plannin
 planning problem the file does not have), then the CommonRoad file and its element.  The scene's
 arrays are bounded before they are allocated: its steps (``StepLimit``, ``Params.max_steps`` or the
 goal's time interval) times its obstacles must fit the item's memory budget, and the drivable
-area's raster at ``Params.resolution`` the raster's cell limit.
+area's raster at ``Params.resolution`` the raster's cell limit.  An ``idm_expert`` policy the item
+runs needs a route to the planning problem's goal (sim.commonroad_route): without one the item fails
+at that policy's line, saying why, before any episode runs.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ from pytest_driveeval.core.errors import DataError, display_path
 from pytest_driveeval.core.usecase import gib, memory_budget
 from pytest_driveeval.io.commonroad.commonroad import CommonRoadError, no_problem_message, planning_problem
 
-__all__ = ["planning_problems", "scene_for"]
+__all__ = ["check_expert_routes", "planning_problems", "scene_for"]
 
 
 def planning_problems(scenario: Any) -> list[int] | None:
@@ -67,6 +69,20 @@ def scene_for(config: Any, ctx: Any, params: dict) -> Any:
         where = _where(ctx, ("Blueprint", "Params", exc.parameter) if given else key)
         raise DataError(f"{where}: {str(exc).split(': ', 2)[-1]}"
                         + ("" if given else f" (Params.{exc.parameter} sets it)")) from None
+
+
+def check_expert_routes(config: Any, ctx: Any, scene: Any, names: list[str]) -> None:
+    """Refuse, at its ``Policies`` line, an ``idm_expert`` among ``names`` when no route reaches the goal."""
+    from pytest_driveeval.sim.commonroad_route import RouteError, plan_route
+
+    for name in names:
+        if config.Policies.get(name) != "idm_expert":
+            continue
+        try:
+            plan_route(scene.scenario, scene.problem)
+        except RouteError as exc:
+            raise DataError(f"{_where(ctx, ('Policies', name))}: idm_expert cannot drive this planning problem: "
+                            f"{exc}") from None
 
 
 def _check_fits(config: Any, ctx: Any, path: Any, problem: int, params: dict) -> None:

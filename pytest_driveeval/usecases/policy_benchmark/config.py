@@ -255,10 +255,6 @@ class PolicyBenchmarkConfig(ConditionsModel):
 
     def _fits_commonroad(self) -> None:
         """What a CommonRoad scene cannot do yet, refused at its key."""
-        for name, spec in self.Policies.items():
-            if spec == "idm_expert":
-                raise located_error(("Policies", name), spec, "idm_expert reads a blueprint's lanes and traffic "
-                                                              "model; it does not drive CommonRoad scenes yet")
         for key in ("AgentsSpeedScale", "GapScale"):
             if self.Perturbation is not None and getattr(self.Perturbation, key) is not None:
                 raise located_error(("Perturbation", key), getattr(self.Perturbation, key),

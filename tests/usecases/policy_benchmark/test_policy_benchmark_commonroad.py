@@ -159,12 +159,21 @@ def test_bad_blueprint_keys_are_located(pytester, change, expected):
     assert result.ret != 0
 
 
-def test_idm_expert_is_refused_at_its_policy_line(pytester):
-    shutil.copy(TUTORIAL, pytester.path / "zam.xml")
-    pytester.makefile(".scenario.yaml", cr=scenario().replace("    random: random\n",
-                                                              "    random: random\n    idm: idm_expert\n"))
-    result = pytester.runpytest("-q")
-    result.stdout.fnmatch_lines(["*cr.scenario.yaml:12: Evaluation.Policies.idm*idm_expert*CommonRoad*"])
+def test_an_unroutable_goal_fails_the_idm_expert_item_at_its_policy_line(pytester):
+    """(idm_expert driving CommonRoad scenes: tests/policies/test_commonroad_expert.py and the demo.)"""
+    off_road = ("<rectangle><length>4.0</length><width>2.0</width><center><x>50.0</x><y>40.0</y></center>"
+                "<orientation>0.0</orientation></rectangle>")
+    (pytester.path / "off.xml").write_text(TUTORIAL.read_text().replace('<lanelet ref="1"/>', off_road))
+    pytester.makefile(".scenario.yaml", offroad=scenario(name="offroad", path="off.xml", episodes=4, animations="none")
+                      .replace("    random: random\n", "    random: random\n    idm: idm_expert\n"))
+    result = pytester.runpytest("-q", "-p", "no:randomly")
+    # The expert's item fails before any episode, saying why; the file's other items run (the judged
+    # constant policy fails its goal rate: nothing reaches a goal off the road).
+    result.assert_outcomes(passed=1, failed=2)
+    result.stdout.fnmatch_lines(["*offroad.scenario.yaml:12: Evaluation.Policies.idm: idm_expert cannot drive this "
+                                 "planning problem: off.xml: planning problem 100: the goal (rectangle at (50.00, "
+                                 "40.00)): it lies off every lanelet*"])
+    assert records(pytester)["offroad.scenario.yaml::policy_benchmark[random-problem100]"]["status"] == "passed"
 
 
 def test_a_robustness_search_perturbs_the_ego_start(pytester):
