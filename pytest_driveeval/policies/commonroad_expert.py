@@ -1,7 +1,7 @@
 """``idm_expert`` on a CommonRoad scene: route over the lanelets to the planning problem's goal, follow
 the route's centre line by IDM behind the obstacles on it, change lanes where the route does, steer
-by pure pursuit.  :class:`~pytest_driveeval.policies.idm_expert.IDMExpert` hands CommonRoad episodes
-here; like it, this acts on every episode at once and each episode's action is a function of its
+by Stanley's law.  :class:`~pytest_driveeval.policies.idm_expert.IDMExpert` hands CommonRoad
+episodes here; like it, this acts on every episode at once and each episode's action is a function of its
 state alone (so of its seed).
 
 * **Route** (sim.commonroad_route): lanelets joined by successors form a *corridor*, one centre line;

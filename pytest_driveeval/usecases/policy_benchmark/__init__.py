@@ -97,9 +97,7 @@ class PolicyBenchmark(UseCase):
         if config.Blueprint.CommonRoad is None:
             blueprint = make_blueprint(config.Blueprint.Name, **params)
         else:
-            from pytest_driveeval.usecases.policy_benchmark.commonroad import scene_for
-
-            from pytest_driveeval.usecases.policy_benchmark.commonroad import check_expert_routes
+            from pytest_driveeval.usecases.policy_benchmark.commonroad import check_expert_routes, scene_for
 
             blueprint = scene_for(config, ctx, params)
             check_expert_routes(config, ctx, blueprint, [policy])
