@@ -80,11 +80,11 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
 
 def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike,
                      dataset: Any = None, ids: Any = None, *, kept: bool = False) -> Any:
-    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None.  A
+    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters, ``Map``), else None.  A
     dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``.
     ``kept``: a chunk's map, which the next chunks in this process that name the same unchanged
     files get without reading them again (the map is only read, never written, by the rasters)."""
-    if inputs.Kind != "raster" or inputs.MapType != "py_semantic":
+    if (inputs.Kind != "raster" or inputs.MapType != "py_semantic") and getattr(inputs, "Map", None) is None:
         return None
     own = getattr(dataset, "semantic_map", None)
     if own is not None:
