@@ -57,21 +57,15 @@ class MapLimits:
     max_distance: float = 35.0
 
 
-class VectorMap:
-    """A semantic map (io.l5.l5_semantic_map.SemanticMap) resampled once into the arrays each step reads.
+class _Place:
+    """One place's map, resampled: what :class:`VectorMap` concatenates."""
 
-    Lanes or crosswalks repeated under one id (several ScenarioNet scenes of one place, merged) are
-    kept once.  Lanes whose boundaries hold no point are never candidates."""
-
-    def __init__(self, semantic_map, limits: MapLimits = MapLimits()):
-        self.limits = limits
-        smap = semantic_map
+    def __init__(self, smap, limits: MapLimits):
         p = limits.max_points_per_lane
         lane_ids = smap.lane_ids.tolist()
         seen: set = set()
         keep = [i for i, lane in enumerate(lane_ids) if not (lane in seen or seen.add(lane))
                 and len(smap.lanes_left[i]) and len(smap.lanes_right[i])]
-        self.lane_index = np.array(keep, np.int64)  # into the semantic map's lanes
         self.lane_ids = np.array([lane_ids[i] for i in keep], dtype=str)
         n = len(keep)
         self.left = np.zeros((n, p, 2))
@@ -81,10 +75,10 @@ class VectorMap:
             self.left[k] = resampled(smap.lanes_left[i], p)
             self.right[k] = resampled(smap.lanes_right[i], p)
             self.mid[k] = resampled((self.left[k] + self.right[k]) / 2, p)
-        self.bounds = smap.lane_bounds[self.lane_index] if n else np.zeros((0, 4))
+        self.bounds = smap.lane_bounds[np.array(keep, np.int64)] if n else np.zeros((0, 4))
         self._lights(smap, keep)
         cw_ids = smap.crosswalk_ids.tolist()
-        seen: set = set()
+        seen = set()
         cw_keep = [j for j, c in enumerate(cw_ids) if not (c in seen or seen.add(c)) and len(smap.crosswalks[j])]
         q = limits.max_points_per_crosswalk
         self.crosswalk_points = np.zeros((len(cw_keep), q, 2))
@@ -114,20 +108,49 @@ class VectorMap:
         for k, own in enumerate(lane_faces):
             self.lane_faces[k, :len(own)] = own
 
+
+
+class VectorMap:
+    """Semantic maps (io.l5.l5_semantic_map.SemanticMap) resampled once into the arrays each step reads.
+
+    Lanes or crosswalks repeated under one id in a place's map (several ScenarioNet scenes of one place,
+    merged) are kept once.  Lanes whose boundaries hold no point are never candidates."""
+
+    def __init__(self, semantic_maps, limits: MapLimits = MapLimits()):
+        """``semantic_maps``: one map, or a list of maps of different places (a row sees the lanes of
+        its own place only: two cities' coordinates overlap)."""
+        self.limits = limits
+        if not isinstance(semantic_maps, (list, tuple)):
+            semantic_maps = [semantic_maps]
+        parts = [_Place(smap, limits) for smap in semantic_maps]
+        offsets = np.cumsum([0] + [len(part.face_ids) for part in parts])
+        for part, offset in zip(parts, offsets):
+            part.lane_faces[part.lane_faces >= 0] += offset
+        for name in ("lane_ids", "left", "right", "mid", "bounds", "has_light", "face_ids", "face_priority",
+                     "crosswalk_points", "crosswalk_counts", "crosswalk_bounds"):
+            setattr(self, name, np.concatenate([getattr(part, name) for part in parts]))
+        width = max(part.lane_faces.shape[1] for part in parts)
+        self.lane_faces = np.concatenate([np.pad(part.lane_faces, ((0, 0), (0, width - part.lane_faces.shape[1])),
+                                                 constant_values=-1) for part in parts])
+        self.lane_place = np.repeat(np.arange(len(parts)), [len(part.lane_ids) for part in parts])
+        self.crosswalk_place = np.repeat(np.arange(len(parts)), [len(part.crosswalk_counts) for part in parts])
+
     def face_index(self, face_ids) -> np.ndarray:
         """Face ids (str) as indices into this map's faces, -1 for faces it lacks."""
         index = {face: f for f, face in enumerate(self.face_ids.tolist())}
         return np.array([index.get(f, -1) for f in np.asarray(face_ids).tolist()], np.int64)
 
-    def __call__(self, centre: np.ndarray, cos: np.ndarray, sin: np.ndarray,
-                 lit: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The six keys for B rows with the ego at ``centre`` (B, 2) heading (cos, sin) (B,), and ``lit``
-        (B, faces) the faces lit at each row's frame (None: none).  Also returns (B, L) the kept lanes'
-        indices into :attr:`lane_ids`, -1 for empty slots (the route and tests read them)."""
+    def __call__(self, centre: np.ndarray, cos: np.ndarray, sin: np.ndarray, lit: np.ndarray | None = None,
+                 place: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The six keys for B rows with the ego at ``centre`` (B, 2) heading (cos, sin) (B,), ``lit``
+        (B, faces) the faces lit at each row's frame (None: none) and ``place`` (B,) each row's map (None:
+        the first).  Also returns (B, L) the kept lanes' indices into :attr:`lane_ids`, -1 for empty slots
+        (the route and tests read them)."""
+        place = np.zeros(len(centre), np.int64) if place is None else np.asarray(place, np.int64)
         lim = self.limits
         b, n_l, p = len(centre), lim.max_lanes, lim.max_points_per_lane
         d_max = lim.max_distance
-        rows, lanes = _in_bounds(centre, self.bounds, d_max)
+        rows, lanes = _in_bounds(centre, self.bounds, d_max, place, self.lane_place)
         gap = self.mid[lanes] - centre[rows, None, :]
         nearest = np.sqrt((gap ** 2).sum(-1)).min(axis=1) if len(rows) else np.zeros(0)
         order = np.lexsort((nearest, rows))  # stable: ties stay in map order
@@ -156,7 +179,7 @@ class VectorMap:
         n_c, q = lim.max_crosswalks, lim.max_points_per_crosswalk
         walks = np.zeros((b, n_c, q, 3), np.float32)
         walks_ok = np.zeros((b, n_c, q), bool)
-        w_rows, w_idx = _in_bounds(centre, self.crosswalk_bounds, d_max)
+        w_rows, w_idx = _in_bounds(centre, self.crosswalk_bounds, d_max, place, self.crosswalk_place)
         w_rank = np.arange(len(w_rows)) - np.searchsorted(w_rows, w_rows)
         kept = w_rank < n_c
         w_rows, w_idx, w_rank = w_rows[kept], w_idx[kept], w_rank[kept]
@@ -185,14 +208,15 @@ class VectorMap:
         return feature
 
 
-def _in_bounds(centre: np.ndarray, bounds: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, elements) pairs whose box grown by ``half`` strictly holds the row's centre, row-major, each
-    row's elements in map order (l5kit's ``indices_in_bounds``; NaN boxes hold nothing)."""
+def _in_bounds(centre: np.ndarray, bounds: np.ndarray, half: float, place: np.ndarray,
+               element_place: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, elements) pairs of one place whose box grown by ``half`` strictly holds the row's centre,
+    row-major, each row's elements in map order (l5kit's ``indices_in_bounds``; NaN boxes hold nothing)."""
     if not len(bounds):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     x, y = centre[:, :1], centre[:, 1:2]
     inside = ((x > bounds[:, 0] - half) & (y > bounds[:, 1] - half)
-              & (x < bounds[:, 2] + half) & (y < bounds[:, 3] + half))
+              & (x < bounds[:, 2] + half) & (y < bounds[:, 3] + half) & (place[:, None] == element_place))
     rows, elements = np.nonzero(inside)
     return rows.astype(np.int64), elements.astype(np.int64)
 

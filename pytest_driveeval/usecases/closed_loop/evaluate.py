@@ -114,11 +114,12 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
 
     maps = SceneMaps(dataset, semantic_map)
     if vector_map is not None:
-        if semantic_map is None:
-            raise DataError(f"{dataset.path}: map inputs need the dataset's semantic map")
-        from pytest_driveeval.usecases.closed_loop.map_inputs import map_inputs
+        from pytest_driveeval.usecases.closed_loop.map_inputs import map_inputs, places
 
-        extra = _both(extra, map_inputs(vector_map, log, scenes, semantic_map, [maps.get(s) for s in ids]))
+        own, place = places(dataset, ids, semantic_map)
+        if own[0] is None:
+            raise DataError(f"{dataset.path}: map inputs need the dataset's semantic map")
+        extra = _both(extra, map_inputs(vector_map, log, scenes, own, place, [maps.get(s) for s in ids]))
     config = unroll_config(start_frame=start_frame, steps=steps, drift_threshold=drift_threshold,
                            freeze_on_collision=freeze_on_collision, kinematic=kinematic,
                            history_frames=history_frames, future_frames=future_frames, max_agents=max_agents,

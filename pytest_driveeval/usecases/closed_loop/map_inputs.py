@@ -20,7 +20,7 @@ import numpy as np
 
 from pytest_driveeval.sim.logreplay.map_inputs import MapLimits, VectorMap
 
-__all__ = ["map_inputs", "route_lanes"]
+__all__ = ["map_inputs", "places", "route_lanes"]
 
 
 def route_lanes(score_map: Any, xy: np.ndarray, yaw: np.ndarray) -> set[str]:
@@ -32,26 +32,42 @@ def route_lanes(score_map: Any, xy: np.ndarray, yaw: np.ndarray) -> set[str]:
     return {str(score_map.lane_ids[n]) for n in range(len(score_map.lane_ids)) if int(score_map.roadblock[n]) in blocks}
 
 
-def map_inputs(limits: MapLimits, log: Any, scenes: Sequence[Any], semantic_map: Any,
+def places(dataset: Any, ids: Sequence[int], semantic_map: Any) -> tuple[list[Any], np.ndarray]:
+    """The maps the rows of scenes ``ids`` read, and each row's index among them: a ScenarioNet
+    dataset's scenes by the place they lie in (``metadata.map``; one map per place, its scenes' maps
+    merged), else ``semantic_map`` for every row."""
+    if not hasattr(dataset, "scenario_map"):
+        return [semantic_map], np.zeros(len(ids), np.int64)
+    from pytest_driveeval.io.scenarionet.scenarionet_map import merged
+
+    names = [str(dataset.source(i).metadata.get("map", "")) for i in ids]
+    order = list(dict.fromkeys(names))
+    maps = [merged([dataset.scenario_map(i) for i, name in zip(ids, names) if name == place]) for place in order]
+    return maps, np.array([order.index(name) for name in names], np.int64)
+
+
+def map_inputs(limits: MapLimits, log: Any, scenes: Sequence[Any], maps: Sequence[Any], place: np.ndarray,
                score_maps: Sequence[Any]) -> Callable:
-    """The engine's ``extra_inputs`` for the map keys; ``score_maps``: each log row's score map (None: no
-    route for that row)."""
+    """The engine's ``extra_inputs`` for the map keys: log row r reads ``maps[place[r]]``;
+    ``score_maps``: each row's score map (None: no route for that row)."""
     import torch
 
     from pytest_driveeval.raster.semantic import active_faces
 
-    vector = VectorMap(semantic_map, limits)
+    vector = VectorMap(list(maps), limits)
     faces = active_faces(scenes, log.ego_xy.shape[1])
     face_of = vector.face_index(faces.ids)
     n_faces = len(vector.face_ids)
-    lane_row = {lane: k for k, lane in enumerate(vector.lane_ids.tolist())}
-    on_route = np.zeros((log.ego_xy.shape[0], len(lane_row) + 1), bool)  # last column: the empty slot
+    on_route = np.zeros((log.ego_xy.shape[0], len(vector.lane_ids) + 1), bool)  # last column: the empty slot
+    routes: dict = {}  # copies of one scene (a search's, a benchmark's) share their route
     for row, score_map in enumerate(score_maps):
         if score_map is not None:
             n = int(log.num_frames[row])
-            for lane in route_lanes(score_map, log.ego_xy[row, :n], log.ego_yaw[row, :n]):
-                if lane in lane_row:
-                    on_route[row, lane_row[lane]] = True
+            key = (id(score_map), log.ego_xy[row, :n].tobytes(), log.ego_yaw[row, :n].tobytes())
+            if key not in routes:
+                routes[key] = list(route_lanes(score_map, log.ego_xy[row, :n], log.ego_yaw[row, :n]))
+            route = routes[key]
+            on_route[row, :-1] = np.isin(vector.lane_ids, route) & (vector.lane_place == place[row])
     last = np.maximum(log.num_frames - 1, 0)
     goal_xy = log.ego_xy[np.arange(len(last)), last]
     goal_yaw = log.ego_yaw[np.arange(len(last)), last]
@@ -69,7 +85,7 @@ def map_inputs(limits: MapLimits, log: Any, scenes: Sequence[Any], semantic_map:
     def inputs(rows: np.ndarray, t: int, driven_xy: np.ndarray, driven_yaw: np.ndarray, agents: Any = None) -> dict:
         centre, yaw = driven_xy[rows, t], driven_yaw[rows, t]
         cos, sin = np.cos(yaw), np.sin(yaw)
-        out, chosen = vector(centre, cos, sin, lit(rows, t))
+        out, chosen = vector(centre, cos, sin, lit(rows, t), place[rows])
         out["lanes_mid_on_route"] = on_route[rows[:, None], chosen]  # chosen -1 reads the empty slot's False
         gap = goal_xy[rows] - centre
         out["goal_position"] = np.stack([cos * gap[:, 0] + sin * gap[:, 1], cos * gap[:, 1] - sin * gap[:, 0]],

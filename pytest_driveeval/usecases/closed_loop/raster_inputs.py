@@ -84,11 +84,13 @@ def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str |
     dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``.
     ``kept``: a chunk's map, which the next chunks in this process that name the same unchanged
     files get without reading them again (the map is only read, never written, by the rasters)."""
-    if (inputs.Kind != "raster" or inputs.MapType != "py_semantic") and getattr(inputs, "Map", None) is None:
+    raster = inputs.Kind == "raster" and inputs.MapType == "py_semantic"
+    if not raster and getattr(inputs, "Map", None) is None:
         return None
     own = getattr(dataset, "semantic_map", None)
     if own is not None:
-        return own(list(ids))
+        # map inputs read each scene's own map (closed_loop.map_inputs.places); a raster draws one
+        return own(list(ids)) if raster else None
     args = (dataset_path, inputs.SemanticMap, inputs.Meta, folder)
     if not kept:
         return load_semantic_map(*args)
