@@ -79,6 +79,8 @@ def main() -> None:
     args = parser.parse_args()
     copies, repeats = (2, 1) if args.smoke else (args.copies, args.repeats)
     torch.set_num_threads(1)
+    if args.smoke:
+        print("smoke run: 2 copies, 10 frames, one pass; the figures mean nothing")
 
     scene = L5Dataset.open(REAL_SCENE).scene(0)
     start = time.perf_counter()

@@ -161,20 +161,25 @@ class VectorMap:
         chosen = np.full((b, n_l), -1, np.int64)
         chosen[rows, rank] = lanes
 
+        # Each kept lane's points gathered once, (K, P, 2) float32, then written into flat slot indices.
         c, s, o = cos[rows, None], sin[rows, None], centre[rows, None, :]
-        bounds = np.zeros((b, 2 * n_l, p, 3), np.float32)
-        bounds[rows, 2 * rank, :, :2] = _to_agent(self.left[lanes], o, c, s)
-        bounds[rows, 2 * rank + 1, :, :2] = _to_agent(self.right[lanes], o, c, s)
-        bounds_ok = np.zeros((b, 2 * n_l, p), bool)
-        bounds_ok[rows, 2 * rank] = True
-        bounds_ok[rows, 2 * rank + 1] = True
-        bounds_ok &= np.sqrt((bounds[..., :2] ** 2).sum(-1)) < d_max  # on float32 values, as l5kit
-        mid = np.zeros((b, n_l, p, 3), np.float32)
-        mid[rows, rank, :, :2] = _to_agent(self.mid[lanes], o, c, s)
-        mid[rows, rank, :, 2] = self._light_feature(rows, lanes, lit)[:, None]
-        mid_ok = np.zeros((b, n_l, p), bool)
-        mid_ok[rows, rank] = True
-        mid_ok &= np.sqrt((mid[..., :2] ** 2).sum(-1)) < d_max
+        left = _to_agent(self.left[lanes], o, c, s).astype(np.float32)
+        right = _to_agent(self.right[lanes], o, c, s).astype(np.float32)
+        middle = _to_agent(self.mid[lanes], o, c, s).astype(np.float32)
+        slot = rows * n_l + rank
+        bounds = np.zeros((b * 2 * n_l, p, 3), np.float32)
+        bounds_ok = np.zeros((b * 2 * n_l, p), bool)
+        bounds[2 * slot, :, :2] = left
+        bounds[2 * slot + 1, :, :2] = right
+        bounds_ok[2 * slot] = _norm(left) < d_max  # on the float32 values, as l5kit
+        bounds_ok[2 * slot + 1] = _norm(right) < d_max
+        mid = np.zeros((b * n_l, p, 3), np.float32)
+        mid_ok = np.zeros((b * n_l, p), bool)
+        mid[slot, :, :2] = middle
+        mid[slot, :, 2] = self._light_feature(rows, lanes, lit)[:, None]
+        mid_ok[slot] = _norm(middle) < d_max
+        bounds, bounds_ok = bounds.reshape(b, 2 * n_l, p, 3), bounds_ok.reshape(b, 2 * n_l, p)
+        mid, mid_ok = mid.reshape(b, n_l, p, 3), mid_ok.reshape(b, n_l, p)
 
         n_c, q = lim.max_crosswalks, lim.max_points_per_crosswalk
         walks = np.zeros((b, n_c, q, 3), np.float32)
@@ -219,6 +224,11 @@ def _in_bounds(centre: np.ndarray, bounds: np.ndarray, half: float, place: np.nd
               & (x < bounds[:, 2] + half) & (y < bounds[:, 3] + half) & (place[:, None] == element_place))
     rows, elements = np.nonzero(inside)
     return rows.astype(np.int64), elements.astype(np.int64)
+
+
+def _norm(points: np.ndarray) -> np.ndarray:
+    """|point| over the last axis, computed as l5kit's ``np.linalg.norm`` of float32 values."""
+    return np.sqrt(np.einsum("...i,...i->...", points, points))
 
 
 def _to_agent(points: np.ndarray, origin: np.ndarray, cos: np.ndarray, sin: np.ndarray) -> np.ndarray:

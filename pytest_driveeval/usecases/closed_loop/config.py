@@ -149,7 +149,7 @@ class MapSpec(Section):
 
     MaxLanes: PositiveInt = Field(30, description=(
         "lanes given, nearest first (l5kit's max_num_lanes): lanes_mid holds this many, lanes twice as many"))
-    MaxPointsPerLane: PositiveInt = Field(20, ge=2, description=(
+    MaxPointsPerLane: int = Field(20, ge=2, description=(
         "points each boundary and centre line is resampled to, equally spaced (l5kit's max_points_per_lane)"))
     MaxCrosswalks: PositiveInt = Field(20, description="crosswalks given, in map order (l5kit's max_num_crosswalks)")
     MaxPointsPerCrosswalk: PositiveInt = Field(20, description=(
@@ -194,7 +194,8 @@ class InputsSpec(Section):
     FilterAgentsThreshold: float = Field(0.5, ge=0.0, lt=1.0, description=(
         "agents drawn are those whose label probability exceeds this (l5kit's filter_agents_threshold)"))
     SemanticMap: str | None = Field(None, description=(
-        "the L5 semantic_map.pb (py_semantic), relative to the scenario file; default: beside the dataset"))
+        "the L5 semantic_map.pb (py_semantic rasters, Map), relative to the scenario file; default: beside the "
+        "dataset"))
     Meta: str | None = Field(None, description=(
         "the L5 meta.json with the map's world-to-ECEF transform; default: beside the dataset"))
     Map: MapSpec | None = Field(None, description=(
