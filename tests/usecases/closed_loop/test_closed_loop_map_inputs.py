@@ -37,6 +37,12 @@ def test_mistakes_are_located(tmp_path, unroll, expected):
     assert len(found) == 1 and found[0].startswith(expected), found
 
 
+def test_a_search_with_map_inputs_is_refused_at_its_line(tmp_path):
+    found = closed_loop_yaml.problems(tmp_path, "  Unroll:\n    Inputs: {Map: {}}\n"
+                                                "  Perturbation:\n    Lateral: [-1, 1]\n")
+    assert len(found) == 1 and "a robustness search with Inputs.Map is not supported yet" in found[0], found
+
+
 class LaneFollower(torch.nn.Module):
     """Heads for the point about 8 m ahead on a lane of the route, at the speed it has: a policy that needs
     the map keys, with no weights."""
@@ -213,3 +219,29 @@ def test_an_exported_policy_reading_the_map_drives_where_the_blind_one_fails(nus
     assert results["follower"]["status"] == "passed", results["follower"]
     assert results["follower"]["figures"]["score"] >= 0.7
     assert results["blind"]["figures"]["score"] < 0.7
+
+
+def test_an_l5_dataset_reads_its_semantic_map_and_lights(tmp_path):
+    """The generated demo scenes (an L5 zarr with semantic_map.pb beside it): the policy's batch gets the
+    map keys from that map, lanes lit by the zarr's own traffic-light faces, and the route and goal."""
+    from conftest import REPO_ROOT
+    from pytest_driveeval.io.l5.l5kit_zarr import L5Dataset
+    from pytest_driveeval.sim.logreplay.map_inputs import MapLimits
+    from pytest_driveeval.usecases.closed_loop.evaluate import unroll_scenes
+    from pytest_driveeval.usecases.closed_loop.raster_inputs import load_semantic_map
+
+    generated = REPO_ROOT / "fixtures" / "l5kit" / "generated.zarr"
+    if not generated.exists():
+        pytest.skip("fixtures/l5kit/generated.zarr is absent: python examples/make_demo_data.py makes it")
+    dataset = L5Dataset.open(generated)
+    policy = Recording()
+    unroll_scenes(dataset, policy, [0, 1, 2, 3], start_frame=10, steps=40, drift_threshold=None,
+                  semantic_map=load_semantic_map(generated), vector_map=MapLimits(max_lanes=12))
+    lights = torch.cat([b["lanes_mid"][..., 2][b["lanes_mid_availabilities"]] for b in policy.batches])
+    assert policy.batches[0]["lanes_mid"].shape == (4, 12, 20, 3)
+    assert {1.0, 3.0, 4.0} <= set(lights.unique().tolist()), lights.unique()  # green, red and no light seen
+    assert all(b["lanes_mid_on_route"].any(dim=1).all() for b in policy.batches[:5])
+    first = policy.batches[0]
+    goal = _world(first, first["goal_position"].numpy().astype(float)[:, None, :])[:, 0]
+    for row in range(4):
+        np.testing.assert_allclose(goal[row], dataset.scene(row).ego_positions()[-1], atol=1e-3)
