@@ -93,5 +93,4 @@ def map_inputs(limits: MapLimits, log: Any, scenes: Sequence[Any], maps: Sequenc
         out["goal_yaw"] = (np.angle(np.exp(1j * (goal_yaw[rows] - yaw)))[:, None]).astype(np.float32)
         return {key: torch.from_numpy(value) for key, value in out.items()}
 
-    inputs.vector_map = vector  # for tests and benchmarks
     return inputs

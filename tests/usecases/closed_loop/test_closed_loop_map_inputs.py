@@ -28,7 +28,8 @@ def test_map_keys_take_l5kits_limits(tmp_path):
 
 
 @pytest.mark.parametrize("unroll, expected", [
-    ("    Inputs: {Map: {MaxLane: 8}}\n", "k:8: Evaluation.Unroll.Inputs.Map.MaxLane: unknown key 'MaxLane'; did you mean 'MaxLanes'?"),
+    ("    Inputs: {Map: {MaxLane: 8}}\n",
+     "k:8: Evaluation.Unroll.Inputs.Map.MaxLane: unknown key 'MaxLane'; did you mean 'MaxLanes'?"),
     ("    Inputs: {Map: {MaxPointsPerLane: 1}}\n", "k:8: Evaluation.Unroll.Inputs.Map.MaxPointsPerLane"),
     ("    Inputs: {SemanticMap: m.pb}\n", "k:8: Evaluation.Unroll.Inputs: SemanticMap applies to Kind: raster"),
 ])
