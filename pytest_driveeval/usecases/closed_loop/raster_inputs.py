@@ -67,7 +67,7 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
     for path, key in ((pb_path, "SemanticMap"), (meta_path, "Meta")):
         if not path.is_file():
             raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
-                            f"MapType py_semantic; give Inputs.{key} to point elsewhere)")
+                            f"MapType py_semantic, or Inputs.Map; give Inputs.{key} to point elsewhere)")
     semantic_map = read_semantic_map(pb_path, meta_path)
     if len(semantic_map.lane_ids) == 0 and len(semantic_map.crosswalk_ids) == 0:
         # An empty message decodes as an empty map; the rasters would show no road and no error.

@@ -248,3 +248,13 @@ def test_an_l5_dataset_reads_its_semantic_map_and_lights(tmp_path):
     goal = _world(first, first["goal_position"].numpy().astype(float)[:, None, :])[:, 0]
     for row in range(4):
         np.testing.assert_allclose(goal[row], dataset.scene(row).ego_positions()[-1], atol=1e-3)
+
+
+def test_an_l5_dataset_without_its_map_is_named(tmp_path):
+    from pytest_driveeval.core.errors import DataError
+    from pytest_driveeval.usecases.closed_loop.raster_inputs import semantic_map_for
+
+    (tmp_path / "d.zarr").mkdir()
+    inputs = load(tmp_path, "    Inputs: {Map: {}}\n").Unroll.Inputs
+    with pytest.raises(DataError, match=r"semantic_map\.pb: no such file .*Inputs\.Map; give Inputs\.SemanticMap"):
+        semantic_map_for(inputs, tmp_path / "d.zarr", tmp_path)
