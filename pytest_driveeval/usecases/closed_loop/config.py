@@ -142,6 +142,30 @@ def replayed_agents(spec: AgentsSpec):
     return ReplayedAgents(labels=spec.Labels, label_threshold=spec.LabelThreshold, within_at_start=spec.WithinAtStart)
 
 
+class MapSpec(Section):
+    """``Inputs.Map``: l5kit 1.5's vectorised map keys in the batch (``lanes``, ``lanes_mid``, ``crosswalks``,
+    each with its availabilities, in the agent frame), plus ``lanes_mid_on_route``, ``goal_position`` and
+    ``goal_yaw``; the limits are l5kit's ``lane_params``, with its Urban Driver values."""
+
+    MaxLanes: PositiveInt = Field(30, description=(
+        "lanes given, nearest first (l5kit's max_num_lanes): lanes_mid holds this many, lanes twice as many"))
+    MaxPointsPerLane: int = Field(20, ge=2, description=(
+        "points each boundary and centre line is resampled to, equally spaced (l5kit's max_points_per_lane)"))
+    MaxCrosswalks: PositiveInt = Field(20, description="crosswalks given, in map order (l5kit's max_num_crosswalks)")
+    MaxPointsPerCrosswalk: PositiveInt = Field(20, description=(
+        "a crosswalk's first points given, as the map lists them (l5kit's max_points_per_crosswalk)"))
+    MaxDistance: PositiveFloat = Field(35.0, description=(
+        "m: lanes and crosswalks within this of the ego (by their boxes) are candidates, and lane points "
+        "farther than this are not available (l5kit's max_retrieval_distance_m)"))
+
+    def limits(self):
+        from pytest_driveeval.sim.logreplay.map_inputs import MapLimits
+
+        return MapLimits(max_lanes=self.MaxLanes, max_points_per_lane=self.MaxPointsPerLane,
+                         max_crosswalks=self.MaxCrosswalks, max_points_per_crosswalk=self.MaxPointsPerCrosswalk,
+                         max_distance=self.MaxDistance)
+
+
 class InputsSpec(Section):
     """What the policy is given each step.  ``Kind: vector`` (the default): the
     l5kit-keyed agent and ego histories (sim.logreplay.inputs).  ``Kind:
@@ -151,7 +175,8 @@ class InputsSpec(Section):
     (those plus lanes coloured by traffic-light state and crosswalks, from
     ``SemanticMap``/``Meta``, by default ``semantic_map.pb`` and ``meta.json``
     beside the dataset).  The raster's history is ``Unroll.HistoryFrames``.
-    ``Inputs: vector`` / ``Inputs: raster`` say just the kind.
+    ``Inputs: vector`` / ``Inputs: raster`` say just the kind.  ``Map`` (either kind) adds l5kit's
+    vectorised map keys, the route and the goal (:class:`MapSpec`), from the same map files.
     """
 
     Kind: Literal["vector", "raster"] = Field("vector", description=(
@@ -169,9 +194,13 @@ class InputsSpec(Section):
     FilterAgentsThreshold: float = Field(0.5, ge=0.0, lt=1.0, description=(
         "agents drawn are those whose label probability exceeds this (l5kit's filter_agents_threshold)"))
     SemanticMap: str | None = Field(None, description=(
-        "the L5 semantic_map.pb (py_semantic), relative to the scenario file; default: beside the dataset"))
+        "the L5 semantic_map.pb (py_semantic rasters, Map), relative to the scenario file; default: beside the "
+        "dataset"))
     Meta: str | None = Field(None, description=(
         "the L5 meta.json with the map's world-to-ECEF transform; default: beside the dataset"))
+    Map: MapSpec | None = Field(None, description=(
+        "l5kit's vectorised map keys (lanes, lanes_mid, crosswalks), the route and the goal in the batch; "
+        "{} for l5kit's limits. An L5 dataset reads SemanticMap/Meta, a ScenarioNet scene its own map"))
 
     @model_validator(mode="before")
     @classmethod
@@ -184,11 +213,12 @@ class InputsSpec(Section):
 
     @model_validator(mode="after")
     def _raster_keys_need_raster(self):
-        given = sorted(self.model_fields_set - {"Kind"})
+        given = sorted(self.model_fields_set - {"Kind", "Map", *(("SemanticMap", "Meta") if self.Map else ())})
         if given and self.Kind != "raster":
             raise ValueError(f"{', '.join(given)} applies to Kind: raster; give Kind: raster too")
-        if self.MapType != "py_semantic" and {"SemanticMap", "Meta"} & self.model_fields_set:
-            raise ValueError("SemanticMap and Meta apply to MapType: py_semantic")
+        if self.Kind == "raster" and self.MapType != "py_semantic" and not self.Map \
+                and {"SemanticMap", "Meta"} & self.model_fields_set:
+            raise ValueError("SemanticMap and Meta apply to MapType: py_semantic or to Map")
         self.raster_params(1)  # the rasterizer's own checks (e.g. square pixels), at this line of the YAML
         return self
 
@@ -232,7 +262,8 @@ class UnrollSpec(Section):
         return dict(start_frame=self.StartFrame, steps=self.Steps, drift_threshold=self.DriftThreshold,
                     freeze_on_collision=self.FreezeOnCollision, kinematic=self.Kinematic,
                     history_frames=self.HistoryFrames, future_frames=self.FutureFrames, max_agents=self.MaxAgents,
-                    reactive=self.Agents.reactive(), raster=self.Inputs.raster_params(self.HistoryFrames))
+                    reactive=self.Agents.reactive(), raster=self.Inputs.raster_params(self.HistoryFrames),
+                    vector_map=self.Inputs.Map.limits() if self.Inputs.Map is not None else None)
 
     @model_validator(mode="after")
     def _one_selection(self):
@@ -394,4 +425,7 @@ class ClosedLoopConfig(ConditionsModel):
         if spec is not None and unroll is not None and unroll.Inputs.Kind == "raster":
             raise ValueError("a robustness search with Inputs: raster is not supported yet (its generations "
                              "unroll copies of the scenes, which the rasterizer does not follow)")
+        if spec is not None and unroll is not None and unroll.Inputs.Map is not None:
+            raise ValueError("a robustness search with Inputs.Map is not supported yet (its generations unroll "
+                             "copies of the scenes without the map)")
         return spec

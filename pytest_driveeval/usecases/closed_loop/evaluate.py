@@ -78,7 +78,7 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                   future_frames: int = 12, max_agents: int = 30, agents: ReplayedAgents | None = None,
                   perturbation: StartPerturbation | Sequence[StartPerturbation] | None = None,
                   reactive: ReactiveAgents | None = None, raster: Any = None, semantic_map: Any = None,
-                  progress: Callable[[int, int], None] | None = None) -> Unroll:
+                  vector_map: Any = None, progress: Callable[[int, int], None] | None = None) -> Unroll:
     """Unroll ``model`` through the given scenes of an L5 dataset, all in one batch.
 
     ``agents`` says which logged agents replay (default: all of them);
@@ -90,7 +90,9 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
     its driven history; ``py_semantic`` needs ``semantic_map``
     (io.l5_semantic_map.SemanticMap, e.g. from raster_inputs.load_semantic_map); an L5 dataset's scenes
     also score on it (its lanes are the drivable area), and without it the score's map terms are not
-    available.  ``progress(done, total)``: the steps unrolled, as they go.
+    available.  ``vector_map`` (sim.logreplay.map_inputs.MapLimits): the policy also gets l5kit's
+    vectorised map keys from ``semantic_map``, the route and the goal (closed_loop.map_inputs).
+    ``progress(done, total)``: the steps unrolled, as they go.
     """
     ids, out_of_range = select_scenes(dataset.num_scenes, scenes)
     if out_of_range:
@@ -108,20 +110,39 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
         from pytest_driveeval.usecases.closed_loop.raster_inputs import raster_inputs
 
         extra = raster_inputs(raster, log, scenes, semantic_map)
+    from pytest_driveeval.usecases.closed_loop.score import SceneMaps
+
+    maps = SceneMaps(dataset, semantic_map)
+    if vector_map is not None:
+        from pytest_driveeval.usecases.closed_loop.map_inputs import map_inputs, places
+
+        own, place = places(dataset, ids, semantic_map)
+        if own[0] is None:
+            raise DataError(f"{dataset.path}: map inputs need the dataset's semantic map")
+        extra = _both(extra, map_inputs(vector_map, log, scenes, own, place, [maps.get(s) for s in ids]))
     config = unroll_config(start_frame=start_frame, steps=steps, drift_threshold=drift_threshold,
                            freeze_on_collision=freeze_on_collision, kinematic=kinematic,
                            history_frames=history_frames, future_frames=future_frames, max_agents=max_agents,
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    from pytest_driveeval.usecases.closed_loop.score import SceneMaps
-
     unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
     from pytest_driveeval.usecases.closed_loop.names import scene_identity
 
-    unrolled.maps = SceneMaps(dataset, semantic_map)
+    unrolled.maps = maps
     unrolled.identities = {s: scene_identity(dataset, s) for s in ids}
     return unrolled
+
+
+def _both(first: Any, second: Callable) -> Callable:
+    """Two ``extra_inputs`` as one (the raster's and the map's), or ``second`` alone."""
+    if first is None:
+        return second
+
+    def both(*args: Any) -> dict:
+        return {**first(*args), **second(*args)}
+
+    return both
 
 
 def kept_scenes(dataset: L5Dataset, ids: Sequence[int], start_frame: int, agents: ReplayedAgents | None = None

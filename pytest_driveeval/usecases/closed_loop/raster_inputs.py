@@ -67,7 +67,7 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
     for path, key in ((pb_path, "SemanticMap"), (meta_path, "Meta")):
         if not path.is_file():
             raise DataError(f"{path}: no such file (the semantic map of {dataset_path} for Inputs: raster, "
-                            f"MapType py_semantic; give Inputs.{key} to point elsewhere)")
+                            f"MapType py_semantic, or Inputs.Map; give Inputs.{key} to point elsewhere)")
     semantic_map = read_semantic_map(pb_path, meta_path)
     if len(semantic_map.lane_ids) == 0 and len(semantic_map.crosswalk_ids) == 0:
         # An empty message decodes as an empty map; the rasters would show no road and no error.
@@ -80,15 +80,17 @@ def load_semantic_map(dataset_path: str | os.PathLike, pb: str | None = None, me
 
 def semantic_map_for(inputs: Any, dataset_path: str | os.PathLike, folder: str | os.PathLike,
                      dataset: Any = None, ids: Any = None, *, kept: bool = False) -> Any:
-    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters), else None.  A
+    """The semantic map an ``Unroll.Inputs`` section needs (``py_semantic`` rasters, ``Map``), else None.  A
     dataset that carries its own map per scene (ScenarioNet) gives it for the scenes ``ids``.
     ``kept``: a chunk's map, which the next chunks in this process that name the same unchanged
     files get without reading them again (the map is only read, never written, by the rasters)."""
-    if inputs.Kind != "raster" or inputs.MapType != "py_semantic":
+    raster = inputs.Kind == "raster" and inputs.MapType == "py_semantic"
+    if not raster and getattr(inputs, "Map", None) is None:
         return None
     own = getattr(dataset, "semantic_map", None)
     if own is not None:
-        return own(list(ids))
+        # map inputs read each scene's own map (closed_loop.map_inputs.places); a raster draws one
+        return own(list(ids)) if raster else None
     args = (dataset_path, inputs.SemanticMap, inputs.Meta, folder)
     if not kept:
         return load_semantic_map(*args)

@@ -62,6 +62,7 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
     log = stack_log(dataset, ids, spec.StartFrame, agents)
     options = spec.unroll_options()
     options.pop("raster")  # the config refuses a search with raster inputs
+    options.pop("vector_map")  # and with map inputs
     settings = unroll_config(**options)
 
     # Packed once: every generation's rows are copies of these scenes.
