@@ -3,20 +3,15 @@ makes it; without it these skip): the real L5 scene with box_debug, the real sce
 its path, and generated scenes with their own map, with py_semantic."""
 from __future__ import annotations
 
-import importlib.util
-
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 
 ORACLE = REPO_ROOT / "benchmarks" / "l5kit_oracle"
 
 
 def _load(name):
-    spec = importlib.util.spec_from_file_location(name, ORACLE / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return module_at(ORACLE / f"{name}.py", name)
 
 
 @pytest.fixture(scope="module")

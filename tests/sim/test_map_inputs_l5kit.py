@@ -3,20 +3,15 @@
 L5 scene on a map laid along its path, with traffic lights."""
 from __future__ import annotations
 
-import importlib.util
-
 import pytest
 
-from conftest import REPO_ROOT
+from conftest import REPO_ROOT, module_at
 
 ORACLE = REPO_ROOT / "benchmarks" / "l5kit_oracle"
 
 
 def _load(name):
-    spec = importlib.util.spec_from_file_location(name, ORACLE / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return module_at(ORACLE / f"{name}.py", name)
 
 
 def test_map_keys_equal_l5kits():
