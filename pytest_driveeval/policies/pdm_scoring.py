@@ -1,0 +1,139 @@
+"""PDM-Closed's proposal scorer: nuPlan's closed-loop terms over each proposal's 4 s rollout, against the
+agents moving on at constant velocity, all proposals of all scenes at once.
+
+It reads the harness's own nuPlan score wherever that applies to a rollout: the map's drivable-area queries
+and margin (``ScoreMap.lanes_holding`` / ``in_drivable`` / ``distance_to_drivable``, ``terms.DRIVABLE_MARGIN``),
+the score's box overlap test (``geometry.oriented_boxes_overlap``, which its collision and TTC terms use),
+the TTC bound and ahead cone (``ttc.LEAST_TTC``, ``ttc.AHEAD``), the comfort bounds (``comfort.BOUNDS``), the
+progress threshold and the terms' weights (``term.WEIGHTS``).  The score's whole-scene term functions are not
+called per proposal: they take a logged scene's inputs and cost milliseconds each, and a step has 15
+proposals per scene; PDM's own scorer makes the same cut (nuPlan's terms, re-implemented over proposals).
+
+The terms as PDM scores them: multipliers for an at-fault collision and for leaving the drivable area;
+weighted progress (against the best proposal's), time to collision and comfort.  Driving direction and the
+speed limit are left out: no proposal drives against its lane (the offsets are 1 m), and none is faster than
+its limit (the target speeds are fractions of it).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pytest_driveeval.geometry.boxes import oriented_boxes_overlap
+from pytest_driveeval.metrics.nuplan_score.comfort import BOUNDS
+from pytest_driveeval.metrics.nuplan_score.progress import PROGRESS_THRESHOLD
+from pytest_driveeval.metrics.nuplan_score.term import WEIGHTS
+from pytest_driveeval.metrics.nuplan_score.terms import DRIVABLE_MARGIN
+from pytest_driveeval.metrics.nuplan_score.ttc import AHEAD, LEAST_TTC
+
+#: rollout steps (of 0.1 s) whose corners are checked against the drivable area
+DRIVABLE_STEPS = (1, 3, 5, 10, 15, 20, 30, 40)
+#: seconds the ego and an agent are projected ahead for the time-to-collision check
+TTC_PROJECTIONS = (0.3, 0.6, LEAST_TTC)
+STOPPED = 0.05
+
+
+def _corners(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
+    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
+    lx = np.array([0.5, 0.5, -0.5, -0.5]) * length
+    ly = np.array([0.5, -0.5, -0.5, 0.5]) * width
+    return np.stack([xy[..., 0:1] + c * lx - s * ly, xy[..., 1:2] + s * lx + c * ly], axis=-1)
+
+
+def drivable(rollout: dict, maps: list, rows: np.ndarray, extent) -> np.ndarray:
+    """(B, P) every checked corner on the drivable area or within the score's margin of it."""
+    xy, yaw = rollout["xy"], rollout["yaw"]
+    b, p, steps = yaw.shape
+    keep = [k for k in DRIVABLE_STEPS if k < steps]
+    out = np.ones((b, p), dtype=bool)
+    corners = _corners(xy[:, :, keep], yaw[:, :, keep], extent[0], extent[1])  # (B, P, K, 4, 2)
+    for i, row in enumerate(rows.tolist()):
+        query = maps[row]
+        if query is None:
+            continue
+        score_map = query.map
+        points = corners[i].reshape(-1, 2)
+        _, held, _ = score_map.lanes_holding(points)
+        off = ~held if score_map.every_lane_drivable else np.ones(len(points), dtype=bool)
+        rest = np.flatnonzero(off)
+        if len(rest):
+            off[rest] = ~score_map.in_drivable(points[rest])
+        rest = np.flatnonzero(off)
+        if len(rest):
+            off[rest] = ~(score_map.distance_to_drivable(points[rest], DRIVABLE_MARGIN) < DRIVABLE_MARGIN)
+        out[i] = ~off.reshape(p, -1).any(axis=1)
+    return out
+
+
+def _agents_at(obs, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Agents' centres (B, 1, K, A, 2) at times ``t`` (K,), at constant velocity, and their yaws (B, 1, 1, A)."""
+    xy = obs.agents_xy[:, None, None] + obs.agents_velocity[:, None, None] * t[None, None, :, None, None]
+    return xy, obs.agents_yaw[:, None, None]
+
+
+def collisions_and_ttc(rollout: dict, obs, extent, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(B, P) an at-fault collision within the rollout; (B, P) a time to collision under the bound somewhere.
+
+    At fault as nuPlan blames: the ego was moving and the agent was not behind it (a rear-end is the other's)."""
+    steps = np.arange(1, rollout["yaw"].shape[2], 2)
+    b, p = rollout["yaw"].shape[:2]
+    a = obs.agents_xy.shape[1]
+    if a == 0:
+        return np.zeros((b, p), bool), np.zeros((b, p), bool)
+    ego_xy = rollout["xy"][:, :, steps]            # (B, P, K, 2)
+    ego_yaw = rollout["yaw"][:, :, steps]
+    ego_v = rollout["speed"][:, :, steps]
+    length, width = extent[0], extent[1]
+    a_ext = obs.agents_extent[:, None, None, :, :2]
+    ok = obs.agents_available[:, None, None, :]
+    reach = 0.5 * (np.hypot(length, width) + np.hypot(a_ext[..., 0], a_ext[..., 1]))
+    heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], -1)
+    collided = np.zeros((b, p), bool)
+    short = np.zeros((b, p), bool)
+    for tau in (0.0,) + TTC_PROJECTIONS:
+        a_xy, a_yaw = _agents_at(obs, steps * dt + tau)
+        e_xy = ego_xy + heading * (ego_v * tau)[..., None]
+        rel = a_xy - e_xy[:, :, :, None]
+        dist = np.hypot(rel[..., 0], rel[..., 1])
+        forward = rel[..., 0] * heading[..., None, 0] + rel[..., 1] * heading[..., None, 1]
+        moving = (ego_v > STOPPED)[..., None]
+        if tau == 0.0:
+            candidate = ok & (dist < reach) & moving & (forward > -0.25 * length)
+        else:
+            bearing = np.abs(np.arctan2(rel[..., 1] * heading[..., None, 0] - rel[..., 0] * heading[..., None, 1],
+                                        forward))
+            candidate = ok & (dist < reach) & moving & (bearing < AHEAD + np.pi / 3)
+        hit = np.zeros(candidate.shape, bool)
+        where = np.nonzero(candidate)
+        if len(where[0]):
+            bb, pp, kk, aa = where
+            hit[where] = oriented_boxes_overlap(e_xy[bb, pp, kk], ego_yaw[bb, pp, kk], np.array([length, width]),
+                                                a_xy[bb, 0, kk, aa], a_yaw[bb, 0, 0, aa], a_ext[bb, 0, 0, aa])
+        if tau == 0.0:
+            collided = hit.any(axis=(2, 3))
+        else:
+            short |= hit.any(axis=(2, 3))
+    return collided, short
+
+
+def comfortable(rollout: dict) -> np.ndarray:
+    """(B, P) the rollout's longitudinal and lateral accelerations and yaw rate inside the score's bounds."""
+    accel, rate = rollout["accel"], rollout["yaw_rate"]
+    lateral = rollout["speed"][:, :, :-1] * rate
+    ok = (accel > BOUNDS["ego_lon_acceleration"][0]) & (accel < BOUNDS["ego_lon_acceleration"][1])
+    ok &= np.abs(lateral) < BOUNDS["ego_lat_acceleration"][1]
+    ok &= np.abs(rate) < BOUNDS["ego_yaw_rate"][1]
+    return ok.all(axis=2)
+
+
+def score_proposals(rollout: dict, obs, maps: list, extent, dt: float) -> np.ndarray:
+    """(B, P) each proposal's score: multipliers times the weighted mean of progress, TTC and comfort."""
+    collided, short = collisions_and_ttc(rollout, obs, extent, dt)
+    multiplier = (~collided & drivable(rollout, maps, obs.rows, extent)).astype(np.float64)
+    progress = rollout["station"] - rollout["start"][:, None]
+    best = np.max(np.where(multiplier > 0, progress, -np.inf), axis=1, keepdims=True)
+    ratio = np.where(best > PROGRESS_THRESHOLD, np.clip(progress / np.where(np.isfinite(best), best, 1.0), 0, 1), 1.0)
+    w_progress = WEIGHTS["ego_progress_along_expert_route"]
+    w_ttc = WEIGHTS["time_to_collision_within_bound"]
+    w_comfort = WEIGHTS["ego_is_comfortable"]
+    weighted = (w_progress * ratio + w_ttc * ~short + w_comfort * comfortable(rollout)) / (w_progress + w_ttc + w_comfort)
+    return multiplier * weighted
