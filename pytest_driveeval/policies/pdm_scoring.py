@@ -26,10 +26,11 @@ from pytest_driveeval.metrics.nuplan_score.terms import DRIVABLE_MARGIN
 from pytest_driveeval.metrics.nuplan_score.ttc import AHEAD, LEAST_TTC
 
 #: rollout steps (of 0.1 s) whose corners are checked against the drivable area
-DRIVABLE_STEPS = (1, 3, 5, 10, 15, 20, 30, 40)
+DRIVABLE_STEPS = (1, 2, 3, 5, 8, 10, 15, 20)
 #: seconds the ego and an agent are projected ahead for the time-to-collision check
 TTC_PROJECTIONS = (0.3, 0.6, LEAST_TTC)
 STOPPED = 0.05
+assert AHEAD + np.pi / 3 <= np.pi / 2  # "ahead" below is a positive forward distance
 
 
 def _corners(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
@@ -70,15 +71,42 @@ def _agents_at(obs, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return xy, obs.agents_yaw[:, None, None]
 
 
+def _within_reach(obs, rollout: dict, extent, dt: float):
+    """The observation with only the agents whose constant-velocity path comes near the box around all of
+    its scene's rollouts (with the TTC projection): the others can neither collide nor come close."""
+    from dataclasses import replace
+
+    xy = rollout["xy"]
+    lo, hi = xy.min(axis=(1, 2)), xy.max(axis=(1, 2))                         # (B, 2)
+    horizon = (rollout["yaw"].shape[2] - 1) * dt + LEAST_TTC
+    margin = 0.5 * (np.hypot(extent[0], extent[1]) + np.hypot(obs.agents_extent[..., 0], obs.agents_extent[..., 1]))
+    margin = margin + rollout["speed"].max(axis=(1, 2))[:, None] * LEAST_TTC  # (B, A)
+    end = obs.agents_xy + obs.agents_velocity * horizon
+    a_lo, a_hi = np.minimum(obs.agents_xy, end), np.maximum(obs.agents_xy, end)
+    near = obs.agents_available & np.all((a_hi + margin[..., None] > lo[:, None]) &
+                                         (a_lo - margin[..., None] < hi[:, None]), axis=-1)
+    count = int(near.sum(axis=1).max(initial=0))
+    order = np.argsort(~near, axis=1, kind="stable")[:, :count]
+
+    def pick(v: np.ndarray) -> np.ndarray:
+        return np.take_along_axis(v, order.reshape(order.shape + (1,) * (v.ndim - 2)), axis=1)
+
+    return replace(obs, agents_xy=pick(obs.agents_xy), agents_yaw=pick(obs.agents_yaw),
+                   agents_extent=pick(obs.agents_extent), agents_velocity=pick(obs.agents_velocity),
+                   agents_available=pick(near), agents_track_id=pick(obs.agents_track_id))
+
+
 def collisions_and_ttc(rollout: dict, obs, extent, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(B, P) an at-fault collision within the rollout; (B, P) a time to collision under the bound somewhere.
+    """(B, P) the first rollout step with an at-fault collision (the number of steps where none), and (B, P) a
+    time to collision under the bound somewhere.
 
     At fault as nuPlan blames: the ego was moving and the agent was not behind it (a rear-end is the other's)."""
-    steps = np.arange(1, rollout["yaw"].shape[2], 2)
+    steps = np.arange(1, rollout["yaw"].shape[2])
     b, p = rollout["yaw"].shape[:2]
+    obs = _within_reach(obs, rollout, extent, dt)
     a = obs.agents_xy.shape[1]
     if a == 0:
-        return np.zeros((b, p), bool), np.zeros((b, p), bool)
+        return np.full((b, p), rollout["yaw"].shape[2]), np.zeros((b, p), bool)
     ego_xy = rollout["xy"][:, :, steps]            # (B, P, K, 2)
     ego_yaw = rollout["yaw"][:, :, steps]
     ego_v = rollout["speed"][:, :, steps]
@@ -87,21 +115,19 @@ def collisions_and_ttc(rollout: dict, obs, extent, dt: float) -> tuple[np.ndarra
     ok = obs.agents_available[:, None, None, :]
     reach = 0.5 * (np.hypot(length, width) + np.hypot(a_ext[..., 0], a_ext[..., 1]))
     heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], -1)
-    collided = np.zeros((b, p), bool)
+    first_hit = np.full((b, p), rollout["yaw"].shape[2])
     short = np.zeros((b, p), bool)
     for tau in (0.0,) + TTC_PROJECTIONS:
         a_xy, a_yaw = _agents_at(obs, steps * dt + tau)
         e_xy = ego_xy + heading * (ego_v * tau)[..., None]
         rel = a_xy - e_xy[:, :, :, None]
-        dist = np.hypot(rel[..., 0], rel[..., 1])
+        near = rel[..., 0] ** 2 + rel[..., 1] ** 2 < reach ** 2
         forward = rel[..., 0] * heading[..., None, 0] + rel[..., 1] * heading[..., None, 1]
         moving = (ego_v > STOPPED)[..., None]
-        if tau == 0.0:
-            candidate = ok & (dist < reach) & moving & (forward > -0.25 * length)
-        else:
-            bearing = np.abs(np.arctan2(rel[..., 1] * heading[..., None, 0] - rel[..., 0] * heading[..., None, 1],
-                                        forward))
-            candidate = ok & (dist < reach) & moving & (bearing < AHEAD + np.pi / 3)
+        # a collision is the ego's unless the agent is behind it; a short time to collision counts for agents
+        # ahead (within AHEAD of the heading, widened by 60 degrees: the score also looks beside the ego where
+        # it straddles lanes or crosses a junction, which a rollout does not track)
+        candidate = ok & near & moving & (forward > (-0.25 * length if tau == 0.0 else 0.0))
         hit = np.zeros(candidate.shape, bool)
         where = np.nonzero(candidate)
         if len(where[0]):
@@ -109,10 +135,11 @@ def collisions_and_ttc(rollout: dict, obs, extent, dt: float) -> tuple[np.ndarra
             hit[where] = oriented_boxes_overlap(e_xy[bb, pp, kk], ego_yaw[bb, pp, kk], np.array([length, width]),
                                                 a_xy[bb, 0, kk, aa], a_yaw[bb, 0, 0, aa], a_ext[bb, 0, 0, aa])
         if tau == 0.0:
-            collided = hit.any(axis=(2, 3))
+            any_hit = hit.any(axis=3)
+            first_hit = np.where(any_hit.any(axis=2), steps[np.argmax(any_hit, axis=2)], first_hit)
         else:
             short |= hit.any(axis=(2, 3))
-    return collided, short
+    return first_hit, short
 
 
 def comfortable(rollout: dict) -> np.ndarray:
@@ -127,8 +154,9 @@ def comfortable(rollout: dict) -> np.ndarray:
 
 def score_proposals(rollout: dict, obs, maps: list, extent, dt: float) -> np.ndarray:
     """(B, P) each proposal's score: multipliers times the weighted mean of progress, TTC and comfort."""
-    collided, short = collisions_and_ttc(rollout, obs, extent, dt)
-    multiplier = (~collided & drivable(rollout, maps, obs.rows, extent)).astype(np.float64)
+    first_hit, short = collisions_and_ttc(rollout, obs, extent, dt)
+    steps = rollout["yaw"].shape[2]
+    multiplier = ((first_hit == steps) & drivable(rollout, maps, obs.rows, extent)).astype(np.float64)
     progress = rollout["station"] - rollout["start"][:, None]
     best = np.max(np.where(multiplier > 0, progress, -np.inf), axis=1, keepdims=True)
     ratio = np.where(best > PROGRESS_THRESHOLD, np.clip(progress / np.where(np.isfinite(best), best, 1.0), 0, 1), 1.0)
@@ -136,4 +164,7 @@ def score_proposals(rollout: dict, obs, maps: list, extent, dt: float) -> np.nda
     w_ttc = WEIGHTS["time_to_collision_within_bound"]
     w_comfort = WEIGHTS["ego_is_comfortable"]
     weighted = (w_progress * ratio + w_ttc * ~short + w_comfort * comfortable(rollout)) / (w_progress + w_ttc + w_comfort)
-    return multiplier * weighted
+    # where every proposal scores 0, the one that collides last (a collision it may yet avoid next step),
+    # then the better weighted terms: a tie-break far below any proposal that scores
+    fallback = 1e-3 * (first_hit / steps) + 1e-4 * weighted
+    return multiplier * weighted + fallback

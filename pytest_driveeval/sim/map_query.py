@@ -132,11 +132,13 @@ class MapQuery:
 class Route:
     """nuPlan's route of a scenario, built from the logged ego's drive: ``lanes`` the lanes it drives, in order
     (the score's expert route, simplified), ``roadblocks`` their roadblocks at each change (nuPlan's
-    ``route_roadblock_ids``), ``frames`` the log frame at which each lane is first driven."""
+    ``route_roadblock_ids``), ``frames`` the log frame at which each lane is first driven and ``entries``
+    (K, 2) where the logged ego was then (where a lane change happened, the point it changed at)."""
 
     lanes: tuple[int, ...]
     roadblocks: tuple[int, ...]
     frames: tuple[int, ...]
+    entries: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 def logged_route(score_map: ScoreMap, logged_xy: np.ndarray, logged_yaw: np.ndarray) -> Route:
@@ -153,4 +155,5 @@ def logged_route(score_map: ScoreMap, logged_xy: np.ndarray, logged_yaw: np.ndar
             frames.append(k)
             j += 1
     blocks = tuple(b for b, _ in route_pairs(score_map, kept)) if kept else ()
-    return Route(tuple(lanes), blocks, tuple(frames))
+    entries = np.asarray(logged_xy, dtype=np.float64)[frames].reshape(-1, 2)
+    return Route(tuple(lanes), blocks, tuple(frames), entries)
