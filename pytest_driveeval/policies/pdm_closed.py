@@ -232,9 +232,13 @@ def _roll_out(lines, rows, o: PDMOptions, dt, steps, s0, e0, psi0, v0, a0, offse
         demand = -kp * (e - offset) - kd * lateral_rate
         psi_rate = np.clip(demand / np.maximum(v, 1.0), -o.max_yaw_rate, o.max_yaw_rate)
         yaw_rate[:, :, k] = psi_rate + kappa * v
-        s = s + v * np.cos(psi) * dt
-        e = e + v * np.sin(psi) * dt
+        # the step at its mean speed: with the speed of its start only, the first pose (the one the ego
+        # is moved to) would never show a proposal's braking or speeding up
+        v_next = np.maximum(v + a * dt, 0.0)
+        mean = 0.5 * (v + v_next)
+        s = s + mean * np.cos(psi) * dt
+        e = e + mean * np.sin(psi) * dt
         psi = psi + psi_rate * dt
-        v = np.maximum(v + a * dt, 0.0)
+        v = v_next
     return dict(xy=xy, yaw=yaw, speed=speed, accel=accel, yaw_rate=yaw_rate, station=s, start=s0,
                 fraction=fraction, offset=offset)

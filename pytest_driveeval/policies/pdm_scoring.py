@@ -159,7 +159,8 @@ def score_proposals(rollout: dict, obs, maps: list, extent, dt: float) -> np.nda
     multiplier = ((first_hit == steps) & drivable(rollout, maps, obs.rows, extent)).astype(np.float64)
     progress = rollout["station"] - rollout["start"][:, None]
     best = np.max(np.where(multiplier > 0, progress, -np.inf), axis=1, keepdims=True)
-    ratio = np.where(best > PROGRESS_THRESHOLD, np.clip(progress / np.where(np.isfinite(best), best, 1.0), 0, 1), 1.0)
+    scale = np.where(best > PROGRESS_THRESHOLD, best, 1.0)  # no proposal goes far: progress does not decide
+    ratio = np.where(best > PROGRESS_THRESHOLD, np.clip(progress / scale, 0.0, 1.0), 1.0)
     w_progress = WEIGHTS["ego_progress_along_expert_route"]
     w_ttc = WEIGHTS["time_to_collision_within_bound"]
     w_comfort = WEIGHTS["ego_is_comfortable"]
