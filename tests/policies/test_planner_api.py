@@ -121,5 +121,3 @@ def test_pdm_stops_behind_a_stopped_car_instead_of_hitting_it():
     assert front_of_ego.max() < rear_of_car  # never touched it
     assert rear_of_car - front_of_ego[-1] < 6.0  # and stopped close behind (IDM's gap), not far back
     assert xs[-1] - xs[-2] < 0.05  # all but at rest (under 0.5 m/s, creeping up to IDM's gap)
-    # the proposals that would have hit it scored zero: the chosen one is not the fastest
-    assert planner.last_scores[0].max() > planner.last_scores[0][0] or int(planner.last_choice[0]) != 0
