@@ -41,11 +41,24 @@ def drive(dataset, name: str, ids, steps: int, reactive: bool):
 
     torch.set_num_threads(1)
     model = baseline(name) if name in BASELINES else load_model(str(VECTOR_MODEL))
+    cpu = [0.0]
+    if hasattr(model, "plan"):  # the planner's own CPU time: the machine may be shared, wall time is not its
+        plan = model.plan
+
+        def timed(observation):
+            start = time.process_time()
+            try:
+                return plan(observation)
+            finally:
+                cpu[0] += time.process_time() - start
+
+        model.plan = timed
     unroll = unroll_scenes(dataset, model, ids, start_frame=10, steps=steps, drift_threshold=None,
                            reactive=ReactiveAgents() if reactive else None)
     r = unroll.result
     scores = score_unroll(unroll)
-    return {s: scores[s].score for s in scores}, 1000.0 * r.model_time / max(r.scene_steps, 1)
+    steps_done = max(r.scene_steps, 1)
+    return {s: scores[s].score for s in scores}, (1000.0 * r.model_time / steps_done, 1000.0 * cpu[0] / steps_done)
 
 
 def main() -> None:
@@ -84,9 +97,9 @@ def main() -> None:
     mean_nr = np.mean([pdm[i] for i in ids])
     mean_r = np.mean([runs["pdm_closed, reactive"][0][i] for i in ids])
     print(f"pdm_closed mean nuPlan score: {mean_nr:.3f} (target 0.90), reactive agents {mean_r:.3f} (target 0.85)")
-    per_step = runs["pdm_closed"][1]
-    print(f"pdm_closed: {per_step:.2f} ms per scene per step, batched over {len(ids)} scene(s), one thread "
-          f"(target 10); {per_step / BUDGET_MS:.4f} of nuPlan's 1 s budget")
+    wall_ms, cpu_ms = runs["pdm_closed"][1]
+    print(f"pdm_closed: {cpu_ms:.2f} ms per scene per step (CPU time of its plan calls; {wall_ms:.2f} ms wall), "
+          f"batched over {len(ids)} scene(s), one thread (target 10); {cpu_ms / BUDGET_MS:.4f} of nuPlan's 1 s budget")
     print(f"whole run: {time.perf_counter() - wall:.1f} s wall, {time.process_time() - cpu:.1f} s CPU")
 
 
