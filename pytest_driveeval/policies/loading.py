@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 from ..core.errors import ModelError
 from .fx_forward import fast_forward
+from .planner_api import is_planner
 from .pt2_archive import ProgramRefused, load_exported_program
 
 PICKLE_PREFIX = "pickle:"
@@ -108,8 +109,9 @@ def _call_factory(target: str) -> Any:
         model = factory()
     except TypeError as exc:
         raise ModelError(f"cannot call {target}() without arguments to build the model: {exc}") from None
-    if not callable(model):
-        raise ModelError(f"{target}() returned a {type(model).__name__}, not a model (a torch module or callable)")
+    if not callable(model) and not is_planner(model):
+        raise ModelError(f"{target}() returned a {type(model).__name__}, not a model (a torch module or callable, "
+                         "or a planner with initialize and plan: policies.planner_api)")
     return model
 
 

@@ -34,6 +34,7 @@ SMOKED = {
     "bench_metrics.py": (rf"^ours, one scene per call\s+:\s+{NUMBER} ms/scene", ()),
     "bench_nuplan_score.py": (rf"^score vs harness: {NUMBER} % of the unroll's harness time", ("torch",)),
     "bench_obstacle_frame.py": (rf"evaluate_cloud, numpy kernel: median {NUMBER} ms", ()),
+    "bench_pdm_closed.py": (rf"^pdm_closed: {NUMBER} ms per scene per step", ("torch",)),
     "bench_pointcloud2.py": (rf"^  stream / page cache: median {NUMBER} of the faster reference", ("rosbags",)),
     "bench_policy_benchmark_step.py": (rf"ours merging\s+E=\s*2:\s+{NUMBER} live agent-steps/s", ()),
     "bench_pt2_loading.py": (rf"^median ours / torch.export.load over \d+ model\(s\): {NUMBER}x", ("torch",)),

@@ -396,8 +396,10 @@ class ClosedLoopPerturbation(StartSearchSpec):
 class ClosedLoopConfig(ConditionsModel):
     Model: str | None = Field(None, description=(
         "the planning model: a .pt2 (torch.export) or TorchScript file relative to the scenario file, "
-        "constant_velocity, log_replay, or (with --driveeval-allow-scenario-code) weights.pt=pkg.mod:factory, "
-        "pkg.mod:factory or pickle:file; --driveeval-model or a driveeval_model fixture replaces it"))
+        "constant_velocity, log_replay, pdm_closed (the shipped PDM-Closed planner, which reads the map), or "
+        "(with --driveeval-allow-scenario-code) weights.pt=pkg.mod:factory, pkg.mod:factory (a model, or a "
+        "planner with initialize and plan: docs/bring-your-planner.md) or pickle:file; --driveeval-model or a "
+        "driveeval_model fixture replaces it"))
     ConstantVelocity: ConstantVelocitySpec | None = Field(None, description=(
         "options of the constant_velocity baseline (only with Model: constant_velocity)"))
     Unroll: UnrollSpec = Field(default_factory=UnrollSpec, description="which scenes and frames are driven, and how")

@@ -126,7 +126,8 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
                            reactive=reactive)
     if perturbation is not None and not isinstance(perturbation, Sequence):
         perturbation = [perturbation] * len(ids)
-    unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress)
+    unrolled = unroll_log(log, model, config, perturbation, extra_inputs=extra, progress=progress, dataset=dataset,
+                          maps=maps)
     from pytest_driveeval.usecases.closed_loop.names import scene_identity
 
     unrolled.maps = maps
@@ -177,12 +178,15 @@ def unroll_config(*, start_frame: int, steps: int | None, drift_threshold: float
 
 def unroll_log(log: Any, model: Callable, config: Any,
                perturbations: Sequence[StartPerturbation] | None = None, cells: Any = None,
-               candidates: Any = None, extra_inputs: Any = None, progress: Any = None) -> Unroll:
+               candidates: Any = None, extra_inputs: Any = None, progress: Any = None, dataset: Any = None,
+               maps: Any = None) -> Unroll:
     """Unroll a stacked log, row ``i`` perturbed by ``perturbations[i]`` when given.
 
     ``cells``, ``candidates``: the log's packed cells and window columns
     (sim.logreplay), when the caller has them; unused when agents are
-    replayed at another speed (the log changes).
+    replayed at another speed (the log changes).  A ``model`` with ``initialize`` and ``plan``
+    (policies.planner_api) is told each row's map from ``maps`` (a SceneMaps), its route and goal, and
+    its traffic lights from ``dataset`` where it has them.
     """
     from pytest_driveeval.sim.logreplay import scale_agent_time, unroll
 
@@ -195,6 +199,12 @@ def unroll_log(log: Any, model: Callable, config: Any,
         if scaled is not log:
             cells = candidates = None
         log = scaled
+    from pytest_driveeval.policies.planner_api import is_planner
+
+    if is_planner(model):
+        from pytest_driveeval.usecases.closed_loop.planner_inputs import planner_policy
+
+        model, extra_inputs = planner_policy(model, log, config, dataset, maps, extra_inputs)
     result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates,
                     extra_inputs=extra_inputs, progress=progress)
     # Drawn and judged where the agents were: the log, or where reactive agents went.

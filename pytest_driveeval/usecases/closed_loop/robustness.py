@@ -89,7 +89,8 @@ def _judged_here(config: ClosedLoopConfig, dataset: Any, model: Callable, ids: S
     def evaluate_many(examples: list[Example]) -> list[Verdict]:
         rows = np.array([e.case for e in examples], dtype=np.int64)
         unrolled = unroll_log(copies(tuple(rows.tolist())), model, settings, [e.perturbation for e in examples],
-                              cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]))
+                              cells=cells.rows_of(rows), candidates=(columns[rows], columns_ok[rows]),
+                              dataset=dataset, maps=maps)
         unrolled.maps = maps
         return [example_verdict(judge_scene(unrolled, i, config.Conditions, score=scored), names)
                 for i in range(len(examples))]
