@@ -69,8 +69,9 @@ ALLOWED = {
     "execute": {"core"},
     "io": FOUNDATION,
     "metrics": FOUNDATION,
-    # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies).
-    "policies": {"core", "sim"},
+    # The IDM expert baseline drives by the simulator's own IDM and lanes (sim never imports policies);
+    # PDM-Closed scores its proposals with the nuPlan score's own terms and boxes (issue 36).
+    "policies": {"core", "sim", "metrics", "geometry"},
     "sim": FOUNDATION | {"io", "metrics"},
     "synth": FOUNDATION | {"io"},
     # Reads LogArrays only for annotations, so sim may import raster later without a cycle.

@@ -243,6 +243,6 @@ def test_the_readme_is_the_pitch_the_set_up_the_tour_and_links():
     a manual page that was not made."""
     text = README.read_text()
     headings = re.findall(r"^## (.+)$", text, re.M)
-    assert headings == ["Set-up in two commands", "A five-minute tour", "Real files as their datasets write them",
-                        "The manual"]
+    assert headings == ["Set-up in two commands", "A five-minute tour", "Bring your planner",
+                        "Real files as their datasets write them", "The manual"]
     assert len(text.splitlines()) < 260

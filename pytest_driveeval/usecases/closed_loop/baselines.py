@@ -1,5 +1,6 @@
 """The policies a closed-loop scenario names instead of a model file: the constant-velocity and log-replay
-baselines, and the PDM-Closed planner.  Its own module so that the use case and its Ray chunks (chunked) build them alike."""
+baselines, and the PDM-Closed planner.  Its own module so that the use case and its Ray chunks (chunked)
+build them alike."""
 from __future__ import annotations
 
 from pytest_driveeval.usecases.closed_loop.config import ClosedLoopConfig
