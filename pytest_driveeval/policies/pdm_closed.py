@@ -139,23 +139,12 @@ def _nearby(obs: Observation, horizon: float, fastest: float) -> Observation:
     """The observation with only the agents that may come within reach of a proposal within the horizon:
     at the start, halfway or at the end of their constant-velocity path, within what the ego can drive
     (``fastest`` for ``horizon`` seconds) plus 15 m of it (the scoring's cost grows with the agents)."""
-    from dataclasses import replace
-
     radius = np.maximum(obs.ego_speed, fastest) * horizon + 15.0
     near = np.zeros(obs.agents_available.shape, dtype=bool)
     for t in (0.0, 0.5 * horizon, horizon):
         d = obs.agents_xy + obs.agents_velocity * t - obs.ego_xy[:, None]
         near |= np.hypot(d[..., 0], d[..., 1]) < radius[:, None]
-    near &= obs.agents_available
-    count = int(near.sum(axis=1).max(initial=0))
-    order = np.argsort(~near, axis=1, kind="stable")[:, :count]
-
-    def pick(a: np.ndarray) -> np.ndarray:
-        return np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)
-
-    return replace(obs, agents_xy=pick(obs.agents_xy), agents_yaw=pick(obs.agents_yaw),
-                   agents_extent=pick(obs.agents_extent), agents_velocity=pick(obs.agents_velocity),
-                   agents_available=pick(near), agents_track_id=pick(obs.agents_track_id))
+    return obs.only_agents(near & obs.agents_available)
 
 
 def _agents_on_line(lines: Centrelines, rows: np.ndarray, obs: Observation, s0: np.ndarray) -> dict:

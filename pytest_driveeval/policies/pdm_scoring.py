@@ -74,8 +74,6 @@ def _agents_at(obs, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _within_reach(obs, rollout: dict, extent, dt: float):
     """The observation with only the agents whose constant-velocity path comes near the box around all of
     its scene's rollouts (with the TTC projection): the others can neither collide nor come close."""
-    from dataclasses import replace
-
     xy = rollout["xy"]
     lo, hi = xy.min(axis=(1, 2)), xy.max(axis=(1, 2))                         # (B, 2)
     horizon = (rollout["yaw"].shape[2] - 1) * dt + LEAST_TTC
@@ -85,15 +83,7 @@ def _within_reach(obs, rollout: dict, extent, dt: float):
     a_lo, a_hi = np.minimum(obs.agents_xy, end), np.maximum(obs.agents_xy, end)
     near = obs.agents_available & np.all((a_hi + margin[..., None] > lo[:, None]) &
                                          (a_lo - margin[..., None] < hi[:, None]), axis=-1)
-    count = int(near.sum(axis=1).max(initial=0))
-    order = np.argsort(~near, axis=1, kind="stable")[:, :count]
-
-    def pick(v: np.ndarray) -> np.ndarray:
-        return np.take_along_axis(v, order.reshape(order.shape + (1,) * (v.ndim - 2)), axis=1)
-
-    return replace(obs, agents_xy=pick(obs.agents_xy), agents_yaw=pick(obs.agents_yaw),
-                   agents_extent=pick(obs.agents_extent), agents_velocity=pick(obs.agents_velocity),
-                   agents_available=pick(near), agents_track_id=pick(obs.agents_track_id))
+    return obs.only_agents(near)
 
 
 def collisions_and_ttc(rollout: dict, obs, extent, dt: float) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ object for the whole batch instead of one per scenario.  docs/bring-your-planner
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -96,6 +96,19 @@ class Observation:
     agents_available: np.ndarray
     agents_track_id: np.ndarray
     lights: list[dict] = field(default_factory=list)
+
+    def only_agents(self, keep: np.ndarray) -> "Observation":
+        """This observation with only the agents ``keep`` (B, A) marks, kept in their order and first in
+        each row, the agent axis cut to the most any row keeps (a planner's cost grows with it)."""
+        count = int(keep.sum(axis=1).max(initial=0))
+        order = np.argsort(~keep, axis=1, kind="stable")[:, :count]
+
+        def pick(a: np.ndarray) -> np.ndarray:
+            return np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)
+
+        return replace(self, agents_xy=pick(self.agents_xy), agents_yaw=pick(self.agents_yaw),
+                       agents_extent=pick(self.agents_extent), agents_velocity=pick(self.agents_velocity),
+                       agents_available=pick(keep), agents_track_id=pick(self.agents_track_id))
 
     def to_ego_frame(self, xy: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World poses (B, F, 2), (B, F) as the ego-frame trajectory ``plan`` returns."""
