@@ -187,13 +187,17 @@ def _corners_connected(score_map: ScoreMap, here: list) -> list[bool]:
     out = []
     candidates: tuple[int, ...] = ()
     known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
+    connected_of: dict = {}  # and the connectedness of the corners' lanes, which different candidates often give alike
     for k in range(len(here) // 4):
         front_left, front_right, rear_right, rear_left = here[4 * k:4 * k + 4]
         key = (k == 1, candidates, tuple(front_left), tuple(rear_left), tuple(rear_right), tuple(front_right))
         answer = known.get(key)
         if answer is None:
             corners, found = _corners_frame(score_map, key)
-            answer = known[key] = (found, _common_or_connected(score_map, corners))
+            connected = connected_of.get(corners)
+            if connected is None:
+                connected = connected_of[corners] = _common_or_connected(score_map, corners)
+            answer = known[key] = (found, connected)
         candidates, connected = answer
         out.append(connected)
     return out
