@@ -78,3 +78,47 @@ def test_the_compiled_route_is_the_python_route_on_random_maps(seed, monkeypatch
     for path in (inputs.ego.center[:, :2], points, points[:0], points + 1e4):  # ..., no frame, no lane anywhere
         python, compiled = _both(monkeypatch, inputs.map, path, rng.uniform(-np.pi, np.pi, len(path)))
         assert compiled == python
+
+
+def _corners_both(monkeypatch, score_map, corners):
+    from pytest_driveeval.metrics.nuplan_score.route import corners_in_one_lane
+
+    holding = score_map.lanes_at(corners.reshape(-1, 2))
+    answers = []
+    for compiled in (False, True):
+        monkeypatch.setattr(kernels, "wanted", lambda compiled=compiled: compiled)
+        answers.append(corners_in_one_lane(score_map, corners, holding).tolist())
+    return answers
+
+
+def _boxes(path, rng, length=4.6, width=1.9):
+    """(T, 4, 2) FL, FR, RR, RL corners of boxes along the path, some turned across it."""
+    step = np.diff(path, axis=0, append=path[-1:] + path[-1:] - path[-2:-1])
+    heading = np.arctan2(step[:, 1], step[:, 0]) + rng.normal(0.0, 0.4, len(path)) * (rng.random(len(path)) < 0.2)
+    c, s = np.cos(heading)[:, None], np.sin(heading)[:, None]
+    offsets = np.array([[length / 2, width / 2], [length / 2, -width / 2], [-length / 2, -width / 2],
+                        [-length / 2, width / 2]])
+    return path[:, None, :] + np.stack([c * offsets[:, 0] - s * offsets[:, 1], s * offsets[:, 0] + c * offsets[:, 1]],
+                                       axis=-1)
+
+
+def test_the_compiled_corners_loop_is_the_python_loop_on_real_maps(real_maps, monkeypatch):
+    rng = np.random.default_rng(6)
+    connected = frames = 0
+    for score_map in real_maps:
+        for path in _paths(score_map, rng):
+            python, compiled = _corners_both(monkeypatch, score_map, _boxes(path, rng))
+            assert compiled == python
+            connected, frames = connected + sum(python), frames + len(python)
+    assert 0 < connected < frames
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_compiled_corners_loop_is_the_python_loop_on_random_maps(seed, monkeypatch):
+    inputs = inputs_from_case(random_case(seed))
+    rng = np.random.default_rng(seed)
+    points = rng.uniform([-30, -20], [160, 20], size=(300, 2))
+    for path in (inputs.ego.center[:, :2], points, points[:1], points + 1e4):  # ..., one frame, no lane anywhere
+        python, compiled = _corners_both(monkeypatch, inputs.map, _boxes(path, rng) if len(path) > 1 else
+                                         np.zeros((0, 4, 2)))
+        assert compiled == python
