@@ -267,12 +267,8 @@ def corners_in_one_lane(score_map: ScoreMap, corners: np.ndarray, holding: np.nd
                         here: list[list[int]] | None = None) -> np.ndarray:
     """(T,) bool: the frame is among nuPlan's ``timestamps_in_common_or_connected_route_objs`` (the ego's
     corners in one lane or two connected ones); False when the ego straddles lanes or is partly or
-    wholly off them.  ``holding`` (4T, N): ``score_map.lanes_at`` of the corners (then the compiled loop
-    runs), or ``here``: its :func:`lanes_lists`, when the caller has it."""
-    if holding is not None and kernels.wanted():
-        from .route_kernel import compiled_corners_connected
-
-        return compiled_corners_connected(score_map, holding)
+    wholly off them.  ``holding`` (4T, N): ``score_map.lanes_at`` of the corners, or ``here``: its
+    :func:`lanes_lists`, when the caller has it."""
     if here is None:
         here = lanes_lists(score_map.lanes_at(corners.reshape(-1, 2)) if holding is None else holding)
     return np.array(_corners_connected(score_map, here), dtype=bool)
@@ -282,16 +278,14 @@ class InOneLane:
     """:func:`corners_in_one_lane`, computed when first read (``frames[k]`` or ``np.asarray``): only a
     lateral collision and a time to collision with an agent beside the ego ask, and most scenes have neither."""
 
-    def __init__(self, score_map: ScoreMap, corners: np.ndarray, here: list[list[int]] | None,
-                 holding: np.ndarray | None = None):
-        """``here`` (4T lists) or ``holding`` (4T, N): the lanes holding the corners (corners_in_one_lane)."""
-        self._args: tuple | None = (score_map, corners, here, holding)
+    def __init__(self, score_map: ScoreMap, corners: np.ndarray, here: list[list[int]]):
+        self._args: tuple | None = (score_map, corners, here)
         self._frames: np.ndarray | None = None
 
     def frames(self) -> np.ndarray:
         if self._frames is None:
-            score_map, corners, here, holding = self._args
-            self._frames, self._args = corners_in_one_lane(score_map, corners, holding, here), None
+            score_map, corners, here = self._args
+            self._frames, self._args = corners_in_one_lane(score_map, corners, here=here), None
         return self._frames
 
     def __array__(self, dtype=None, copy=None):
@@ -301,4 +295,4 @@ class InOneLane:
         return self.frames()[index]
 
     def __len__(self) -> int:
-        return len(self._frames) if self._frames is not None else len(self._args[1])
+        return len(self._frames) if self._frames is not None else len(self._args[2]) // 4

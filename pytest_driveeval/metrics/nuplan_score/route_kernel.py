@@ -17,7 +17,7 @@ _compiled = None
 
 
 def follow():
-    """The compiled loops (compiled, or loaded from numba's cache, on first use)."""
+    """The compiled loop (compiled, or loaded from numba's cache, on first use)."""
     global _compiled
     if _compiled is None:
         _compiled = _compile()
@@ -27,15 +27,13 @@ def follow():
 def _compile():
     from numba import njit
 
-    jit = njit(cache=True, nogil=True, boundscheck=False)
-
-    @jit
+    @njit(cache=True, nogil=True, boundscheck=False)
     def follow_route(holding, connector, out_starts, out_lanes, k, previous, starts, lanes, same, m):
         """From frame ``k`` on, ``previous`` the lanes of frame k - 1: frame j's lanes written to
         lanes[starts[j]:starts[j + 1]] (from position ``m``), same[j] whether they are frame j - 1's.
         Returns (the first frame it leaves to Python, or the frame count; m)."""
         t, n = holding.shape
-        kept = np.empty(n + out_lanes.shape[0], dtype=np.int64)  # a successor may be listed twice
+        kept = np.empty(n, dtype=np.int64)
         while k < t:
             size = 0
             # route._with_candidates: the frame before's lanes holding the point, in their order, else (one
@@ -83,114 +81,7 @@ def _compile():
             k += 1
         return k, m
 
-    @jit
-    def _holds(values, size, x):
-        for i in range(size):
-            if values[i] == x:
-                return True
-        return False
-
-    @jit
-    def _widened(values, size, starts, table, out):
-        """values[:size] and the lanes each leads into (or comes from: ``starts``, ``table``), in out; its size."""
-        m = 0
-        for i in range(size):
-            out[m] = values[i]
-            m += 1
-        for i in range(size):
-            for j in range(starts[values[i]], starts[values[i] + 1]):
-                out[m] = table[j]
-                m += 1
-        return m
-
-    @jit
-    def corners_connected(holding, connector, out_starts, out_lanes, in_starts, in_lanes, out):
-        """route._corners_connected: out[k] for each frame k of the (4T, N) ``holding`` of its corners
-        (rows FL, FR, RR, RL), taken in nuPlan's order FL, RL, RR, FR."""
-        t4, n = holding.shape
-        found = np.empty((4, n + out_lanes.shape[0]), dtype=np.int64)  # a successor may be listed twice
-        sizes = np.zeros(4, dtype=np.int64)
-        candidates = np.empty(n, dtype=np.int64)
-        here = np.empty(n, dtype=np.int64)
-        nc = 0
-        wide = 2 * (n + out_lanes.shape[0] + in_lanes.shape[0])
-        rr_ahead, rl_ahead = np.empty(wide, dtype=np.int64), np.empty(wide, dtype=np.int64)
-        fl_behind, fr_behind = np.empty(wide, dtype=np.int64), np.empty(wide, dtype=np.int64)
-        for k in range(t4 // 4):
-            nh = 0
-            for place in range(4):  # FL, RL, RR, FR
-                row = 4 * k + (0, 3, 2, 1)[place]
-                size = 0
-                # route._with_candidates: the candidates holding the corner, else (one) those it leads into
-                for i in range(nc):
-                    if holding[row, candidates[i]]:
-                        found[place, size] = candidates[i]
-                        size += 1
-                if size == 0 and nc == 1:
-                    for i in range(out_starts[candidates[0]], out_starts[candidates[0] + 1]):
-                        if holding[row, out_lanes[i]]:
-                            found[place, size] = out_lanes[i]
-                            size += 1
-                if size == 0:
-                    # route._look_up without a heading: the first plain lane, else every connector, ascending
-                    for c in range(n):
-                        if holding[row, c] and not connector[c]:
-                            found[place, 0] = c
-                            size = 1
-                            break
-                    if size == 0:
-                        for c in range(n):
-                            if holding[row, c]:
-                                found[place, size] = c
-                                size += 1
-                    if k == 1:  # on the second frame what a corner looks up joins the candidates
-                        for i in range(size):
-                            if not _holds(candidates, nc, found[place, i]):
-                                candidates[nc] = found[place, i]
-                                nc += 1
-                for i in range(size):
-                    if not _holds(here, nh, found[place, i]):
-                        here[nh] = found[place, i]
-                        nh += 1
-                sizes[place] = size
-            for i in range(nh):
-                candidates[i] = here[i]
-            nc = nh
-            out[k] = _common_or_connected(found, sizes, out_starts, out_lanes, in_starts, in_lanes, rr_ahead,
-                                          rl_ahead, fl_behind, fr_behind)
-
-    @jit
-    def _common_or_connected(found, sizes, out_starts, out_lanes, in_starts, in_lanes, rr_ahead, rl_ahead,
-                             fl_behind, fr_behind):
-        """route._common_or_connected of found[p][:sizes[p]], p = FL, RL, RR, FR."""
-        for p in range(4):
-            if sizes[p] == 0:
-                return False
-        fl, rl, rr, fr = found[0], found[1], found[2], found[3]
-        for i in range(sizes[0]):
-            x = fl[i]
-            if _holds(rl, sizes[1], x) and _holds(rr, sizes[2], x) and _holds(fr, sizes[3], x):
-                return True
-        n_rr = _widened(rr, sizes[2], out_starts, out_lanes, rr_ahead)
-        n_rl = _widened(rl, sizes[1], out_starts, out_lanes, rl_ahead)
-        joined = False
-        for i in range(sizes[1]):
-            if _holds(rr_ahead, n_rr, rl[i]):
-                joined = True
-        for i in range(sizes[2]):
-            if _holds(rl_ahead, n_rl, rr[i]):
-                joined = True
-        if not joined:
-            return False
-        n_fl = _widened(fl, sizes[0], in_starts, in_lanes, fl_behind)
-        n_fr = _widened(fr, sizes[3], in_starts, in_lanes, fr_behind)
-        for i in range(n_fl):
-            x = fl_behind[i]
-            if _holds(rr_ahead, n_rr, x) and _holds(fr_behind, n_fr, x) and _holds(rl_ahead, n_rl, x):
-                return True
-        return False
-
-    return follow_route, corners_connected
+    return follow_route
 
 
 def compiled_route(score_map, holding: np.ndarray, step) -> tuple[list[list[int]], np.ndarray, np.ndarray]:
@@ -201,14 +92,13 @@ def compiled_route(score_map, holding: np.ndarray, step) -> tuple[list[list[int]
     t = len(holding)
     if not t:
         return [], np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    # a frame keeps lanes holding its point, some of the frame before's, or a lane's successors (a map may
-    # list one twice): never more than a row holds and a lane's successors
-    out_starts, out_lanes = score_map.outgoing_table
-    width = max(int(holding.sum(axis=1).max()), 1) + int(np.diff(out_starts).max(initial=0))
+    # a frame keeps lanes holding its point, or some of the frame before's: never more than a row holds
+    width = max(int(holding.sum(axis=1).max()), 1)
     starts = np.zeros(t + 1, dtype=np.int64)
     lanes = np.empty(t * width, dtype=np.int64)
     same = np.zeros(t, dtype=bool)
-    kernel = follow()[0]
+    out_starts, out_lanes = score_map.outgoing_table
+    kernel = follow()
     k, m, previous = 0, 0, np.zeros(0, dtype=np.int64)
     while True:
         k, m = kernel(holding, score_map.connector, out_starts, out_lanes, k, previous, starts, lanes, same, m)
@@ -229,14 +119,3 @@ def compiled_route(score_map, holding: np.ndarray, step) -> tuple[list[list[int]
     counts = np.diff(starts)
     first = np.where(counts > 0, lanes[np.minimum(starts[:-1], len(lanes) - 1)], -1)
     return route, first, counts
-
-
-def compiled_corners_connected(score_map, holding: np.ndarray) -> np.ndarray:
-    """(T,) route._corners_connected from the (4T, N) ``holding`` of the corners (FL, FR, RR, RL per frame)."""
-    out = np.zeros(len(holding) // 4, dtype=bool)
-    incoming = score_map.incoming
-    in_starts = np.concatenate([[0], np.cumsum([len(c) for c in incoming])]).astype(np.int64)
-    in_lanes = np.array([m for c in incoming for m in c], dtype=np.int64)
-    out_starts, out_lanes = score_map.outgoing_table
-    follow()[1](holding, score_map.connector, out_starts, out_lanes, in_starts, in_lanes, out)
-    return out

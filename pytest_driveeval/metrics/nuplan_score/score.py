@@ -65,15 +65,11 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
         # one lookup for the centres, the corners and the expert's centres
         holding, held, touched = score_map.lanes_holding(np.concatenate([inputs.ego.center[:, :2],
                                                                          corners.reshape(-1, 2), inputs.expert[:, :2]]))
-        if kernels.wanted():  # the compiled corners' loop reads their rows of ``holding``, not their lists
-            here = lanes_lists(np.concatenate([holding[:t], holding[5 * t:]]), touched)
-            centre_here, corner_here, expert_here = here[:t], None, here[t:]
-        else:
-            here = lanes_lists(holding, touched)
-            centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
+        here = lanes_lists(holding, touched)
+        centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
         corner_on_lane = held[t:5 * t]
         route = centre_route(score_map, inputs.ego.center[:, :2], heading, holding[:t], here=centre_here)
-        in_one_lane = InOneLane(score_map, corners, corner_here, holding[t:5 * t])
+        in_one_lane = InOneLane(score_map, corners, corner_here)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
         expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], holding[5 * t:],
                                     here=expert_here)
