@@ -176,6 +176,11 @@ def _compile():
                     continue
                 ax, ay = np.float64(xy[f, c, 0]), np.float64(xy[f, c, 1])
                 al, aw = np.float64(length[f, c]), np.float64(width[f, c])
+                # most cells are far: a bound of the precheck's radius (al + aw is at least its hypotenuse, and
+                # a micrometre covers the roundings) against the larger coordinate distance, without a root
+                reach = (ego_radius + (al + aw)) / 2.0 + 1e-6
+                if abs(ax - ex) >= reach or abs(ay - ey) >= reach:
+                    continue
                 radius = (ego_radius + math.hypot(aw, al)) / 2.0
                 if not math.hypot(ax - ex, ay - ey) < radius:
                     continue

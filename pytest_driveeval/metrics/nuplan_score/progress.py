@@ -51,8 +51,9 @@ class _Progress:
     """nuPlan's ``PerFrameProgressAlongRouteComputer`` over one run of poses."""
 
     def __init__(self, score_map: ScoreMap, pairs: list[tuple[int, int]], points: np.ndarray,
-                 here: list[list[int]]):
-        """``here``: per pose, the lanes holding it (route.lanes_lists)."""
+                 here: list[tuple[int, ...]], projected: dict | None = None):
+        """``here``: per pose, the lanes holding it (route.lanes_lists' tuples).  ``projected``: the memo of
+        :meth:`_project`, shared by the ego's and the expert's runs along the same route."""
         self.map, self.pairs = score_map, pairs
         self.frames = len(points)
         # a roadblock holds a pose where one of its lanes does: a run's poses repeat a few sets of lanes, so
@@ -60,8 +61,10 @@ class _Progress:
         blocks = sorted({block for block, _ in pairs})
         column = {b: i for i, b in enumerate(blocks)}
         block_of = score_map.roadblock
-        index: dict = {}
-        rows = [index.setdefault(lanes, len(index)) for lanes in map(tuple, here)]
+        # the distinct sets numbered in order of first appearance, by loops that run in C (dict.fromkeys keeps
+        # that order), not a Python loop over the frames
+        index = {lanes: i for i, lanes in enumerate(dict.fromkeys(here))}
+        rows = list(map(index.__getitem__, here))
         table = np.zeros((len(index), len(blocks)), dtype=bool)
         for lanes, row in index.items():
             for b in {int(block_of[n]) for n in lanes}:
@@ -90,7 +93,7 @@ class _Progress:
             column_values[frames] = values[at:at + len(frames)]
             at += len(frames)
             self.along[lane] = column_values
-        self._projected: dict = {}
+        self._projected = {} if projected is None else projected
 
     def _project(self, lane: int, source: int, end: int) -> float:
         """Where the first (``end`` 0) or last (-1) point of lane ``source``'s baseline projects on lane
@@ -179,8 +182,9 @@ def expert_progress(inputs: ScoreInputs, expert_route: list[list[int]] | None = 
     ego_xy = inputs.ego.center[:, :2]
     if ego_here is None:
         ego_here = lanes_lists(score_map.lanes_at(ego_xy))
-    ego_along = float(np.sum(_Progress(score_map, pairs, ego_xy, ego_here)()))
-    expert_along = float(np.sum(_Progress(score_map, pairs, expert, expert_here)()))
+    projected: dict = {}  # the baselines' ends on one another: the ego and the expert cross the same roadblocks
+    ego_along = float(np.sum(_Progress(score_map, pairs, ego_xy, ego_here, projected)()))
+    expert_along = float(np.sum(_Progress(score_map, pairs, expert, expert_here, projected)()))
     return _ratio_term(ego_along, expert_along, f" along {len(pairs)} roadblock(s) of the expert's route")
 
 

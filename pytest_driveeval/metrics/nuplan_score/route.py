@@ -87,36 +87,59 @@ def _with_candidates(score_map: ScoreMap, lanes: list[int], candidates: list[int
 def centre_route(score_map: ScoreMap, points: np.ndarray, headings: np.ndarray | None = None,
                  holding: np.ndarray | None = None, here: list[list[int]] | None = None) -> list[list[int]]:
     """Per frame, the lanes assigned to the point (first: the one the terms use), as nuPlan's ``get_route``.
-    ``holding``: ``score_map.lanes_at(points)``, or ``here``: its :func:`lanes_lists`, when the caller has it."""
+    ``holding``: ``score_map.lanes_at(points)``, or ``here``: its :func:`lanes_lists`, when the caller has it
+    (``holding`` lets the compiled loop run)."""
+    near = _Nearness(score_map, np.ascontiguousarray(points, dtype=np.float64))
+
+    def step(k: int, lanes, current: list[int]) -> list[int]:
+        return _step(score_map, near, points, headings, k, lanes, current)
+
+    if holding is not None and kernels.wanted():
+        from .route_kernel import compiled_route
+
+        route, first, counts = compiled_route(score_map, holding, step)
+        # only a frame with several lanes can be cut, and only its first lane can change
+        several = np.flatnonzero(counts[:-1] > 1)[::-1].tolist()
+        out = Route(remove_extra_connectors(score_map, route, several))
+        out.first = first
+        for k in several:
+            first[k] = out[k][0] if out[k] else -1
+        return out
     if here is None:
         here = lanes_lists(score_map.lanes_at(points) if holding is None else holding)
-    connector = score_map.connector
-    near = _Nearness(score_map, np.ascontiguousarray(points, dtype=np.float64), here)
     route: list[list[int]] = []
     current: list[int] = []
     for k, lanes in enumerate(here):
-        if current:
-            # the steady case, one lane still holding the point, without a call (most frames of most runs)
-            if len(current) != 1 or current[0] not in lanes:
-                current = _with_candidates(score_map, lanes, current)
-        if not current:
-            current = _look_up(score_map, lanes, points[k], None if headings is None else headings[k])
-            previous = route[-1] if route else []
-            if k > 1 and previous and connector[previous[0]] and (
-                    (current and connector[current[0]]) or (not current and near.in_intersection(k))):
-                kept = [n for n in previous if near.distance(k, n) < NEAR_CONNECTOR]
-                if kept:
-                    current = kept
+        # the steady case, one lane still holding the point, without a call (most frames of most runs)
+        if len(current) != 1 or current[0] not in lanes:
+            current = step(k, lanes, current)
         route.append(current)
     return remove_extra_connectors(score_map, route)
+
+
+def _step(score_map: ScoreMap, near: "_Nearness", points: np.ndarray, headings: np.ndarray | None, k: int, lanes,
+          current: list[int]) -> list[int]:
+    """Frame k's lanes, from the lanes holding its point and ``current``, those of the frame before."""
+    previous = current
+    if current:
+        current = _with_candidates(score_map, lanes, current)
+    if not current:
+        current = _look_up(score_map, lanes, points[k], None if headings is None else headings[k])
+        connector = score_map.connector
+        if k > 1 and previous and connector[previous[0]] and (
+                (current and connector[current[0]]) or (not current and near.in_intersection(k))):
+            kept = [n for n in previous if near.distance(k, n) < NEAR_CONNECTOR]
+            if kept:
+                current = kept
+    return current
 
 
 class _Nearness:
     """The distance of a run's point to a lane's polygon, each pair measured once, and whether each point is
     in an intersection, for all points at once when first asked (most runs never ask)."""
 
-    def __init__(self, score_map: ScoreMap, points: np.ndarray, here: list[list[int]]):
-        self.map, self.points, self.here = score_map, points, here
+    def __init__(self, score_map: ScoreMap, points: np.ndarray):
+        self.map, self.points = score_map, points
         self._distances: dict = {}
         self._intersections = None
         self._out, self._lane = np.full(1, np.inf), np.zeros(1, dtype=np.int64)  # the kernel's, reused
@@ -142,13 +165,15 @@ class _Nearness:
         return bool(self._intersections[k])
 
 
-def remove_extra_connectors(score_map: ScoreMap, route: list[list[int]]) -> list[list[int]]:
+def remove_extra_connectors(score_map: ScoreMap, route: list[list[int]], several: list[int] | None = None
+                            ) -> list[list[int]]:
     """nuPlan's ``remove_extra_lane_connectors``, backwards from the last frame: a frame with several
     lanes takes its successor's when those are fewer and all among its own, then (if the successor frame
     is on a lane) those of its own that lead into that lane, if any.  Both tests read the frame's lanes
-    as they were, and the successor as already cut."""
+    as they were, and the successor as already cut.  ``several``: the frames before the last with several
+    lanes, descending, where the caller has them (the others are left as they are)."""
     out = list(route)
-    for k in range(len(out) - 2, -1, -1):
+    for k in range(len(out) - 2, -1, -1) if several is None else several:
         own = route[k]
         if len(own) <= 1:
             continue
@@ -187,13 +212,17 @@ def _corners_connected(score_map: ScoreMap, here: list) -> list[bool]:
     out = []
     candidates: tuple[int, ...] = ()
     known: dict = {}  # a frame's answer is a function of its candidates and its corners' lanes: a steady ego repeats it
+    connected_of: dict = {}  # and the connectedness of the corners' lanes, which different candidates often give alike
     for k in range(len(here) // 4):
         front_left, front_right, rear_right, rear_left = here[4 * k:4 * k + 4]
         key = (k == 1, candidates, tuple(front_left), tuple(rear_left), tuple(rear_right), tuple(front_right))
         answer = known.get(key)
         if answer is None:
             corners, found = _corners_frame(score_map, key)
-            answer = known[key] = (found, _common_or_connected(score_map, corners))
+            connected = connected_of.get(corners)
+            if connected is None:
+                connected = connected_of[corners] = _common_or_connected(score_map, corners)
+            answer = known[key] = (found, connected)
         candidates, connected = answer
         out.append(connected)
     return out

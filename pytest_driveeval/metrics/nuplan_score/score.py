@@ -68,10 +68,11 @@ def _score_scene(inputs: ScoreInputs) -> SceneScore:
         here = lanes_lists(holding, touched)
         centre_here, corner_here, expert_here = here[:t], here[t:5 * t], here[5 * t:]
         corner_on_lane = held[t:5 * t]
-        route = centre_route(score_map, inputs.ego.center[:, :2], heading, here=centre_here)
+        route = centre_route(score_map, inputs.ego.center[:, :2], heading, holding[:t], here=centre_here)
         in_one_lane = InOneLane(score_map, corners, corner_here)
         in_intersection = score_map.in_intersection(inputs.ego.rear_axle)
-        expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], here=expert_here)
+        expert_route = centre_route(score_map, inputs.expert[:, :2], inputs.expert[:, 2], holding[5 * t:],
+                                    here=expert_here)
         progress = expert_progress(inputs, expert_route, centre_here, expert_here)
     else:  # as nuplan-devkit's extractor finds no lane anywhere
         corner_on_lane, route = None, [[] for _ in range(inputs.num_frames)]
