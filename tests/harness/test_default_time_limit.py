@@ -75,8 +75,10 @@ def test_without_any_limit_set_the_default_ends_hangs_and_runaway_sizes(bench_di
     result.assert_outcomes(passed=1, failed=3)
     default = "(the default of 4 s; set TimeLimit in the scenario or --driveeval-time-limit / driveeval_time_limit, 0 for none)"
     result.stdout.fnmatch_lines_random([
-        "*TimeLimitExceeded: scenario 'sleeps' (policy_benchmark[[]mine[]]): time limit of 4 s exceeded in a model call "
-        f"that did not return at policy mine, step 0 {default}",
+        # where the limit strikes: in the model call that never returns, or, on a loaded machine, before step 0's
+        # call began (test_time_limit.py checks the model call's wording with a limit that leaves room)
+        f"*TimeLimitExceeded: scenario 'sleeps' (policy_benchmark[[]mine[]]): time limit of 4 s exceeded*at policy mine, "
+        f"step 0 {default}",
         f"*TimeLimitExceeded: scenario 'steps' (policy_benchmark[[]mine[]]): time limit of 4 s exceeded*at policy mine, "
         f"step * {default}",
         f"*TimeLimitExceeded: scenario 'search' (policy_benchmark[[]mine[]]): time limit of 4 s exceeded at * {default}",

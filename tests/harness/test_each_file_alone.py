@@ -59,7 +59,14 @@ def test_a_file_that_imports_what_only_the_full_suite_put_on_the_path_fails_alon
     assert alone.run_alone(deselected, tmp_path)[0]  # every test deselected (exit 5) is no failure
 
 
-def test_the_ci_script_runs_it_after_the_suite_and_fails_on_it():
+def test_the_ci_script_runs_it_and_fails_on_it():
+    """CI runs five files alone in its checks chain, beside the suite; the chain's status is its last
+    line's test, which takes the files' exit status, and a chain that fails fails CI."""
     run = (REPO_ROOT / ".ci" / "run").read_text()
-    assert run.index("pytest tests -n 2") < run.index("python .ci/each_file_alone.py")
-    assert 'if [ "$status" -eq 0 ] && [ "$alone" -ne 0 ]; then\n  status=1' in run
+    opening = "background checks bash -c '"
+    chain = run[run.index(opening) + len(opening):]
+    chain = chain[:chain.index("'\n")]
+    assert "python .ci/each_file_alone.py --count 5\n    alone=$?" in chain
+    assert '[ "$alone" -eq 0 ]' in chain.splitlines()[-1]
+    assert 'CHAINS="$CHAINS checks"' in run
+    assert 'echo "CI: $name failed (its log is above)" >&2\n    status=1' in run
