@@ -109,7 +109,6 @@ class _Place:
             self.lane_faces[k, :len(own)] = own
 
 
-
 class VectorMap:
     """Semantic maps (io.l5.l5_semantic_map.SemanticMap) resampled once into the arrays each step reads.
 
