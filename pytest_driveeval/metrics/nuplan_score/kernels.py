@@ -60,4 +60,4 @@ def _compile():
     return SimpleNamespace(outline_distances=k.outline_distances, first_meeting=k.first_meeting,
                            project=k.project, directions=k.directions, meeting_candidates=k.meeting_candidates,
                            nearest_outlines_within=k.nearest_outlines_within, containing_in_grid=k.containing_in_grid,
-                           follow_lanes=k.follow_lanes, box_contacts=k.box_contacts)
+                           box_contacts=k.box_contacts)

@@ -233,51 +233,6 @@ def meeting_candidates(available, moving, token, hit_frame, hit_token, ego_xy, e
 
 
 @jit
-def follow_lanes(holding, connector, out_starts, out_lanes, k, previous, route_starts, route_lanes, m):
-    """route.centre_route's loop from frame ``k`` on, ``previous`` the lanes of frame k - 1, writing frame
-    j's lanes to route_lanes[route_starts[j]:route_starts[j + 1]] (from position ``m``); stops at the
-    first frame that must look again among two or more lanes (the heading decides: numpy's part) and
-    returns (that frame or the frame count, m)."""
-    t, n = holding.shape
-    kept = np.empty(n, dtype=np.int64)
-    while k < t:
-        size = 0
-        for i in range(previous.shape[0]):
-            if holding[k, previous[i]]:
-                kept[size] = previous[i]
-                size += 1
-        if size == 0 and previous.shape[0] == 1:
-            p = previous[0]
-            for i in range(out_starts[p], out_starts[p + 1]):
-                if holding[k, out_lanes[i]]:
-                    kept[size] = out_lanes[i]
-                    size += 1
-        if size == 0:
-            lanes, plain, last, last_plain = 0, 0, -1, -1
-            for c in range(n):
-                if holding[k, c]:
-                    lanes += 1
-                    last = c
-                    if not connector[c]:
-                        plain += 1
-                        last_plain = c
-            if plain >= 2 or (plain == 0 and lanes >= 2):
-                return k, m
-            if plain == 1:
-                kept[0], size = last_plain, 1
-            elif lanes == 1:
-                kept[0], size = last, 1
-        route_starts[k] = m
-        for i in range(size):
-            route_lanes[m + i] = kept[i]
-        m += size
-        route_starts[k + 1] = m
-        previous = kept[:size].copy()
-        k += 1
-    return k, m
-
-
-@jit
 def _along(px, py, vertices, s, e, cumulative):
     """Arc length along the line vertices[s:e] (arc lengths at its vertices cumulative[s:e]) of the
     point's nearest point on it (lanes.project's expressions)."""
