@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from pytest_driveeval.policies.control_baselines import action_bounds
-from pytest_driveeval.sim.agents import TrafficModel, idm_free, idm_interaction
+from pytest_driveeval.sim.agents import TrafficModel, change_blocked, idm_free, idm_interaction
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 from pytest_driveeval.sim.commonroad_route import Route, plan_route
 
@@ -190,12 +190,7 @@ class CommonRoadExpert:
         v0 = self._desired_speed(episodes, plan, current, s_cur)
         s_t, half_t, v_t = _pick(proj.s, target), _pick(half_long, target), _pick(speed_along, target)
         there = others & _pick(overlaps, target)
-        ahead_by = s_t - s_t[:, :1]
-        gap = np.abs(ahead_by) - half_t - half_t[:, :1]
-        me_behind = idm_free(m, v[:, None], v0[:, None]) - m.max_accel * idm_interaction(m, v[:, None], v_t, gap)
-        it_behind = idm_free(m, v_t, np.maximum(v_t, 1.0)) - m.max_accel * idm_interaction(m, v_t, v[:, None], gap)
-        blocks = there & ((gap < m.min_gap) | (np.where(ahead_by >= 0.0, me_behind, it_behind)
-                                                  < -m.max_imposed_braking))
+        blocks, _, _ = change_blocked(m, s_t, half_t, v_t, v[:, None], v0, np.maximum(v_t, 1.0), there)
         committed = _pick(overlaps, target)[:, 0]
         changing = wants & (~blocks.any(axis=1) | committed)
         path = np.where(changing, target, current)

@@ -19,7 +19,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from pytest_driveeval.policies.control_baselines import action_bounds
-from pytest_driveeval.sim.agents import TrafficModel, idm_free, idm_interaction
+from pytest_driveeval.sim.agents import TrafficModel, change_blocked, idm_free, idm_interaction
 from pytest_driveeval.sim.blueprints.road import Lane, Road
 
 __all__ = ["IDMExpert"]
@@ -299,16 +299,9 @@ class IDMExpert:
         v0 = self._desired_speed(episodes)
         s_b, half_b, v_b = _on(view.s, beside), _on(view.half_long, beside), _on(view.along, beside)
         there = others & (_on(view.overlaps, beside) | (episodes.traffic.lane == beside[:, None]))
-        ahead_by = s_b - s_b[:, :1]
-        gap = np.abs(ahead_by) - half_b - half_b[:, :1]
-        ahead = ahead_by >= 0.0
-        v_e = v_b[:, :1]
-        me_behind = idm_free(model, v_e, v0[:, None]) - model.max_accel * idm_interaction(model, v_e, v_b, gap)
         # Others' desired speeds are unknown to the ego: take the fastest of the blueprint's.
-        it_behind = idm_free(model, v_b, params.desired_speed[1]) - model.max_accel * idm_interaction(
-            model, v_b, v_e, gap)
+        blocks, gap, ahead = change_blocked(model, s_b, half_b, v_b, v_b[:, :1], v0, params.desired_speed[1], there)
         b_safe = model.max_imposed_braking
-        blocks = there & ((gap < model.min_gap) | (np.where(ahead, me_behind, it_behind) < -b_safe))
         # Half across, turning back would be worse than going on: traffic there already brakes for the ego.
         committed = _on(view.overlaps, beside)[:, 0]
         changing = wants & (~blocks.any(axis=1) | committed)

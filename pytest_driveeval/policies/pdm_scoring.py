@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pytest_driveeval.geometry.boxes import oriented_boxes_overlap
+from pytest_driveeval.geometry.boxes import box_corners, oriented_boxes_overlap
 from pytest_driveeval.metrics.nuplan_score.comfort import BOUNDS
 from pytest_driveeval.metrics.nuplan_score.progress import PROGRESS_THRESHOLD
 from pytest_driveeval.metrics.nuplan_score.term import WEIGHTS
@@ -33,20 +33,13 @@ STOPPED = 0.05
 assert AHEAD + np.pi / 3 <= np.pi / 2  # "ahead" below is a positive forward distance
 
 
-def _corners(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
-    c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
-    lx = np.array([0.5, 0.5, -0.5, -0.5]) * length
-    ly = np.array([0.5, -0.5, -0.5, 0.5]) * width
-    return np.stack([xy[..., 0:1] + c * lx - s * ly, xy[..., 1:2] + s * lx + c * ly], axis=-1)
-
-
 def drivable(rollout: dict, maps: list, rows: np.ndarray, extent) -> np.ndarray:
     """(B, P) every checked corner on the drivable area or within the score's margin of it."""
     xy, yaw = rollout["xy"], rollout["yaw"]
     b, p, steps = yaw.shape
     keep = [k for k in DRIVABLE_STEPS if k < steps]
     out = np.ones((b, p), dtype=bool)
-    corners = _corners(xy[:, :, keep], yaw[:, :, keep], extent[0], extent[1])  # (B, P, K, 4, 2)
+    corners = box_corners(xy[:, :, keep], yaw[:, :, keep], extent)  # (B, P, K, 4, 2)
     for i, row in enumerate(rows.tolist()):
         query = maps[row]
         if query is None:

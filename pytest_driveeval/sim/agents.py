@@ -37,14 +37,15 @@ ends, towards the lane it must merge into.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from pytest_driveeval.sim.blueprints.base import Parameters, positive
 from pytest_driveeval.sim.blueprints.road import Road
 
-__all__ = ["Traffic", "TrafficModel", "idm_advance", "idm_free", "idm_interaction", "step_traffic"]
+__all__ = ["Traffic", "TrafficModel", "change_blocked", "idm_advance", "idm_free", "idm_interaction",
+           "step_traffic"]
 
 # Gaps are floored here so the interaction stays finite (and huge) for overlapping vehicles.
 _MIN_GAP = 0.01
@@ -109,6 +110,25 @@ def idm_interaction(model: TrafficModel, speed: np.ndarray, lead_speed: np.ndarr
     wanted = model.min_gap + np.maximum(
         0.0, speed * model.time_headway + speed * dv / (2.0 * np.sqrt(model.max_accel * model.comfort_decel)))
     return (wanted / np.maximum(gap, _MIN_GAP)) ** 2
+
+
+def change_blocked(model: TrafficModel, s: np.ndarray, half: np.ndarray, speed: np.ndarray, ego_speed: np.ndarray,
+                   desired: np.ndarray, others_desired: Any, there: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An expert's lane change checked against the vehicles on the lane it would take (MOBIL's safety
+    criterion, as the experts apply it).  (E, A), column 0 the ego: ``s`` arclength along that lane,
+    ``half`` half lengths along it, ``speed`` speeds along it, ``there`` which vehicles are on it;
+    ``ego_speed`` (E, 1), ``desired`` (E,) the ego's desired speed, ``others_desired`` theirs.  A vehicle
+    blocks the change when the gap to it is under ``min_gap``, or when the one behind, following the
+    other, would brake harder than ``max_imposed_braking``.  Returns (blocks, gap, ahead)."""
+    ahead_by = s - s[:, :1]
+    gap = np.abs(ahead_by) - half - half[:, :1]
+    ahead = ahead_by >= 0.0
+    me_behind = idm_free(model, ego_speed, desired[:, None]) - model.max_accel * idm_interaction(
+        model, ego_speed, speed, gap)
+    it_behind = idm_free(model, speed, others_desired) - model.max_accel * idm_interaction(model, speed, ego_speed, gap)
+    blocks = there & ((gap < model.min_gap) | (np.where(ahead, me_behind, it_behind) < -model.max_imposed_braking))
+    return blocks, gap, ahead
 
 
 def idm_advance(model: TrafficModel, speed: np.ndarray, accel: np.ndarray, dt: float

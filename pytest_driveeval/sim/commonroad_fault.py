@@ -23,11 +23,10 @@ import numpy as np
 from pytest_driveeval.geometry.boxes import box_corners, oriented_boxes_overlap, segment_meets_box
 from pytest_driveeval.io.commonroad.commonroad_geometry import lanelets_at
 from pytest_driveeval.metrics.episode_outcomes import COLLISION
+from pytest_driveeval.metrics.nuplan_score.collisions import (ACTIVE_FRONT, ACTIVE_LATERAL, ACTIVE_REAR, BEHIND,
+                                                              STOPPED_EGO, STOPPED_SPEED, STOPPED_TRACK)
 
 __all__ = ["FaultRecorder", "collision_kinds"]
-
-STOPPED_SPEED = 0.05
-BEHIND = np.deg2rad(150.0)
 
 
 def _in_one_lane(scenario: Any, corners: np.ndarray) -> bool:
@@ -53,24 +52,24 @@ def collision_kinds(episodes: Any, rows: np.ndarray) -> list[tuple[str, bool]]:
         hit = np.flatnonzero(valid & oriented_boxes_overlap(xy[None], np.array([yaw]), ego_extent, episodes.xy[e],
                                                             episodes.yaw[e], size))
         if v <= STOPPED_SPEED:
-            out.append(("stopped ego", False))
+            out.append((STOPPED_EGO, False))
             continue
         corners = box_corners(xy, yaw, ego_extent)
         kinds = []
         for j in hit.tolist():
             role = episodes.blueprint.scenario.obstacles[int(episodes.blueprint.obstacle_ids[j - 1])].role
             if role == "static" or episodes.speed[e, j] <= STOPPED_SPEED:
-                kinds.append(("stopped track", True))
+                kinds.append((STOPPED_TRACK, True))
                 continue
             rear = xy - 0.5 * wheelbase * np.array([np.cos(yaw), np.sin(yaw)])
             to = episodes.xy[e, j] - rear
             cosine = float(np.dot([np.cos(yaw), np.sin(yaw)], to / max(np.linalg.norm(to), 1e-12)))
             if np.arccos(np.clip(cosine, -1.0, 1.0)) > BEHIND:
-                kinds.append(("active rear", False))
+                kinds.append((ACTIVE_REAR, False))
             elif segment_meets_box(corners[0], corners[1], episodes.xy[e, j], episodes.yaw[e, j], size[j]):
-                kinds.append(("active front", True))
+                kinds.append((ACTIVE_FRONT, True))
             else:
-                kinds.append(("active lateral", not _in_one_lane(episodes.blueprint.scenario, corners)))
+                kinds.append((ACTIVE_LATERAL, not _in_one_lane(episodes.blueprint.scenario, corners)))
         # the shapes' refinement may clear a box hit the engine did not count: take the boxes' verdict
         out.append(next((k for k in kinds if k[1]), kinds[0] if kinds else ("shape only", True)))
     return out

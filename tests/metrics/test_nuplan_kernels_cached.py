@@ -24,7 +24,8 @@ from pytest_driveeval.metrics.nuplan_score.case import inputs_from_case
 from pytest_driveeval.metrics.nuplan_score import kernels, route_kernel
 for case in all_cases():
     score_scene(inputs_from_case(case))
-dispatchers = dict(vars(kernels.kernels()))
+dispatchers = {{name: value for name, value in vars(kernels.kernels()).items()
+               if isinstance(value, numba.core.dispatcher.Dispatcher)}}
 dispatchers["follow_route"] = route_kernel.follow()
 print(json.dumps({{name: [sum(d.stats.cache_hits.values()), sum(d.stats.cache_misses.values())]
                   for name, d in dispatchers.items()}}))

@@ -45,19 +45,11 @@ def spent_without(seconds: float) -> None:
 
 
 def kernels():
-    """The compiled kernels (compiled, or loaded from numba's cache, on first use)."""
+    """The compiled kernels (:mod:`.kernels_jit`, whose import imports numba; each is compiled, or loaded
+    from numba's cache, on its first call)."""
     global _kernels
     if _kernels is None:
-        _kernels = _compile()
+        from . import kernels_jit
+
+        _kernels = kernels_jit
     return _kernels
-
-
-def _compile():
-    from types import SimpleNamespace
-
-    from . import kernels_jit as k
-
-    return SimpleNamespace(outline_distances=k.outline_distances, first_meeting=k.first_meeting,
-                           project=k.project, directions=k.directions, meeting_candidates=k.meeting_candidates,
-                           nearest_outlines_within=k.nearest_outlines_within, containing_in_grid=k.containing_in_grid,
-                           box_contacts=k.box_contacts)

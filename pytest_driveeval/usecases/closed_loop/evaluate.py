@@ -136,7 +136,7 @@ def unroll_scenes(dataset: L5Dataset, model: Callable, scenes: Sequence[int] | N
 
 
 def _both(first: Any, second: Callable) -> Callable:
-    """Two ``extra_inputs`` as one (the raster's and the map's), or ``second`` alone."""
+    """Two ``extra_inputs`` as one (the raster's, the map's, a planner's observations), or ``second`` alone."""
     if first is None:
         return second
 
@@ -204,7 +204,8 @@ def unroll_log(log: Any, model: Callable, config: Any,
     if is_planner(model):
         from pytest_driveeval.usecases.closed_loop.planner_inputs import planner_policy
 
-        model, extra_inputs = planner_policy(model, log, config, dataset, maps, extra_inputs)
+        model, observations = planner_policy(model, log, config, dataset, maps)
+        extra_inputs = _both(extra_inputs, observations)
     result = unroll(log, model, config, start_perturbation=start, cells=cells, candidates=candidates,
                     extra_inputs=extra_inputs, progress=progress)
     # Drawn and judged where the agents were: the log, or where reactive agents went.

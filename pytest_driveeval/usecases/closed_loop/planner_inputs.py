@@ -139,14 +139,7 @@ def observe(rows: np.ndarray, t: int, driven_xy: np.ndarray, driven_yaw: np.ndar
         agents_track_id=log.track_id[pick], lights=lights)
 
 
-def planner_policy(planner: Any, log: Any, config: Any, dataset: Any, maps: Any,
-                   extra_inputs: Callable | None) -> tuple[PlannerPolicy, Callable]:
-    """The engine's (policy, extra_inputs) for ``planner``; ``extra_inputs``: the caller's own, still added."""
+def planner_policy(planner: Any, log: Any, config: Any, dataset: Any, maps: Any) -> tuple[PlannerPolicy, Callable]:
+    """The engine's policy for ``planner`` and the ``extra_inputs`` that builds its observations."""
     policy = PlannerPolicy(planner, planner_context(log, config, dataset, maps), config.history_frames)
-    if extra_inputs is None:
-        return policy, policy.extra_inputs
-
-    def both(*args: Any) -> dict:
-        return {**extra_inputs(*args), **policy.extra_inputs(*args)}
-
-    return policy, both
+    return policy, policy.extra_inputs
